@@ -1,0 +1,24 @@
+#include "visloc/cli/commands.h"
+
+namespace visloc::cli {
+
+void add_bench_command(CLI::App& app) {
+  CLI::App* bench = app.add_subcommand(
+      "bench", "Benchmarks: quality and speed, with baselines measured in the same run");
+  bench->require_subcommand(1);
+  add_bench_features(*bench);
+  add_bench_sift_colmap(*bench);
+  add_bench_matching(*bench);
+  add_bench_pose(*bench);
+  add_bench_retrieval(*bench);
+  add_bench_end_to_end(*bench);
+}
+
+void add_bench_retrieval(CLI::App& bench) {
+  add_not_implemented(bench, "retrieval", "Image retrieval recall and time", "issue #7");
+}
+void add_bench_end_to_end(CLI::App& bench) {
+  add_not_implemented(bench, "end-to-end", "Whole localizer on query sets", "issue #8");
+}
+
+}  // namespace visloc::cli

@@ -1,0 +1,13 @@
+#include "visloc/cli/commands.h"
+
+namespace visloc::cli {
+
+void add_localize_command(CLI::App& app) {
+  add_not_implemented(app, "localize", "Localize query images against a map (JSON lines out)", "issue #8");
+}
+
+void add_eval_command(CLI::App& app) {
+  add_not_implemented(app, "eval", "Evaluate localization against ground truth and write a report", "issue #8");
+}
+
+}  // namespace visloc::cli

@@ -1,0 +1,53 @@
+// SiftExtractor: OpenCV's SIFT with COLMAP-compatible descriptors.
+// Descriptors become uint8 the way COLMAP stores them: RootSIFT (L1
+// normalization, element-wise square root) by default, or L2 normalization,
+// then round(512 × value) clamped to 255. This lets our features query maps
+// built from COLMAP's own SIFT. Output is deterministic: keypoints sorted by
+// response (then position), truncated to max_features.
+#pragma once
+
+#include <filesystem>
+#include <memory>
+#include <string>
+
+#include "visloc/features/feature_set.h"
+#include "visloc/image/image_io.h"
+
+namespace visloc {
+
+struct SiftOptions {
+  int max_image_side = 1600;        // downscale larger images before SIFT (0: never)
+  int max_features = 8192;          // keep the strongest (COLMAP's default)
+  double contrast_threshold = 0.02; // OpenCV's contrastThreshold; 0.02 ≈ COLMAP's peak threshold
+  double edge_threshold = 10.0;
+  double sigma = 1.6;
+  int octave_layers = 3;
+  bool root_sift = true;            // RootSIFT before uint8 scaling (COLMAP's default)
+  int num_threads = 1;              // OpenCV threads; 1 keeps queries on one core
+  ImageReadOptions image;
+
+  void validate() const;
+  std::string to_json() const;
+};
+
+class SiftExtractor {
+ public:
+  explicit SiftExtractor(const SiftOptions& options = {});
+  ~SiftExtractor();
+  SiftExtractor(const SiftExtractor&) = delete;
+  SiftExtractor& operator=(const SiftExtractor&) = delete;
+
+  const SiftOptions& options() const { return options_; }
+  FeatureSet extract(const GrayImage& image) const;
+  FeatureSet extract_file(const std::filesystem::path& path, ImageMetadata* metadata = nullptr) const;
+
+ private:
+  struct Impl;
+  SiftOptions options_;
+  std::unique_ptr<Impl> impl_;
+};
+
+// Float SIFT descriptor (any positive scale) → COLMAP's uint8 encoding.
+void sift_to_uint8(const float* in, bool root_sift, uint8_t* out);
+
+}  // namespace visloc

@@ -1,0 +1,112 @@
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <fstream>
+
+#include "visloc/geo/enu_frame.h"
+#include "visloc/geo/gps_csv.h"
+#include "visloc/util/error.h"
+#include "visloc/util/file_io.h"
+
+namespace fs = std::filesystem;
+using namespace visloc;
+
+namespace {
+
+fs::path write_temp(const std::string& name, const std::string& content) {
+  fs::path p = fs::temp_directory_path() / ("visloc_geo_test_" + name);
+  write_file_atomic(p, content);
+  return p;
+}
+
+std::string read_error(const std::string& content) {
+  fs::path p = write_temp("bad.csv", content);
+  try {
+    read_gps_csv(p);
+  } catch (const Error& e) {
+    return e.what();
+  }
+  return "";
+}
+
+}  // namespace
+
+TEST(EnuFrame, OriginAndRoundTrip) {
+  EnuFrame f({46.5188, 6.5668, 400.0});
+  EXPECT_NEAR(f.to_enu({46.5188, 6.5668, 400.0}).norm(), 0.0, 1e-9);
+  for (Eigen::Vector3d e : {Eigen::Vector3d(10, 20, 3), Eigen::Vector3d(-1500, 800, -20),
+                            Eigen::Vector3d(15000, -15000, 100)}) {
+    GeoPosition g = f.to_geo(e);
+    EXPECT_NEAR((f.to_enu(g) - e).norm(), 0.0, 1e-6);
+  }
+  // North is +y: a point one arc-minute north is ~1852 m away (nautical mile).
+  Eigen::Vector3d n = f.to_enu({46.5188 + 1.0 / 60, 6.5668, 400.0});
+  EXPECT_NEAR(n.x(), 0.0, 1e-6);
+  EXPECT_NEAR(n.y(), 1852.0, 4.0);
+  EXPECT_LT(n.z(), 0.0);  // the ellipsoid curves away
+}
+
+TEST(EnuFrame, Heading) {
+  EXPECT_NEAR(heading_deg_from_enu({0, 1, 0}), 0.0, 1e-12);
+  EXPECT_NEAR(heading_deg_from_enu({1, 0, 0}), 90.0, 1e-12);
+  EXPECT_NEAR(heading_deg_from_enu({-1, 0, 5}), 270.0, 1e-12);
+}
+
+TEST(EnuFrame, RejectsBadOrigin) { EXPECT_THROW(EnuFrame({95.0, 0.0, 0.0}), Error); }
+
+TEST(GpsCsv, ReadsWithAndWithoutPlacemark) {
+  fs::path p = write_temp("ok.csv",
+                          "image,lat,lon,alt,placemark\n# comment\n\n"
+                          "a.jpg, 46.5, 6.5, 400.5, 3\nb.jpg,46.6,6.4,,\n");
+  auto r = read_gps_csv(p);
+  ASSERT_EQ(r.size(), 2u);
+  EXPECT_EQ(r[0].image, "a.jpg");
+  EXPECT_DOUBLE_EQ(r[0].position.alt, 400.5);
+  EXPECT_EQ(r[0].placemark, 3);
+  EXPECT_FALSE(r[1].placemark.has_value());
+  EXPECT_DOUBLE_EQ(r[1].position.alt, 0.0);
+  // Write and read back.
+  fs::path q = fs::temp_directory_path() / "visloc_geo_test_rt.csv";
+  write_gps_csv(q, r);
+  auto r2 = read_gps_csv(q);
+  ASSERT_EQ(r2.size(), 2u);
+  EXPECT_DOUBLE_EQ(r2[0].position.lat, 46.5);
+  EXPECT_EQ(r2[0].placemark, 3);
+}
+
+TEST(GpsCsv, ErrorsNameFileAndLine) {
+  std::string msg = read_error("image,lat,lon,alt\na.jpg,46.5,6.5,1\nb.jpg,north,6.5,1\n");
+  EXPECT_NE(msg.find("bad.csv:3"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("latitude 'north'"), std::string::npos) << msg;
+  EXPECT_NE(read_error("a.jpg,46.5\n").find(":1: expected 4 or 5"), std::string::npos);
+  EXPECT_NE(read_error("a.jpg,91,6,1\n").find("outside [-90, 90]"), std::string::npos);
+  EXPECT_NE(read_error("a.jpg,1,2,3\na.jpg,1,2,3\n").find("listed twice"), std::string::npos);
+  EXPECT_NE(read_error("a.jpg,1,2,3,-4\n").find("placemark"), std::string::npos);
+  EXPECT_NE(read_error("image,lat,lon,alt\n").find("no GPS records"), std::string::npos);
+  try {
+    read_gps_csv("/nonexistent/gps.csv");
+    FAIL();
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("/nonexistent/gps.csv"), std::string::npos);
+  }
+}
+
+// Real data: the Strecha gps.csv is the ground-truth centres expressed around a
+// fixed origin; converting back must agree to well under a millimetre.
+TEST(GpsCsv, StrechaCentresAgreeWithGroundTruth) {
+  fs::path scene = fs::path(VISLOC_SHARED_DATA_DIR) / "strecha" / "fountain-P11";
+  if (!fs::exists(scene / "gps.csv")) GTEST_SKIP() << "shared data absent: " << scene;
+  EnuFrame frame({46.5188, 6.5668, 400.0});
+  auto records = read_gps_csv(scene / "gps.csv");
+  ASSERT_EQ(records.size(), 11u);
+  double worst = 0;
+  for (const auto& r : records) {
+    std::ifstream cam(scene / "cameras" / (r.image + ".camera"));
+    ASSERT_TRUE(cam) << r.image;
+    double v[24];
+    for (double& x : v) cam >> x;
+    Eigen::Vector3d c(v[21], v[22], v[23]);
+    worst = std::max(worst, (frame.to_enu(r.position) - c).norm());
+  }
+  EXPECT_LT(worst, 1e-3) << "worst ENU disagreement " << worst << " m";
+}

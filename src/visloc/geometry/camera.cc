@@ -1,0 +1,67 @@
+#include "visloc/geometry/camera.h"
+
+#include <algorithm>
+#include <cmath>
+#include <numbers>
+
+#include "visloc/util/error.h"
+
+namespace visloc {
+
+PinholeCamera PinholeCamera::centered(int width, int height, std::optional<double> focal_px) {
+  PinholeCamera c;
+  c.width = width;
+  c.height = height;
+  c.cx = width / 2.0;
+  c.cy = height / 2.0;
+  if (focal_px) {
+    c.focal = *focal_px;
+    c.has_focal = true;
+  }
+  return c;
+}
+
+void PinholeCamera::validate() const {
+  if (width <= 0 || height <= 0)
+    throw_error(ErrorCode::kInvalidArgument, "camera: width and height must be positive, got ",
+                width, "x", height);
+  if (has_focal && !(focal > 0 && std::isfinite(focal)))
+    throw_error(ErrorCode::kInvalidArgument, "camera: focal must be a positive number, got ", focal);
+  if (!std::isfinite(cx) || !std::isfinite(cy))
+    throw_error(ErrorCode::kInvalidArgument, "camera: principal point must be finite");
+  if (!std::isfinite(k1) || std::abs(k1) > 10)
+    throw_error(ErrorCode::kInvalidArgument, "camera: k1 must be finite and |k1| <= 10, got ", k1);
+}
+
+Eigen::Vector2d PinholeCamera::project(const Eigen::Vector3d& p) const {
+  Eigen::Vector2d n = p.head<2>() / p.z();
+  if (k1 != 0.0) n *= 1.0 + k1 * n.squaredNorm();
+  return {focal * n.x() + cx, focal * n.y() + cy};
+}
+
+Eigen::Vector2d PinholeCamera::normalize(const Eigen::Vector2d& pixel) const {
+  Eigen::Vector2d d((pixel.x() - cx) / focal, (pixel.y() - cy) / focal);
+  if (k1 == 0.0) return d;
+  // Invert d = u (1 + k1 |u|^2) by Newton's method on the radius.
+  const double rd = d.norm();
+  if (rd == 0.0) return d;
+  double r = rd;
+  for (int i = 0; i < 20; ++i) {
+    const double f = r * (1 + k1 * r * r) - rd;
+    const double df = 1 + 3 * k1 * r * r;
+    const double step = f / df;
+    r -= step;
+    if (std::abs(step) < 1e-14) break;
+  }
+  return d * (r / rd);
+}
+
+double PinholeCamera::horizontal_fov_deg() const {
+  return 2.0 * std::atan2(width / 2.0, focal) * 180.0 / std::numbers::pi;
+}
+
+double focal_px_from_35mm(double focal_35mm, int width, int height) {
+  return focal_35mm / 36.0 * std::max(width, height);
+}
+
+}  // namespace visloc

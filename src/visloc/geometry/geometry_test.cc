@@ -1,0 +1,91 @@
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <numbers>
+
+#include "visloc/geometry/camera.h"
+#include "visloc/geometry/pose.h"
+#include "visloc/util/error.h"
+
+using namespace visloc;
+
+TEST(PinholeCamera, ProjectNormalizeRoundTrip) {
+  for (double k1 : {0.0, -0.15, 0.08}) {
+    PinholeCamera c = PinholeCamera::centered(1536, 1024, 1380.0);
+    c.k1 = k1;
+    c.validate();
+    for (double x : {-0.4, 0.0, 0.3})
+      for (double y : {-0.25, 0.1}) {
+        Eigen::Vector3d p(x * 5, y * 5, 5);
+        Eigen::Vector2d px = c.project(p);
+        Eigen::Vector2d n = c.normalize(px);
+        EXPECT_NEAR(n.x(), x, 1e-10) << "k1=" << k1;
+        EXPECT_NEAR(n.y(), y, 1e-10) << "k1=" << k1;
+      }
+  }
+}
+
+TEST(PinholeCamera, PrincipalPointAndFov) {
+  PinholeCamera c = PinholeCamera::centered(640, 640, 320.0);
+  Eigen::Vector2d px = c.project({0, 0, 3});
+  EXPECT_DOUBLE_EQ(px.x(), 320.0);
+  EXPECT_DOUBLE_EQ(px.y(), 320.0);
+  EXPECT_NEAR(c.horizontal_fov_deg(), 90.0, 1e-12);
+  EXPECT_TRUE(c.contains({0.5, 0.5}));
+  EXPECT_FALSE(c.contains({-1, 3}));
+}
+
+TEST(PinholeCamera, ValidateNamesField) {
+  PinholeCamera c = PinholeCamera::centered(0, 10, 100.0);
+  try {
+    c.validate();
+    FAIL() << "accepted zero width";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("width"), std::string::npos);
+  }
+  c = PinholeCamera::centered(10, 10, -3.0);
+  EXPECT_THROW(c.validate(), Error);
+  c = PinholeCamera::centered(10, 10);  // unknown focal is valid
+  EXPECT_NO_THROW(c.validate());
+  EXPECT_FALSE(c.has_focal);
+}
+
+TEST(PinholeCamera, FocalFrom35mm) {
+  // A 35 mm-equivalent 36 mm lens spans exactly the long side: 90° would be 18 mm.
+  EXPECT_DOUBLE_EQ(focal_px_from_35mm(36.0, 4000, 3000), 4000.0);
+  PinholeCamera c = PinholeCamera::centered(1000, 750, focal_px_from_35mm(18.0, 1000, 750));
+  EXPECT_NEAR(c.horizontal_fov_deg(), 90.0, 1e-9);
+}
+
+TEST(CameraPose, CenterAndTransform) {
+  Eigen::Matrix3d R = Eigen::AngleAxisd(0.3, Eigen::Vector3d(1, 2, 3).normalized()).toRotationMatrix();
+  Eigen::Vector3d C(4, -1, 2);
+  CameraPose p = CameraPose::from_world_from_cam(R, C);
+  EXPECT_NEAR((p.center() - C).norm(), 0, 1e-12);
+  EXPECT_NEAR(p.transform(C).norm(), 0, 1e-12);  // the centre maps to the camera origin
+  // A point along the viewing direction has positive depth.
+  EXPECT_GT(p.transform(C + p.viewing_direction()).z(), 0.99);
+  EXPECT_NEAR((p.rotation_matrix() - R.transpose()).norm(), 0, 1e-12);
+}
+
+TEST(CameraPose, QuaternionWxyzRoundTripAndInverse) {
+  CameraPose p = CameraPose::from_wxyz({0.7, 0.1, -0.5, 0.3}, {1, 2, 3});
+  auto q = p.q_wxyz();
+  const double n = std::sqrt(0.49 + 0.01 + 0.25 + 0.09);
+  EXPECT_NEAR(q[0], 0.7 / n, 1e-12);
+  EXPECT_NEAR(q[2], -0.5 / n, 1e-12);
+  CameraPose id = p * p.inverse();
+  EXPECT_NEAR(rotation_error_deg(id, CameraPose{}), 0, 1e-6);
+  EXPECT_NEAR(id.translation.norm(), 0, 1e-12);
+  EXPECT_NEAR(position_error(p, p), 0, 1e-12);
+}
+
+TEST(CameraPose, RotationErrorDegrees) {
+  CameraPose a;
+  CameraPose b = CameraPose::from_matrix(Eigen::AngleAxisd(10 * std::numbers::pi / 180, Eigen::Vector3d::UnitY()).toRotationMatrix(), Eigen::Vector3d::Zero());
+  EXPECT_NEAR(rotation_error_deg(a, b), 10.0, 1e-9);
+  // q and -q are the same rotation
+  CameraPose c = b;
+  c.rotation.coeffs() *= -1;
+  EXPECT_NEAR(rotation_error_deg(b, c), 0.0, 1e-6);
+}

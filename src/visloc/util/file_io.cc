@@ -1,0 +1,90 @@
+#include "visloc/util/file_io.h"
+
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstring>
+#include <fstream>
+#include <sstream>
+
+#include "visloc/util/error.h"
+
+namespace visloc {
+
+AtomicFileWriter::AtomicFileWriter(std::filesystem::path target) : target_(std::move(target)) {
+  temp_ = target_;
+  temp_ += ".tmp." + std::to_string(::getpid());
+  fd_ = ::open(temp_.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  if (fd_ < 0)
+    throw_error(ErrorCode::kIo, "cannot create ", temp_.string(), ": ", std::strerror(errno));
+}
+
+AtomicFileWriter::~AtomicFileWriter() {
+  if (fd_ >= 0) ::close(fd_);
+  if (!committed_) {
+    std::error_code ignored;
+    std::filesystem::remove(temp_, ignored);
+  }
+}
+
+void AtomicFileWriter::write(const void* data, size_t size) {
+  const auto* p = static_cast<const char*>(data);
+  size_t left = size;
+  while (left > 0) {
+    ssize_t n = ::write(fd_, p, left);
+    if (n < 0) {
+      if (errno == EINTR) continue;
+      throw_error(ErrorCode::kIo, "cannot write ", temp_.string(), ": ", std::strerror(errno));
+    }
+    p += n;
+    left -= static_cast<size_t>(n);
+  }
+  offset_ += size;
+}
+
+void AtomicFileWriter::pad_to(size_t alignment) {
+  static const char zeros[256] = {};
+  while (offset_ % alignment != 0) {
+    size_t n = std::min<size_t>(alignment - offset_ % alignment, sizeof(zeros));
+    write(zeros, n);
+  }
+}
+
+void AtomicFileWriter::write_at(uint64_t at, const void* data, size_t size) {
+  if (::pwrite(fd_, data, size, static_cast<off_t>(at)) != static_cast<ssize_t>(size))
+    throw_error(ErrorCode::kIo, "cannot write ", temp_.string(), ": ", std::strerror(errno));
+}
+
+void AtomicFileWriter::commit() {
+  if (::fsync(fd_) != 0)
+    throw_error(ErrorCode::kIo, "cannot sync ", temp_.string(), ": ", std::strerror(errno));
+  if (::close(fd_) != 0) {
+    fd_ = -1;
+    throw_error(ErrorCode::kIo, "cannot close ", temp_.string(), ": ", std::strerror(errno));
+  }
+  fd_ = -1;
+  std::error_code ec;
+  std::filesystem::rename(temp_, target_, ec);
+  if (ec)
+    throw_error(ErrorCode::kIo, "cannot rename ", temp_.string(), " to ", target_.string(), ": ",
+                ec.message());
+  committed_ = true;
+}
+
+void write_file_atomic(const std::filesystem::path& path, std::string_view content) {
+  AtomicFileWriter writer(path);
+  writer.write(content);
+  writer.commit();
+}
+
+std::string read_file(const std::filesystem::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw_error(ErrorCode::kIo, "cannot open ", path.string(), ": ", std::strerror(errno));
+  std::ostringstream s;
+  s << in.rdbuf();
+  if (in.bad()) throw_error(ErrorCode::kIo, "cannot read ", path.string());
+  return s.str();
+}
+
+}  // namespace visloc

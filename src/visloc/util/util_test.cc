@@ -1,0 +1,160 @@
+#include <gtest/gtest.h>
+
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <numeric>
+#include <vector>
+
+#include "visloc/util/crc32c.h"
+#include "visloc/util/error.h"
+#include "visloc/util/file_io.h"
+#include "visloc/util/mapped_file.h"
+#include "visloc/util/section_file.h"
+
+namespace fs = std::filesystem;
+using namespace visloc;
+
+namespace {
+
+fs::path temp_dir() {
+  fs::path dir = fs::temp_directory_path() /
+                 ("visloc_util_test_" + std::to_string(::testing::UnitTest::GetInstance()->random_seed()) +
+                  "_" + ::testing::UnitTest::GetInstance()->current_test_info()->name());
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  return dir;
+}
+
+std::string error_message(const std::function<void()>& f) {
+  try {
+    f();
+  } catch (const Error& e) {
+    return e.what();
+  }
+  return "";
+}
+
+void write_sample(const fs::path& path) {
+  SectionFileWriter w(path, "TEST", 3);
+  std::vector<float> values(100);
+  std::iota(values.begin(), values.end(), 0.5f);
+  w.add_array<float>("VALUES", values);
+  w.add_text("META", "{\"hello\": 1}");
+  w.add("EMPTY", nullptr, 0);
+  w.commit();
+}
+
+}  // namespace
+
+TEST(Crc32c, KnownVectors) {
+  EXPECT_EQ(crc32c("123456789", 9), 0xE3069283u);
+  EXPECT_EQ(crc32c("", 0), 0u);
+  std::vector<uint8_t> zeros(32, 0);
+  EXPECT_EQ(crc32c(zeros.data(), zeros.size()), 0x8A9136AAu);  // RFC 3720 B.4
+}
+
+TEST(Crc32c, IncrementalEqualsWhole) {
+  std::string s = "The quick brown fox jumps over the lazy dog, twice over.";
+  uint32_t whole = crc32c(s.data(), s.size());
+  uint32_t part = crc32c(s.data(), 13);
+  part = crc32c(s.data() + 13, s.size() - 13, part);
+  EXPECT_EQ(whole, part);
+}
+
+TEST(AtomicFileWriter, NothingLeftWithoutCommit) {
+  fs::path dir = temp_dir();
+  {
+    AtomicFileWriter w(dir / "a.bin");
+    w.write("partial");
+  }
+  EXPECT_FALSE(fs::exists(dir / "a.bin"));
+  EXPECT_TRUE(fs::is_empty(dir));
+}
+
+TEST(AtomicFileWriter, CommitReplacesTarget) {
+  fs::path dir = temp_dir();
+  write_file_atomic(dir / "a.txt", "old");
+  write_file_atomic(dir / "a.txt", "new content");
+  EXPECT_EQ(read_file(dir / "a.txt"), "new content");
+  EXPECT_EQ(std::distance(fs::directory_iterator(dir), fs::directory_iterator()), 1);
+}
+
+TEST(AtomicFileWriter, UnwritableDirectoryNamesFile) {
+  std::string msg = error_message([] { AtomicFileWriter w("/nonexistent_dir_xyz/file.bin"); });
+  EXPECT_NE(msg.find("/nonexistent_dir_xyz/file.bin"), std::string::npos) << msg;
+}
+
+TEST(MappedFile, MissingFileNamesIt) {
+  std::string msg = error_message([] { MappedFile f("/nonexistent_file_xyz.bin"); });
+  EXPECT_NE(msg.find("nonexistent_file_xyz.bin"), std::string::npos) << msg;
+}
+
+TEST(SectionFile, RoundTrip) {
+  fs::path p = temp_dir() / "sample.vl";
+  write_sample(p);
+  SectionFileReader r(p, "TEST", 1, 3);
+  EXPECT_EQ(r.kind_version(), 3u);
+  auto values = r.array<float>("VALUES", 100);
+  ASSERT_EQ(values.size(), 100u);
+  EXPECT_FLOAT_EQ(values[0], 0.5f);
+  EXPECT_FLOAT_EQ(values[99], 99.5f);
+  EXPECT_EQ(reinterpret_cast<uintptr_t>(values.data()) % kSectionAlignment, 0u);
+  EXPECT_EQ(r.text("META"), "{\"hello\": 1}");
+  EXPECT_EQ(r.bytes("EMPTY").size(), 0u);
+  EXPECT_FALSE(r.has("NOPE"));
+  EXPECT_THROW(r.bytes("NOPE"), Error);
+  EXPECT_THROW(r.array<float>("VALUES", 99), Error);
+  EXPECT_THROW(r.array<double>("META"), Error);
+}
+
+TEST(SectionFile, RejectsWrongKindAndVersion) {
+  fs::path p = temp_dir() / "sample.vl";
+  write_sample(p);
+  EXPECT_NE(error_message([&] { SectionFileReader r(p, "SEGM", 1, 3); }).find("expected 'SEGM'"),
+            std::string::npos);
+  std::string msg = error_message([&] { SectionFileReader r(p, "TEST", 4, 5); });
+  EXPECT_NE(msg.find("format version 3"), std::string::npos) << msg;
+  EXPECT_NE(msg.find(p.string()), std::string::npos) << msg;
+}
+
+TEST(SectionFile, RejectsEveryTruncation) {
+  fs::path dir = temp_dir();
+  fs::path p = dir / "sample.vl";
+  write_sample(p);
+  std::string content = read_file(p);
+  for (size_t len : {size_t{0}, size_t{10}, size_t{63}, size_t{64}, content.size() / 2,
+                     content.size() - 1}) {
+    fs::path t = dir / ("trunc_" + std::to_string(len));
+    write_file_atomic(t, std::string_view(content).substr(0, len));
+    std::string msg = error_message([&] { SectionFileReader r(t, "TEST", 1, 3); });
+    EXPECT_FALSE(msg.empty()) << "truncation to " << len << " bytes was accepted";
+    EXPECT_NE(msg.find(t.string()), std::string::npos) << msg;
+  }
+}
+
+TEST(SectionFile, RejectsAnySingleBitFlip) {
+  fs::path dir = temp_dir();
+  fs::path p = dir / "sample.vl";
+  write_sample(p);
+  const std::string content = read_file(p);
+  SectionFileReader ok(p, "TEST", 1, 3);
+  // Flip one bit in every byte that carries meaning (padding bytes are free).
+  int rejected = 0, meaningful = 0;
+  std::vector<bool> padding(content.size(), true);
+  for (size_t i = 0; i < sizeof(SectionFileHeader); ++i) padding[i] = false;
+  for (const auto& e : ok.sections())
+    for (size_t i = 0; i < e.size; ++i) padding[e.offset + i] = false;
+  for (size_t i = content.size() - ok.sections().size() * sizeof(SectionEntry); i < content.size(); ++i)
+    padding[i] = false;
+  for (size_t i = 0; i < content.size(); ++i) {
+    if (padding[i]) continue;
+    ++meaningful;
+    std::string bad = content;
+    bad[i] = static_cast<char>(bad[i] ^ (1 << (i % 8)));
+    fs::path t = dir / "flipped.vl";
+    write_file_atomic(t, bad);
+    if (!error_message([&] { SectionFileReader r(t, "TEST", 1, 3); }).empty()) ++rejected;
+  }
+  EXPECT_EQ(rejected, meaningful);
+}
