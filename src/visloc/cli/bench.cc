@@ -14,9 +14,6 @@ void add_bench_command(CLI::App& app) {
   add_bench_end_to_end(*bench);
 }
 
-void add_bench_retrieval(CLI::App& bench) {
-  add_not_implemented(bench, "retrieval", "Image retrieval recall and time", "issue #7");
-}
 void add_bench_end_to_end(CLI::App& bench) {
   add_not_implemented(bench, "end-to-end", "Whole localizer on query sets", "issue #8");
 }

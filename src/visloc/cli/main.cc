@@ -32,6 +32,7 @@ int main(int argc, char** argv) {
   cli::add_eval_command(app);
   cli::add_bench_command(app);
   cli::add_synth_command(app);
+  cli::add_retrieval_command(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
