@@ -5,6 +5,7 @@
 
 #include "visloc/geo/enu_frame.h"
 #include "visloc/geo/gps_csv.h"
+#include "visloc/geo/similarity_transform.h"
 #include "visloc/util/error.h"
 #include "visloc/util/file_io.h"
 
@@ -109,4 +110,42 @@ TEST(GpsCsv, StrechaCentresAgreeWithGroundTruth) {
     worst = std::max(worst, (frame.to_enu(r.position) - c).norm());
   }
   EXPECT_LT(worst, 1e-3) << "worst ENU disagreement " << worst << " m";
+}
+
+TEST(Similarity, RecoversTransformWithOutliers) {
+  Similarity3d truth;
+  truth.scale = 3.7;
+  truth.rotation = Eigen::AngleAxisd(1.1, Eigen::Vector3d(0.2, -0.4, 1).normalized()).toRotationMatrix();
+  truth.translation = {120, -40, 7};
+  std::vector<Eigen::Vector3d> src, dst;
+  for (int i = 0; i < 40; ++i) {
+    Eigen::Vector3d x(std::sin(i * 0.7) * 10, i * 0.5, std::cos(i * 1.3) * 2);
+    src.push_back(x);
+    dst.push_back(truth.apply(x) + Eigen::Vector3d(0.01 * (i % 3), -0.01 * (i % 2), 0.005));
+  }
+  for (int i : {3, 17, 29}) dst[i] += Eigen::Vector3d(30, -25, 10);  // gross GPS errors
+  SimilarityEstimate e = estimate_similarity_ransac(src, dst, {.inlier_threshold = 1.0});
+  EXPECT_EQ(e.inlier_count, 37);
+  EXPECT_FALSE(e.inliers[3]);
+  EXPECT_NEAR(e.transform.scale, truth.scale, 1e-3);
+  EXPECT_LT((e.transform.rotation - truth.rotation).norm(), 1e-3);
+  EXPECT_LT(e.rms_residual, 0.05);
+  EXPECT_GT(e.max_residual, 20);
+  // Inverse composes to identity.
+  Eigen::Vector3d x(1, 2, 3);
+  EXPECT_LT((e.transform.inverse().apply(e.transform.apply(x)) - x).norm(), 1e-9);
+  // Exhaustive path (few points) agrees.
+  std::vector<Eigen::Vector3d> s8(src.begin(), src.begin() + 8), d8(dst.begin(), dst.begin() + 8);
+  SimilarityEstimate e8 = estimate_similarity_ransac(s8, d8, {.inlier_threshold = 1.0});
+  EXPECT_EQ(e8.inlier_count, 7);
+  EXPECT_NEAR(e8.transform.scale, truth.scale, 1e-2);
+}
+
+TEST(Similarity, RejectsDegenerateInput) {
+  std::vector<Eigen::Vector3d> line = {{0, 0, 0}, {1, 1, 1}, {2, 2, 2}, {3, 3, 3}};
+  EXPECT_THROW(estimate_similarity(line, line), Error);
+  EXPECT_THROW(estimate_similarity_ransac({{0, 0, 0}}, {{0, 0, 0}}), Error);
+  SimilarityRansacOptions o;
+  o.inlier_threshold = -1;
+  EXPECT_THROW(o.validate(), Error);
 }

@@ -1,0 +1,160 @@
+#include "visloc/geo/similarity_transform.h"
+
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <cmath>
+#include <random>
+
+#include "visloc/util/error.h"
+
+namespace visloc {
+
+Similarity3d Similarity3d::inverse() const {
+  Similarity3d inv;
+  inv.scale = 1.0 / scale;
+  inv.rotation = rotation.transpose();
+  inv.translation = -(inv.scale * (inv.rotation * translation));
+  return inv;
+}
+
+Eigen::Matrix4d Similarity3d::matrix() const {
+  Eigen::Matrix4d m = Eigen::Matrix4d::Identity();
+  m.topLeftCorner<3, 3>() = scale * rotation;
+  m.topRightCorner<3, 1>() = translation;
+  return m;
+}
+
+void SimilarityRansacOptions::validate() const {
+  if (!(inlier_threshold > 0))
+    throw_error(ErrorCode::kInvalidArgument, "similarity RANSAC: inlier_threshold must be positive, got ", inlier_threshold);
+  if (max_iterations < 1)
+    throw_error(ErrorCode::kInvalidArgument, "similarity RANSAC: max_iterations must be >= 1, got ", max_iterations);
+  if (min_inliers < 3)
+    throw_error(ErrorCode::kInvalidArgument, "similarity RANSAC: min_inliers must be >= 3, got ", min_inliers);
+}
+
+namespace {
+
+bool fit(const std::vector<Eigen::Vector3d>& src, const std::vector<Eigen::Vector3d>& dst,
+         const std::vector<int>& idx, Similarity3d& out) {
+  const int n = static_cast<int>(idx.size());
+  Eigen::Matrix3Xd a(3, n), b(3, n);
+  for (int i = 0; i < n; ++i) {
+    a.col(i) = src[idx[i]];
+    b.col(i) = dst[idx[i]];
+  }
+  // Degenerate when the source points are (nearly) collinear or coincident.
+  Eigen::Matrix3Xd centred = a.colwise() - a.rowwise().mean();
+  Eigen::JacobiSVD<Eigen::Matrix3Xd> svd(centred);
+  const auto sv = svd.singularValues();
+  if (!(sv(0) > 0) || sv(1) < 1e-9 * sv(0)) return false;
+  const Eigen::Matrix4d m = Eigen::umeyama(a, b, true);
+  const double s = std::cbrt(m.topLeftCorner<3, 3>().determinant());
+  if (!(s > 0) || !std::isfinite(s)) return false;
+  out.scale = s;
+  out.rotation = m.topLeftCorner<3, 3>() / s;
+  out.translation = m.topRightCorner<3, 1>();
+  return true;
+}
+
+}  // namespace
+
+Similarity3d estimate_similarity(const std::vector<Eigen::Vector3d>& src, const std::vector<Eigen::Vector3d>& dst) {
+  if (src.size() != dst.size() || src.size() < 3)
+    throw_error(ErrorCode::kInvalidArgument, "similarity: need at least 3 point pairs, got ", src.size(), " and ", dst.size());
+  std::vector<int> all(src.size());
+  for (size_t i = 0; i < all.size(); ++i) all[i] = static_cast<int>(i);
+  Similarity3d t;
+  if (!fit(src, dst, all, t))
+    throw_error(ErrorCode::kInvalidArgument, "similarity: points are collinear or coincident");
+  return t;
+}
+
+SimilarityEstimate estimate_similarity_ransac(const std::vector<Eigen::Vector3d>& src,
+                                              const std::vector<Eigen::Vector3d>& dst,
+                                              const SimilarityRansacOptions& options) {
+  options.validate();
+  const int n = static_cast<int>(src.size());
+  if (src.size() != dst.size() || n < 3)
+    throw_error(ErrorCode::kInvalidArgument, "similarity: need at least 3 point pairs, got ", src.size(), " and ", dst.size());
+  std::mt19937_64 rng(options.seed);
+  std::uniform_int_distribution<int> pick(0, n - 1);
+  const double thr2 = options.inlier_threshold * options.inlier_threshold;
+  int best_count = -1;
+  double best_cost = INFINITY;
+  Similarity3d best;
+  std::vector<int> sample(3);
+  auto score = [&](const Similarity3d& t, int& count, double& cost) {
+    count = 0;
+    cost = 0;
+    for (int i = 0; i < n; ++i) {
+      const double r2 = (t.apply(src[i]) - dst[i]).squaredNorm();
+      if (r2 < thr2) {
+        ++count;
+        cost += r2;
+      } else {
+        cost += thr2;
+      }
+    }
+  };
+  // With few points, every triple is tried; otherwise random triples.
+  const bool exhaustive = n <= 20;
+  int iterations = 0;
+  auto consider = [&](const std::vector<int>& s) {
+    Similarity3d t;
+    if (!fit(src, dst, s, t)) return;
+    int count;
+    double cost;
+    score(t, count, cost);
+    if (count > best_count || (count == best_count && cost < best_cost)) {
+      best_count = count;
+      best_cost = cost;
+      best = t;
+    }
+  };
+  if (exhaustive) {
+    for (int a = 0; a < n; ++a)
+      for (int b = a + 1; b < n; ++b)
+        for (int c = b + 1; c < n; ++c) consider({a, b, c});
+  } else {
+    for (; iterations < options.max_iterations; ++iterations) {
+      sample[0] = pick(rng);
+      do sample[1] = pick(rng); while (sample[1] == sample[0]);
+      do sample[2] = pick(rng); while (sample[2] == sample[0] || sample[2] == sample[1]);
+      consider(sample);
+      if (best_count == n) break;
+    }
+  }
+  if (best_count < options.min_inliers)
+    throw_error(ErrorCode::kInvalidArgument, "similarity: no transform has ", options.min_inliers,
+                " inliers within ", options.inlier_threshold, " m (best: ", std::max(best_count, 0), " of ", n, ")");
+  // Refit on the inliers (twice: the refit can change the inlier set).
+  SimilarityEstimate out;
+  out.transform = best;
+  for (int round = 0; round < 2; ++round) {
+    std::vector<int> inl;
+    for (int i = 0; i < n; ++i)
+      if ((out.transform.apply(src[i]) - dst[i]).squaredNorm() < thr2) inl.push_back(i);
+    Similarity3d refit;
+    if (static_cast<int>(inl.size()) >= 3 && fit(src, dst, inl, refit)) out.transform = refit;
+  }
+  out.inliers.assign(n, 0);
+  out.residuals.resize(n);
+  double sum2 = 0;
+  for (int i = 0; i < n; ++i) {
+    out.residuals[i] = (out.transform.apply(src[i]) - dst[i]).norm();
+    if (out.residuals[i] < options.inlier_threshold) {
+      out.inliers[i] = 1;
+      ++out.inlier_count;
+      sum2 += out.residuals[i] * out.residuals[i];
+    }
+  }
+  out.rms_residual = out.inlier_count ? std::sqrt(sum2 / out.inlier_count) : 0.0;
+  std::vector<double> r = out.residuals;
+  std::sort(r.begin(), r.end());
+  out.median_residual = r.size() % 2 ? r[r.size() / 2] : 0.5 * (r[r.size() / 2 - 1] + r[r.size() / 2]);
+  out.max_residual = r.back();
+  return out;
+}
+
+}  // namespace visloc

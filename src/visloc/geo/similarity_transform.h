@@ -1,0 +1,52 @@
+// Similarity3d: X_dst = s R X_src + t, e.g. enu_from_segment (an SfM
+// reconstruction's arbitrary frame → local ENU metres). Estimated in closed
+// form (Umeyama, PAMI 1991, through Eigen::umeyama) inside a RANSAC over
+// minimal 3-point samples, because GPS positions carry outliers of metres.
+#pragma once
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+#include <cstdint>
+#include <vector>
+
+namespace visloc {
+
+struct Similarity3d {
+  double scale = 1.0;
+  Eigen::Matrix3d rotation = Eigen::Matrix3d::Identity();
+  Eigen::Vector3d translation = Eigen::Vector3d::Zero();
+
+  Eigen::Vector3d apply(const Eigen::Vector3d& x) const { return scale * (rotation * x) + translation; }
+  Similarity3d inverse() const;
+  Eigen::Matrix4d matrix() const;
+};
+
+struct SimilarityRansacOptions {
+  double inlier_threshold = 5.0;  // metres in the destination frame (GPS noise)
+  int max_iterations = 2000;
+  uint64_t seed = 1;
+  int min_inliers = 3;
+  void validate() const;
+};
+
+struct SimilarityEstimate {
+  Similarity3d transform;
+  std::vector<uint8_t> inliers;   // per correspondence
+  int inlier_count = 0;
+  double rms_residual = 0.0;      // metres, over inliers
+  double median_residual = 0.0;   // metres, over all points
+  double max_residual = 0.0;      // metres, over all points
+  std::vector<double> residuals;  // per correspondence, metres
+};
+
+// Least squares over all pairs (at least 3, not collinear). Throws Error when degenerate.
+Similarity3d estimate_similarity(const std::vector<Eigen::Vector3d>& src, const std::vector<Eigen::Vector3d>& dst);
+
+// Robust estimate; the final transform is refit on the inliers. Throws
+// Error(kInvalidArgument) with fewer than 3 pairs or when no model reaches
+// min_inliers.
+SimilarityEstimate estimate_similarity_ransac(const std::vector<Eigen::Vector3d>& src,
+                                              const std::vector<Eigen::Vector3d>& dst,
+                                              const SimilarityRansacOptions& options = {});
+
+}  // namespace visloc
