@@ -1,0 +1,172 @@
+#include "visloc/sfm/colmap_database_writer.h"
+
+#include <sqlite3.h>
+
+#include <iomanip>
+#include <sstream>
+
+#include "visloc/util/error.h"
+#include "visloc/util/file_io.h"
+
+namespace visloc {
+namespace {
+
+constexpr const char* kSchema = R"SQL(
+CREATE TABLE IF NOT EXISTS cameras (camera_id INTEGER PRIMARY KEY AUTOINCREMENT NOT NULL,
+  model INTEGER NOT NULL, width INTEGER NOT NULL, height INTEGER NOT NULL, params BLOB,
+  prior_focal_length INTEGER NOT NULL);
+CREATE TABLE IF NOT EXISTS images (image_id INTEGER PRIMARY KEY AUTOINCREMENT NOT NULL,
+  name TEXT NOT NULL UNIQUE, camera_id INTEGER NOT NULL,
+  prior_qw REAL, prior_qx REAL, prior_qy REAL, prior_qz REAL, prior_tx REAL, prior_ty REAL, prior_tz REAL,
+  CONSTRAINT image_id_check CHECK(image_id >= 0 and image_id < 2147483647),
+  FOREIGN KEY(camera_id) REFERENCES cameras(camera_id));
+CREATE UNIQUE INDEX IF NOT EXISTS index_name ON images(name);
+CREATE TABLE IF NOT EXISTS keypoints (image_id INTEGER PRIMARY KEY NOT NULL, rows INTEGER NOT NULL,
+  cols INTEGER NOT NULL, data BLOB, FOREIGN KEY(image_id) REFERENCES images(image_id) ON DELETE CASCADE);
+CREATE TABLE IF NOT EXISTS descriptors (image_id INTEGER PRIMARY KEY NOT NULL, rows INTEGER NOT NULL,
+  cols INTEGER NOT NULL, data BLOB, FOREIGN KEY(image_id) REFERENCES images(image_id) ON DELETE CASCADE);
+CREATE TABLE IF NOT EXISTS matches (pair_id INTEGER PRIMARY KEY NOT NULL, rows INTEGER NOT NULL,
+  cols INTEGER NOT NULL, data BLOB);
+CREATE TABLE IF NOT EXISTS two_view_geometries (pair_id INTEGER PRIMARY KEY NOT NULL, rows INTEGER NOT NULL,
+  cols INTEGER NOT NULL, data BLOB, config INTEGER NOT NULL, F BLOB, E BLOB, H BLOB, qvec BLOB, tvec BLOB);
+)SQL";
+
+class Stmt {
+ public:
+  Stmt(sqlite3* db, const std::filesystem::path& path, const char* sql) : db_(db), path_(path) {
+    if (sqlite3_prepare_v2(db, sql, -1, &s_, nullptr) != SQLITE_OK)
+      throw_error(ErrorCode::kIo, path.string(), ": SQLite: ", sqlite3_errmsg(db));
+  }
+  ~Stmt() { sqlite3_finalize(s_); }
+  sqlite3_stmt* get() { return s_; }
+  void run() {
+    if (sqlite3_step(s_) != SQLITE_DONE)
+      throw_error(ErrorCode::kIo, path_.string(), ": SQLite: ", sqlite3_errmsg(db_));
+  }
+
+ private:
+  sqlite3* db_;
+  std::filesystem::path path_;
+  sqlite3_stmt* s_ = nullptr;
+};
+
+void exec(sqlite3* db, const std::filesystem::path& path, const char* sql) {
+  char* err = nullptr;
+  if (sqlite3_exec(db, sql, nullptr, nullptr, &err) != SQLITE_OK) {
+    std::string msg = err ? err : "unknown";
+    sqlite3_free(err);
+    throw_error(ErrorCode::kIo, path.string(), ": SQLite: ", msg);
+  }
+}
+
+}  // namespace
+
+ColmapDatabaseWriter::ColmapDatabaseWriter(const std::filesystem::path& path) : path_(path) {
+  std::error_code ec;
+  std::filesystem::remove(path, ec);
+  if (sqlite3_open_v2(path.c_str(), &db_, SQLITE_OPEN_READWRITE | SQLITE_OPEN_CREATE, nullptr) != SQLITE_OK) {
+    std::string msg = db_ ? sqlite3_errmsg(db_) : "out of memory";
+    sqlite3_close(db_);
+    db_ = nullptr;
+    throw_error(ErrorCode::kIo, path.string(), ": cannot create database: ", msg);
+  }
+  exec(db_, path_, kSchema);
+  exec(db_, path_, "BEGIN TRANSACTION");
+}
+
+ColmapDatabaseWriter::~ColmapDatabaseWriter() {
+  if (db_ && !committed_) sqlite3_exec(db_, "ROLLBACK", nullptr, nullptr, nullptr);
+  sqlite3_close(db_);
+}
+
+int64_t ColmapDatabaseWriter::add_camera(const PinholeCamera& c, double fallback_focal) {
+  const double f = c.has_focal ? c.focal : fallback_focal;
+  if (!(f > 0)) throw_error(ErrorCode::kInvalidArgument, "COLMAP camera needs a focal length (known or fallback)");
+  std::vector<double> params = {f, c.cx, c.cy};
+  int model = kColmapSimplePinhole;
+  if (c.k1 != 0.0) {
+    model = kColmapSimpleRadial;
+    params.push_back(c.k1);
+  }
+  Stmt s(db_, path_, "INSERT INTO cameras(model, width, height, params, prior_focal_length) VALUES(?,?,?,?,?)");
+  sqlite3_bind_int(s.get(), 1, model);
+  sqlite3_bind_int64(s.get(), 2, c.width);
+  sqlite3_bind_int64(s.get(), 3, c.height);
+  sqlite3_bind_blob(s.get(), 4, params.data(), static_cast<int>(params.size() * sizeof(double)), SQLITE_TRANSIENT);
+  sqlite3_bind_int(s.get(), 5, c.has_focal ? 1 : 0);
+  s.run();
+  return sqlite3_last_insert_rowid(db_);
+}
+
+int64_t ColmapDatabaseWriter::add_image(const std::string& name, int64_t camera_id,
+                                        const std::optional<Eigen::Vector3d>& prior) {
+  Stmt s(db_, path_, "INSERT INTO images(name, camera_id, prior_tx, prior_ty, prior_tz) VALUES(?,?,?,?,?)");
+  sqlite3_bind_text(s.get(), 1, name.c_str(), -1, SQLITE_TRANSIENT);
+  sqlite3_bind_int64(s.get(), 2, camera_id);
+  for (int i = 0; i < 3; ++i) {
+    if (prior) sqlite3_bind_double(s.get(), 3 + i, (*prior)[i]);
+    else sqlite3_bind_null(s.get(), 3 + i);
+  }
+  s.run();
+  return sqlite3_last_insert_rowid(db_);
+}
+
+void ColmapDatabaseWriter::add_features(int64_t image_id, const FeatureSet& f) {
+  f.check_consistent();
+  std::vector<float> kp(f.size() * 4);
+  for (size_t i = 0; i < f.size(); ++i) {
+    kp[4 * i] = f.keypoints[i].x;
+    kp[4 * i + 1] = f.keypoints[i].y;
+    kp[4 * i + 2] = f.keypoints[i].scale;
+    kp[4 * i + 3] = f.keypoints[i].orientation;
+  }
+  {
+    Stmt s(db_, path_, "INSERT INTO keypoints(image_id, rows, cols, data) VALUES(?,?,4,?)");
+    sqlite3_bind_int64(s.get(), 1, image_id);
+    sqlite3_bind_int64(s.get(), 2, static_cast<int64_t>(f.size()));
+    sqlite3_bind_blob(s.get(), 3, kp.data(), static_cast<int>(kp.size() * sizeof(float)), SQLITE_TRANSIENT);
+    s.run();
+  }
+  Stmt s(db_, path_, "INSERT INTO descriptors(image_id, rows, cols, data) VALUES(?,?,128,?)");
+  sqlite3_bind_int64(s.get(), 1, image_id);
+  sqlite3_bind_int64(s.get(), 2, static_cast<int64_t>(f.size()));
+  sqlite3_bind_blob(s.get(), 3, f.descriptors.data(), static_cast<int>(f.descriptors.size_bytes()), SQLITE_TRANSIENT);
+  s.run();
+}
+
+void ColmapDatabaseWriter::commit() {
+  exec(db_, path_, "COMMIT");
+  committed_ = true;
+}
+
+void write_colmap_text_model(const std::filesystem::path& dir, const std::vector<ColmapTextCamera>& cameras,
+                             const std::vector<ColmapTextImage>& images) {
+  std::error_code ec;
+  std::filesystem::create_directories(dir, ec);
+  if (ec) throw_error(ErrorCode::kIo, "cannot create ", dir.string(), ": ", ec.message());
+  std::ostringstream c;
+  c << std::setprecision(17) << "# Camera list: CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n";
+  for (const auto& cam : cameras) {
+    const auto& k = cam.camera;
+    if (!k.has_focal) throw_error(ErrorCode::kInvalidArgument, "text model camera ", cam.camera_id, " has no focal length");
+    if (k.k1 != 0.0)
+      c << cam.camera_id << " SIMPLE_RADIAL " << k.width << ' ' << k.height << ' ' << k.focal << ' ' << k.cx << ' '
+        << k.cy << ' ' << k.k1 << '\n';
+    else
+      c << cam.camera_id << " SIMPLE_PINHOLE " << k.width << ' ' << k.height << ' ' << k.focal << ' ' << k.cx << ' '
+        << k.cy << '\n';
+  }
+  std::ostringstream im;
+  im << std::setprecision(17) << "# Image list: IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME; then POINTS2D\n";
+  for (const auto& img : images) {
+    const auto q = img.cam_from_world.q_wxyz();
+    const auto& t = img.cam_from_world.translation;
+    im << img.image_id << ' ' << q[0] << ' ' << q[1] << ' ' << q[2] << ' ' << q[3] << ' ' << t.x() << ' ' << t.y()
+       << ' ' << t.z() << ' ' << img.camera_id << ' ' << img.name << "\n\n";
+  }
+  write_file_atomic(dir / "cameras.txt", c.str());
+  write_file_atomic(dir / "images.txt", im.str());
+  write_file_atomic(dir / "points3D.txt", "# 3D point list (empty: to be triangulated)\n");
+}
+
+}  // namespace visloc

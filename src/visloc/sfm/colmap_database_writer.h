@@ -1,0 +1,71 @@
+// ColmapDatabaseWriter: creates a COLMAP 3.8 database (database.db, SQLite)
+// and fills it with our cameras, images and features, so that COLMAP's
+// matchers and mapper run on exactly the features our queries use. The
+// schema is COLMAP 3.8's (cameras, images, keypoints, descriptors, matches,
+// two_view_geometries). Keypoints are written with 4 columns (x, y, scale,
+// orientation), which COLMAP accepts; descriptors as N × 128 uint8.
+// Also writes a COLMAP text model (cameras.txt, images.txt, points3D.txt)
+// for point_triangulator when poses are known.
+#pragma once
+
+#include <filesystem>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "visloc/features/feature_set.h"
+#include "visloc/geometry/camera.h"
+#include "visloc/geometry/pose.h"
+
+struct sqlite3;
+
+namespace visloc {
+
+// COLMAP camera model ids used here.
+inline constexpr int kColmapSimplePinhole = 0;  // f, cx, cy
+inline constexpr int kColmapPinhole = 1;        // fx, fy, cx, cy
+inline constexpr int kColmapSimpleRadial = 2;   // f, cx, cy, k
+
+class ColmapDatabaseWriter {
+ public:
+  // Creates a new database at `path` (an existing file is replaced).
+  explicit ColmapDatabaseWriter(const std::filesystem::path& path);
+  ~ColmapDatabaseWriter();
+  ColmapDatabaseWriter(const ColmapDatabaseWriter&) = delete;
+  ColmapDatabaseWriter& operator=(const ColmapDatabaseWriter&) = delete;
+
+  // A camera from our intrinsics: SIMPLE_RADIAL when k1 != 0, else
+  // SIMPLE_PINHOLE; when the focal is unknown, `fallback_focal` is written
+  // with prior_focal_length = 0 so that COLMAP refines it freely.
+  int64_t add_camera(const PinholeCamera& camera, double fallback_focal = 0.0);
+  // An image; a known pose and/or a position prior (COLMAP 3.8 stores the
+  // prior translation in prior_tx/ty/tz, used by the spatial matcher).
+  int64_t add_image(const std::string& name, int64_t camera_id,
+                    const std::optional<Eigen::Vector3d>& position_prior = std::nullopt);
+  void add_features(int64_t image_id, const FeatureSet& features);
+  // Commits the transaction (all or nothing).
+  void commit();
+
+ private:
+  std::filesystem::path path_;
+  sqlite3* db_ = nullptr;
+  bool committed_ = false;
+};
+
+struct ColmapTextImage {
+  int64_t image_id = 0;
+  int64_t camera_id = 0;
+  std::string name;
+  CameraPose cam_from_world;
+};
+struct ColmapTextCamera {
+  int64_t camera_id = 0;
+  PinholeCamera camera;
+};
+
+// Writes cameras.txt, images.txt (poses, no 2D points) and an empty
+// points3D.txt into `dir` (created), atomically per file.
+void write_colmap_text_model(const std::filesystem::path& dir, const std::vector<ColmapTextCamera>& cameras,
+                             const std::vector<ColmapTextImage>& images);
+
+}  // namespace visloc

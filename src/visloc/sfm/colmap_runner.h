@@ -1,0 +1,48 @@
+// ColmapRunner: drives the COLMAP 3.8 binary as a process for one segment:
+// feature matching (exhaustive, sequential or spatial, on the CPU), the
+// incremental mapper, or point_triangulator when poses are known. Output of
+// every call goes to a log file; failures raise Error(kExternalTool) quoting
+// the log's tail. COLMAP's seed is fixed so that runs repeat.
+#pragma once
+
+#include <filesystem>
+#include <string>
+
+namespace visloc {
+
+enum class ColmapMatchStrategy { kExhaustive, kSequential, kSpatial };
+
+struct ColmapRunnerOptions {
+  std::string binary = "colmap";
+  int threads = 1;                   // COLMAP threads per call
+  int sequential_overlap = 10;       // images matched forward in sequential matching
+  double spatial_max_distance = 50;  // metres, spatial matching (priors in ENU)
+  int spatial_max_neighbors = 30;
+  int min_model_size = 3;            // mapper: smallest model kept
+  bool refine_focal = true;          // mapper: refine focal lengths in BA
+  int random_seed = 1;
+  void validate() const;
+};
+
+class ColmapRunner {
+ public:
+  explicit ColmapRunner(const ColmapRunnerOptions& options);
+  void match(const std::filesystem::path& database, ColmapMatchStrategy strategy,
+             const std::filesystem::path& log) const;
+  // Runs the mapper into output_dir (COLMAP writes numbered sub-models);
+  // returns the directory of the largest sub-model. Throws when none was made.
+  std::filesystem::path map(const std::filesystem::path& database, const std::filesystem::path& image_dir,
+                            const std::filesystem::path& output_dir, const std::filesystem::path& log) const;
+  void triangulate(const std::filesystem::path& database, const std::filesystem::path& image_dir,
+                   const std::filesystem::path& input_model, const std::filesystem::path& output_dir,
+                   const std::filesystem::path& log) const;
+
+ private:
+  ColmapRunnerOptions options_;
+};
+
+// Picks a matcher by collection size: exhaustive up to `exhaustive_max`
+// images, spatial when every image has a position prior, else sequential.
+ColmapMatchStrategy choose_match_strategy(size_t num_images, bool have_position_priors, size_t exhaustive_max = 60);
+
+}  // namespace visloc

@@ -1,0 +1,87 @@
+#include "visloc/sfm/process.h"
+
+#include <fcntl.h>
+#include <spawn.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstring>
+#include <deque>
+#include <fstream>
+#include <sstream>
+
+#include "visloc/util/error.h"
+#include "visloc/util/timer.h"
+
+extern char** environ;
+
+namespace visloc {
+
+std::string tail_of_file(const std::filesystem::path& path, int lines) {
+  std::ifstream in(path);
+  std::deque<std::string> last;
+  std::string line;
+  while (std::getline(in, line)) {
+    last.push_back(line);
+    if (static_cast<int>(last.size()) > lines) last.pop_front();
+  }
+  std::ostringstream s;
+  for (const auto& l : last) s << "    " << l << "\n";
+  return s.str();
+}
+
+bool program_exists(const std::string& program) {
+  if (program.find('/') != std::string::npos) return ::access(program.c_str(), X_OK) == 0;
+  const char* path = std::getenv("PATH");
+  std::istringstream dirs(path ? path : "/usr/bin:/bin");
+  std::string dir;
+  while (std::getline(dirs, dir, ':'))
+    if (!dir.empty() && ::access((dir + "/" + program).c_str(), X_OK) == 0) return true;
+  return false;
+}
+
+ProcessResult run_process(const std::vector<std::string>& argv, const std::filesystem::path& log_path) {
+  VISLOC_CHECK(!argv.empty());
+  std::string command;
+  for (const auto& a : argv) command += (command.empty() ? "" : " ") + a;
+  if (!program_exists(argv[0]))
+    throw_error(ErrorCode::kNotFound, "program '", argv[0], "' not found in PATH",
+                argv[0] == "colmap" ? " (install COLMAP: scripts/setup.sh, or apt-get install colmap)" : "");
+  int log_fd = ::open(log_path.c_str(), O_WRONLY | O_CREAT | O_APPEND | O_CLOEXEC, 0644);
+  if (log_fd < 0) throw_error(ErrorCode::kIo, "cannot open log file ", log_path.string(), ": ", std::strerror(errno));
+  {
+    std::string header = "\n$ " + command + "\n";
+    if (::write(log_fd, header.data(), header.size()) < 0) { /* the log is best effort */ }
+  }
+  posix_spawn_file_actions_t actions;
+  posix_spawn_file_actions_init(&actions);
+  posix_spawn_file_actions_addopen(&actions, STDIN_FILENO, "/dev/null", O_RDONLY, 0);
+  posix_spawn_file_actions_adddup2(&actions, log_fd, STDOUT_FILENO);
+  posix_spawn_file_actions_adddup2(&actions, log_fd, STDERR_FILENO);
+  std::vector<char*> args;
+  for (const auto& a : argv) args.push_back(const_cast<char*>(a.c_str()));
+  args.push_back(nullptr);
+  Timer timer;
+  pid_t pid = 0;
+  const int rc = ::posix_spawnp(&pid, argv[0].c_str(), &actions, nullptr, args.data(), environ);
+  posix_spawn_file_actions_destroy(&actions);
+  ::close(log_fd);
+  if (rc != 0) throw_error(ErrorCode::kExternalTool, "cannot start '", command, "': ", std::strerror(rc));
+  int status = 0;
+  while (::waitpid(pid, &status, 0) < 0) {
+    if (errno != EINTR) throw_error(ErrorCode::kExternalTool, "waiting for '", command, "': ", std::strerror(errno));
+  }
+  ProcessResult result;
+  result.seconds = timer.elapsed_ms() / 1000.0;
+  if (WIFSIGNALED(status))
+    throw_error(ErrorCode::kExternalTool, "'", argv[0], "' was killed by signal ", WTERMSIG(status), " (log: ",
+                log_path.string(), ")\n", tail_of_file(log_path, 8));
+  result.exit_code = WEXITSTATUS(status);
+  if (result.exit_code != 0)
+    throw_error(ErrorCode::kExternalTool, "'", command, "' failed with exit status ", result.exit_code,
+                " (log: ", log_path.string(), "); last lines:\n", tail_of_file(log_path, 8));
+  return result;
+}
+
+}  // namespace visloc

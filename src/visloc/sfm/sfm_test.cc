@@ -1,0 +1,181 @@
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <numeric>
+
+#include "visloc/colmap/colmap_database.h"
+#include "visloc/sfm/colmap_database_writer.h"
+#include "visloc/sfm/colmap_runner.h"
+#include "visloc/sfm/process.h"
+#include "visloc/sfm/segment_plan.h"
+#include "visloc/util/error.h"
+#include "visloc/util/file_io.h"
+
+namespace fs = std::filesystem;
+using namespace visloc;
+
+namespace {
+fs::path temp_dir(const std::string& name) {
+  fs::path d = fs::temp_directory_path() / ("visloc_sfm_test_" + name);
+  fs::remove_all(d);
+  fs::create_directories(d);
+  return d;
+}
+}  // namespace
+
+TEST(PartitionSegments, WindowsOverlapAndRespectSizes) {
+  SegmentPlanOptions o;  // 8-10 placemarks, overlap 2
+  EXPECT_EQ(partition_segments(0, o).size(), 0u);
+  ASSERT_EQ(partition_segments(7, o).size(), 1u);
+  EXPECT_EQ(partition_segments(10, o)[0].size(), 10u);
+  for (int n : {11, 18, 25, 26, 50, 101, 1000}) {
+    auto segs = partition_segments(n, o);
+    ASSERT_FALSE(segs.empty());
+    EXPECT_EQ(segs.front().front(), 0) << n;
+    EXPECT_EQ(segs.back().back(), n - 1) << n;
+    for (size_t i = 0; i < segs.size(); ++i) {
+      EXPECT_GE(static_cast<int>(segs[i].size()), o.min_placemarks) << "n=" << n << " seg " << i;
+      EXPECT_LE(static_cast<int>(segs[i].size()), o.max_placemarks) << "n=" << n << " seg " << i;
+      for (size_t j = 1; j < segs[i].size(); ++j) EXPECT_EQ(segs[i][j], segs[i][j - 1] + 1);
+      if (i + 1 < segs.size()) {
+        EXPECT_GE(segs[i].back() - segs[i + 1].front() + 1, o.overlap) << "n=" << n;
+        if (n >= 2 * o.max_placemarks) EXPECT_EQ(segs[i].back() - segs[i + 1].front() + 1, o.overlap) << "n=" << n;
+      }
+    }
+  }
+}
+
+TEST(PartitionSegments, ValidatesOptions) {
+  SegmentPlanOptions o;
+  o.overlap = 8;
+  EXPECT_THROW(partition_segments(20, o), Error);
+  o = {};
+  o.max_placemarks = 5;
+  EXPECT_THROW(o.validate(), Error);
+}
+
+TEST(GroupPlacemarks, ByColumnAndByRadius) {
+  EnuFrame frame({46.5, 6.5, 400});
+  auto rec = [&](const std::string& name, double e, double n, std::optional<int> pm) {
+    GpsRecord r;
+    r.image = name;
+    r.position = frame.to_geo({e, n, 0});
+    r.placemark = pm;
+    return r;
+  };
+  std::vector<GpsRecord> with_ids = {rec("a", 0, 0, 5), rec("b", 0.5, 0, 5), rec("c", 10, 0, 6), rec("d", 10, 1, 6)};
+  auto pms = group_placemarks(with_ids, frame, 3.0);
+  ASSERT_EQ(pms.size(), 2u);
+  EXPECT_EQ(pms[0].id, 5);
+  EXPECT_EQ(pms[1].images, (std::vector<size_t>{2, 3}));
+  EXPECT_NEAR(pms[1].center_enu.y(), 0.5, 1e-6);
+  std::vector<GpsRecord> no_ids = {rec("a", 0, 0, {}), rec("b", 1, 0, {}), rec("c", 11, 0, {}), rec("d", 22, 0, {})};
+  pms = group_placemarks(no_ids, frame, 3.0);
+  ASSERT_EQ(pms.size(), 3u);
+  EXPECT_EQ(pms[0].images.size(), 2u);
+}
+
+TEST(PlanSegments, ChainOrderRecoversRoute) {
+  EnuFrame frame({46.5, 6.5, 400});
+  // 30 placemarks along a bent street, listed in shuffled order.
+  std::vector<int> order(30);
+  std::iota(order.begin(), order.end(), 0);
+  std::vector<int> shuffled = {17, 3, 29, 0, 11, 25, 8, 14, 21, 5, 1, 27, 19, 9, 2, 23, 13, 28, 6, 16, 10, 24, 4, 20, 12, 26, 7, 18, 22, 15};
+  std::vector<GpsRecord> records;
+  for (int k : shuffled) {
+    GpsRecord r;
+    r.image = "img" + std::to_string(k);
+    Eigen::Vector3d p = k < 15 ? Eigen::Vector3d(11.0 * k, 0, 0) : Eigen::Vector3d(11.0 * 14, 11.0 * (k - 14), 0);
+    r.position = frame.to_geo(p);
+    records.push_back(r);
+  }
+  SegmentPlanOptions o;
+  o.order = PlacemarkOrder::kChain;
+  SegmentPlan plan = plan_segments(records, frame, o);
+  ASSERT_EQ(plan.placemarks.size(), 30u);
+  // Consecutive placemarks in the plan are neighbours on the street.
+  for (size_t i = 1; i < plan.placemarks.size(); ++i)
+    EXPECT_NEAR((plan.placemarks[i].center_enu - plan.placemarks[i - 1].center_enu).norm(), 11.0, 0.01);
+  EXPECT_EQ(plan.segments.size(), 4u);
+}
+
+TEST(Process, MissingProgramAndFailureAreReported) {
+  fs::path dir = temp_dir("process");
+  try {
+    run_process({"visloc-no-such-program-xyz", "--x"}, dir / "log.txt");
+    FAIL();
+  } catch (const Error& e) {
+    EXPECT_EQ(e.code(), ErrorCode::kNotFound);
+    EXPECT_NE(std::string(e.what()).find("visloc-no-such-program-xyz"), std::string::npos);
+  }
+  auto ok = run_process({"sh", "-c", "echo hello-from-child"}, dir / "log.txt");
+  EXPECT_EQ(ok.exit_code, 0);
+  EXPECT_NE(read_file(dir / "log.txt").find("hello-from-child"), std::string::npos);
+  try {
+    run_process({"sh", "-c", "echo the-reason >&2; exit 3"}, dir / "log.txt");
+    FAIL();
+  } catch (const Error& e) {
+    EXPECT_EQ(e.code(), ErrorCode::kExternalTool);
+    EXPECT_NE(std::string(e.what()).find("exit status 3"), std::string::npos);
+    EXPECT_NE(std::string(e.what()).find("the-reason"), std::string::npos) << e.what();
+  }
+}
+
+TEST(ColmapDatabaseWriter, RoundTripThroughReader) {
+  fs::path dir = temp_dir("dbwriter");
+  FeatureSet f;
+  f.keypoints = {{10.5f, 20.5f, 2.0f, 0.5f}, {100.f, 50.f, 3.f, -1.f}};
+  f.descriptors = DescriptorMatrix(2);
+  for (size_t i = 0; i < f.descriptors.size_bytes(); ++i) f.descriptors.data()[i] = static_cast<uint8_t>(i % 251);
+  {
+    ColmapDatabaseWriter w(dir / "database.db");
+    PinholeCamera cam = PinholeCamera::centered(640, 480, 500.0);
+    int64_t cid = w.add_camera(cam);
+    int64_t iid = w.add_image("a.jpg", cid, Eigen::Vector3d(1, 2, 3));
+    w.add_features(iid, f);
+    w.add_image("b.jpg", cid);
+    w.commit();
+  }
+  ColmapDatabase db(dir / "database.db");
+  auto images = db.images();
+  ASSERT_EQ(images.size(), 2u);
+  EXPECT_EQ(images[0].name, "a.jpg");
+  auto cams = db.cameras();
+  ASSERT_EQ(cams.size(), 1u);
+  EXPECT_EQ(cams[0].model, kColmapSimplePinhole);
+  EXPECT_DOUBLE_EQ(cams[0].params[0], 500.0);
+  FeatureSet g = db.features(images[0].image_id);
+  ASSERT_EQ(g.size(), 2u);
+  EXPECT_FLOAT_EQ(g.keypoints[1].x, 100.f);
+  EXPECT_FLOAT_EQ(g.keypoints[1].orientation, -1.f);
+  EXPECT_EQ(0, std::memcmp(g.descriptors.data(), f.descriptors.data(), f.descriptors.size_bytes()));
+}
+
+TEST(ColmapDatabaseWriter, UncommittedWriteLeavesNoImages) {
+  fs::path dir = temp_dir("dbrollback");
+  {
+    ColmapDatabaseWriter w(dir / "database.db");
+    w.add_camera(PinholeCamera::centered(64, 48, 50.0));
+  }
+  ColmapDatabase db(dir / "database.db");
+  EXPECT_TRUE(db.cameras().empty());
+}
+
+TEST(ColmapTextModel, WritesPosesColmapCanRead) {
+  fs::path dir = temp_dir("textmodel");
+  CameraPose pose = CameraPose::from_wxyz({0.9, 0.1, 0.2, 0.3}, {1, 2, 3});
+  write_colmap_text_model(dir, {{1, PinholeCamera::centered(640, 480, 500.0)}}, {{1, 1, "a.jpg", pose}});
+  std::string images = read_file(dir / "images.txt");
+  EXPECT_NE(images.find(" 1 a.jpg\n\n"), std::string::npos) << images;
+  EXPECT_NE(read_file(dir / "cameras.txt").find("1 SIMPLE_PINHOLE 640 480 500 320 240"), std::string::npos);
+  EXPECT_TRUE(fs::exists(dir / "points3D.txt"));
+}
+
+TEST(ColmapRunner, StrategyChoiceAndOptions) {
+  EXPECT_EQ(choose_match_strategy(30, false), ColmapMatchStrategy::kExhaustive);
+  EXPECT_EQ(choose_match_strategy(300, true), ColmapMatchStrategy::kSpatial);
+  EXPECT_EQ(choose_match_strategy(300, false), ColmapMatchStrategy::kSequential);
+  ColmapRunnerOptions o;
+  o.threads = 0;
+  EXPECT_THROW(ColmapRunner{o}, Error);
+}
