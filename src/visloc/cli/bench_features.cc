@@ -140,6 +140,9 @@ void add_bench_sift_colmap(CLI::App& bench) {
     SiftOptions base;
     base.max_image_side = args->max_side;
     configs.push_back({"opencv-rootsift-c0.02", base});
+    SiftOptions many = base;
+    many.max_features = 16384;  // a feature count like the COLMAP databases' (~10-12K)
+    configs.push_back({"opencv-rootsift-c0.02-16k", many});
     SiftOptions c04 = base;
     c04.contrast_threshold = 0.04;
     configs.push_back({"opencv-rootsift-c0.04", c04});
