@@ -1,6 +1,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <fstream>
 #include <numbers>
 
 #include "visloc/geometry/camera.h"
@@ -88,4 +89,47 @@ TEST(CameraPose, RotationErrorDegrees) {
   CameraPose c = b;
   c.rotation.coeffs() *= -1;
   EXPECT_NEAR(rotation_error_deg(b, c), 0.0, 1e-6);
+}
+
+#include <filesystem>
+
+#include "visloc/geometry/pose_list.h"
+#include "visloc/util/file_io.h"
+
+TEST(PoseList, RoundTripAndErrors) {
+  namespace fs = std::filesystem;
+  fs::path p = fs::temp_directory_path() / "visloc_geometry_test_poses.txt";
+  std::vector<NamedPose> poses = {{"a.jpg", CameraPose::from_wxyz({0.5, 0.5, -0.5, 0.5}, {1, 2, 3})},
+                                  {"b.png", CameraPose{}}};
+  write_pose_list(p, poses);
+  auto back = read_pose_list(p);
+  ASSERT_EQ(back.size(), 2u);
+  EXPECT_EQ(back[0].name, "a.jpg");
+  EXPECT_NEAR(rotation_error_deg(back[0].cam_from_world, poses[0].cam_from_world), 0, 1e-6);
+  EXPECT_NEAR(position_error(back[0].cam_from_world, poses[0].cam_from_world), 0, 1e-9);
+  write_file_atomic(p, "# c\na.jpg 1 0 0 0 1 2 3\nb.jpg 1 0 0\n");
+  try {
+    read_pose_list(p);
+    FAIL();
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find(":3:"), std::string::npos) << e.what();
+  }
+  write_file_atomic(p, "a.jpg 2 0 0 0 1 2 3\n");
+  EXPECT_THROW(read_pose_list(p), Error);
+  write_file_atomic(p, "# header\n 0001.jpg \n\n0003.jpg\n");
+  EXPECT_EQ(read_name_list(p), (std::vector<std::string>{"0001.jpg", "0003.jpg"}));
+}
+
+TEST(PoseList, ReadsStrechaTruth) {
+  namespace fs = std::filesystem;
+  fs::path scene = fs::path(VISLOC_SHARED_DATA_DIR) / "strecha" / "fountain-P11";
+  if (!fs::exists(scene / "truth.txt")) GTEST_SKIP() << "shared data absent: " << scene;
+  auto poses = read_pose_list(scene / "truth.txt");
+  ASSERT_EQ(poses.size(), 11u);
+  // The aligned COLMAP pose agrees with Strecha's laser camera within centimetres.
+  std::ifstream cam(scene / "cameras" / (poses[0].name + ".camera"));
+  double v[24];
+  for (double& x : v) cam >> x;
+  Eigen::Vector3d c(v[21], v[22], v[23]);
+  EXPECT_LT((poses[0].cam_from_world.center() - c).norm(), 0.05);
 }

@@ -1,0 +1,68 @@
+#include "visloc/geometry/pose_list.h"
+
+#include <cmath>
+#include <iomanip>
+#include <set>
+#include <sstream>
+
+#include "visloc/util/error.h"
+#include "visloc/util/file_io.h"
+
+namespace visloc {
+
+std::vector<NamedPose> read_pose_list(const std::filesystem::path& path) {
+  std::istringstream in(read_file(path));
+  std::vector<NamedPose> out;
+  std::set<std::string> seen;
+  std::string line;
+  int line_no = 0;
+  while (std::getline(in, line)) {
+    ++line_no;
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    if (line.find_first_not_of(" \t") == std::string::npos || line[line.find_first_not_of(" \t")] == '#') continue;
+    std::istringstream s(line);
+    NamedPose p;
+    std::array<double, 4> q;
+    Eigen::Vector3d t;
+    if (!(s >> p.name >> q[0] >> q[1] >> q[2] >> q[3] >> t.x() >> t.y() >> t.z()))
+      throw_error(ErrorCode::kFormat, path.string(), ":", line_no, ": expected 'name qw qx qy qz tx ty tz'");
+    std::string extra;
+    if (s >> extra) throw_error(ErrorCode::kFormat, path.string(), ":", line_no, ": unexpected '", extra, "' after tz");
+    const double norm = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+    if (!(std::abs(norm - 1.0) < 1e-3))
+      throw_error(ErrorCode::kFormat, path.string(), ":", line_no, ": quaternion norm is ", norm, ", not 1");
+    if (!t.allFinite()) throw_error(ErrorCode::kFormat, path.string(), ":", line_no, ": translation is not finite");
+    if (!seen.insert(p.name).second)
+      throw_error(ErrorCode::kFormat, path.string(), ":", line_no, ": image '", p.name, "' listed twice");
+    p.cam_from_world = CameraPose::from_wxyz(q, t);
+    out.push_back(std::move(p));
+  }
+  return out;
+}
+
+void write_pose_list(const std::filesystem::path& path, const std::vector<NamedPose>& poses) {
+  std::ostringstream s;
+  s << std::setprecision(12);
+  for (const auto& p : poses) {
+    const auto q = p.cam_from_world.q_wxyz();
+    const auto& t = p.cam_from_world.translation;
+    s << p.name << ' ' << q[0] << ' ' << q[1] << ' ' << q[2] << ' ' << q[3] << ' ' << t.x() << ' ' << t.y() << ' '
+      << t.z() << '\n';
+  }
+  write_file_atomic(path, s.str());
+}
+
+std::vector<std::string> read_name_list(const std::filesystem::path& path) {
+  std::istringstream in(read_file(path));
+  std::vector<std::string> out;
+  std::string line;
+  while (std::getline(in, line)) {
+    size_t b = line.find_first_not_of(" \t\r");
+    if (b == std::string::npos || line[b] == '#') continue;
+    size_t e = line.find_last_not_of(" \t\r");
+    out.push_back(line.substr(b, e - b + 1));
+  }
+  return out;
+}
+
+}  // namespace visloc
