@@ -1,0 +1,239 @@
+// Estimators on synthetic correspondence sets with known truth.
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include "visloc/pose/one_many_ransac.h"
+#include "visloc/pose/sprt.h"
+#include "visloc/pose/synthetic_correspondences.h"
+#include "visloc/util/error.h"
+
+namespace visloc {
+namespace {
+
+SyntheticProblem make(SyntheticFamily family, size_t n, double inlier_ratio, uint64_t seed) {
+  SyntheticOptions o;
+  o.family = family;
+  o.num_features = n;
+  o.inlier_ratio = inlier_ratio;
+  o.seed = seed;
+  return make_synthetic_problem(o);
+}
+
+RansacOptions variant(RansacVariant v, uint64_t seed = 1) {
+  RansacOptions o;
+  o.variant = v;
+  o.seed = seed;
+  return o;
+}
+
+TEST(CorrespondenceSet, ValidateNamesTheProblem) {
+  CorrespondenceSet c;
+  c.validate();  // empty is valid
+  c.add_feature({10, 10}, {Eigen::Vector3d(1, 2, 3), Eigen::Vector3d(2, 3, 4)}, true);
+  c.add_feature({20, 20}, {Eigen::Vector3d(1, 2, 5)}, false);
+  c.validate();
+  EXPECT_EQ(c.num_features(), 2u);
+  EXPECT_EQ(c.num_candidates(0), 2u);
+  EXPECT_EQ(c.num_hypothesis_features(), 1u);
+  CorrespondenceSet bad = c;
+  bad.candidate_offsets[1] = 0;
+  try {
+    bad.validate();
+    FAIL() << "expected an error";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("no candidates"), std::string::npos) << e.what();
+  }
+  bad = c;
+  bad.in_hypothesis_set.pop_back();
+  EXPECT_THROW(bad.validate(), Error);
+  bad = c;
+  bad.candidate_point_ids = {1};
+  EXPECT_THROW(bad.validate(), Error);
+  bad = c;
+  bad.candidates[0].x() = std::nan("");
+  EXPECT_THROW(bad.validate(), Error);
+  EXPECT_THROW(c.add_feature({1, 1}, {}, true), Error);
+}
+
+TEST(RansacOptions, ValidateNamesTheField) {
+  RansacOptions o;
+  o.validate();
+  o.threshold_px = -1;
+  try {
+    o.validate();
+    FAIL();
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("threshold_px"), std::string::npos);
+  }
+  o = {};
+  o.confidence = 1;
+  EXPECT_THROW(o.validate(), Error);
+  o = {};
+  o.sprt_delta0 = 0;
+  EXPECT_THROW(o.validate(), Error);
+  EXPECT_EQ(parse_ransac_variant("1m-sprt"), RansacVariant::kOneManySprt);
+  EXPECT_THROW(parse_ransac_variant("magic"), Error);
+}
+
+TEST(Sprt, DecisionThresholdIsTheFixedPoint) {
+  for (double eps : {0.1, 0.3, 0.6})
+    for (double delta : {0.01, 0.05}) {
+      const double tM = 200, mS = 1;
+      const double A = SprtTest::decision_threshold(eps, delta, tM, mS);
+      const double C = (1 - delta) * std::log((1 - delta) / (1 - eps)) + delta * std::log(delta / eps);
+      EXPECT_GT(A, 1);
+      EXPECT_NEAR(A, tM * C / mS + 1 + std::log(A), 1e-6 * A);
+    }
+  SprtTest t;
+  t.update(0.005, 0.01, 200, 1);  // ε ≤ δ: test disabled
+  EXPECT_FALSE(t.enabled());
+  t.update(0.3, 0.01, 200, 1);
+  EXPECT_TRUE(t.enabled());
+  EXPECT_NEAR(t.consistent_factor, 0.01 / 0.3, 1e-15);
+  EXPECT_NEAR(t.inconsistent_factor, 0.99 / 0.7, 1e-15);
+  EXPECT_NEAR(adaptive_iterations(0.5, 0.99, 1e9), std::log(0.01) / std::log(0.5), 1e-9);
+  EXPECT_EQ(adaptive_iterations(0.0, 0.99, 77), 77);
+}
+
+TEST(Synthetic, CountsAndTruthAreConsistent) {
+  for (auto fam : {SyntheticFamily::kCalibrated, SyntheticFamily::kUncalibrated, SyntheticFamily::kFacade}) {
+    SyntheticOptions o;
+    o.family = fam;
+    o.num_features = 400;
+    o.inlier_ratio = 0.25;
+    o.seed = 9;
+    const SyntheticProblem p = make_synthetic_problem(o);
+    p.correspondences.validate();
+    ASSERT_EQ(p.correspondences.num_features(), 400u);
+    const size_t nh = p.correspondences.num_hypothesis_features();
+    EXPECT_EQ(nh, fam == SyntheticFamily::kFacade ? 120u : 200u);
+    EXPECT_EQ(p.num_correct_hypothesis_features, static_cast<size_t>(std::llround(0.25 * nh)));
+    EXPECT_EQ(fam == SyntheticFamily::kUncalibrated, !p.camera.has_focal);
+    PinholeCamera cam = p.camera;
+    cam.focal = p.true_focal;
+    cam.has_focal = true;
+    size_t correct = 0;
+    for (size_t i = 0; i < 400; ++i) {
+      const int r = p.true_candidate[i];
+      EXPECT_LE(p.correspondences.num_candidates(i), 5u);
+      if (r < 0) continue;
+      ++correct;
+      if (fam == SyntheticFamily::kFacade && !p.correspondences.in_hypothesis_set[i]) {
+        EXPECT_GE(r, 1);  // grid features: the true point never ranks first
+      }
+      const Eigen::Vector3d X = p.correspondences.candidates[p.correspondences.candidate_offsets[i] + r];
+      const Eigen::Vector2d px = cam.project(p.true_cam_from_world.transform(X));
+      EXPECT_LT((px - p.correspondences.points2d[i]).norm(), 6.0);  // 1 px noise, 6 sigma
+    }
+    EXPECT_EQ(correct, p.num_correct_features);
+  }
+  SyntheticOptions bad;
+  bad.inlier_ratio = 2;
+  EXPECT_THROW(make_synthetic_problem(bad), Error);
+}
+
+void expect_good_pose(const SyntheticProblem& p, const PoseEstimate& r, double max_rot_deg, double max_pos_rel) {
+  ASSERT_TRUE(r.has_pose);
+  EXPECT_TRUE(r.registered);
+  EXPECT_LT(rotation_error_deg(r.cam_from_world, p.true_cam_from_world), max_rot_deg);
+  EXPECT_LT(position_error(r.cam_from_world, p.true_cam_from_world), max_pos_rel * p.scene_depth);
+}
+
+TEST(Ransac, EveryVariantRecoversACalibratedPose) {
+  const SyntheticProblem p = make(SyntheticFamily::kCalibrated, 600, 0.3, 3);
+  for (auto v : {RansacVariant::kClassic11, RansacVariant::kOneManyFixed, RansacVariant::kOneManySprt}) {
+    SCOPED_TRACE(std::string(to_string(v)));
+    const PoseEstimate r = estimate_pose(p.correspondences, p.camera, variant(v));
+    expect_good_pose(p, r, 0.5, 0.01);
+    EXPECT_EQ(r.stats.sample_size, 3);
+    if (v == RansacVariant::kOneManyFixed) {
+      EXPECT_EQ(r.stats.iterations, 5000u);
+    }
+    // Chosen candidates are the true ones for (almost) every inlier.
+    size_t agree = 0;
+    for (size_t i = 0; i < r.chosen_candidate.size(); ++i)
+      if (r.chosen_candidate[i] >= 0 && r.chosen_candidate[i] == p.true_candidate[i]) ++agree;
+    EXPECT_GE(agree, r.num_inliers * 9 / 10);
+    if (v == RansacVariant::kClassic11) {
+      EXPECT_LE(r.num_inliers, p.correspondences.num_hypothesis_features());
+    } else {
+      EXPECT_GT(r.num_inliers, p.num_correct_hypothesis_features);
+    }
+  }
+}
+
+TEST(Ransac, UncalibratedEstimatesFocal) {
+  const SyntheticProblem p = make(SyntheticFamily::kUncalibrated, 600, 0.4, 5);
+  for (auto v : {RansacVariant::kClassic11, RansacVariant::kOneManySprt}) {
+    const PoseEstimate r = estimate_pose(p.correspondences, p.camera, variant(v));
+    EXPECT_EQ(r.stats.sample_size, 6);
+    expect_good_pose(p, r, 1.0, 0.02);
+    EXPECT_NEAR(r.focal, p.true_focal, 0.02 * p.true_focal);
+  }
+}
+
+TEST(Ransac, OneManyFindsTheFacadeGridMatches) {
+  const SyntheticProblem p = make(SyntheticFamily::kFacade, 800, 0.4, 7);
+  const PoseEstimate classic = estimate_pose(p.correspondences, p.camera, variant(RansacVariant::kClassic11));
+  const PoseEstimate one_many = estimate_pose(p.correspondences, p.camera, variant(RansacVariant::kOneManySprt));
+  expect_good_pose(p, one_many, 1.0, 0.02);
+  EXPECT_GE(one_many.num_inliers, 2 * classic.num_inliers);
+  // Grid features: their chosen candidate is the true one at rank ≥ 2.
+  size_t grid_right = 0, grid_inliers = 0;
+  for (size_t i = 0; i < one_many.chosen_candidate.size(); ++i) {
+    if (p.correspondences.in_hypothesis_set[i] || one_many.chosen_candidate[i] < 0) continue;
+    ++grid_inliers;
+    grid_right += one_many.chosen_candidate[i] == p.true_candidate[i] ? 1 : 0;
+  }
+  EXPECT_GT(grid_inliers, 100u);
+  EXPECT_GE(grid_right, grid_inliers * 95 / 100);
+}
+
+TEST(Ransac, SprtRejectsBadModelsAndTerminatesEarly) {
+  const SyntheticProblem p = make(SyntheticFamily::kCalibrated, 1500, 0.3, 11);
+  const PoseEstimate sprt = estimate_pose(p.correspondences, p.camera, variant(RansacVariant::kOneManySprt));
+  const PoseEstimate fixed = estimate_pose(p.correspondences, p.camera, variant(RansacVariant::kOneManyFixed));
+  expect_good_pose(p, sprt, 0.5, 0.01);
+  EXPECT_GT(sprt.stats.models_rejected_sprt, 0u);
+  EXPECT_LT(sprt.stats.models_verified, sprt.stats.models / 4);
+  EXPECT_LT(sprt.stats.iterations, fixed.stats.iterations / 4);
+  EXPECT_EQ(fixed.stats.models_verified, fixed.stats.models);
+  EXPECT_GT(sprt.stats.final_epsilon, 0.2);
+  EXPECT_TRUE(std::isfinite(sprt.stats.final_threshold));
+  // Same inliers within a few (same truth, different sampling).
+  EXPECT_NEAR(static_cast<double>(sprt.num_inliers), static_cast<double>(fixed.num_inliers), 10.0);
+}
+
+TEST(Ransac, DeterministicForASeed) {
+  const SyntheticProblem p = make(SyntheticFamily::kFacade, 500, 0.3, 13);
+  const PoseEstimate a = estimate_pose(p.correspondences, p.camera, variant(RansacVariant::kOneManySprt, 42));
+  const PoseEstimate b = estimate_pose(p.correspondences, p.camera, variant(RansacVariant::kOneManySprt, 42));
+  EXPECT_EQ(a.num_inliers, b.num_inliers);
+  EXPECT_EQ(a.stats.iterations, b.stats.iterations);
+  EXPECT_EQ(a.chosen_candidate, b.chosen_candidate);
+  EXPECT_EQ(a.cam_from_world.translation, b.cam_from_world.translation);
+  const SyntheticProblem q = make(SyntheticFamily::kFacade, 500, 0.3, 13);
+  EXPECT_EQ(q.correspondences.points2d, p.correspondences.points2d);
+}
+
+TEST(Ransac, TooFewOrNoInliersGiveNoRegistration) {
+  CorrespondenceSet c;
+  c.add_feature({10, 10}, {Eigen::Vector3d(0, 0, 5)}, true);
+  c.add_feature({20, 10}, {Eigen::Vector3d(1, 0, 5)}, true);
+  const PinholeCamera cam = PinholeCamera::centered(640, 480, 500.0);
+  PoseEstimate r = estimate_pose(c, cam, RansacOptions{});
+  EXPECT_FALSE(r.has_pose);
+  EXPECT_EQ(r.chosen_candidate.size(), 2u);
+  // Pure outliers: whatever pose is found is not registered.
+  const SyntheticProblem p = make(SyntheticFamily::kCalibrated, 300, 0.0, 17);
+  RansacOptions o;
+  o.max_iterations = 300;
+  r = estimate_pose(p.correspondences, p.camera, o);
+  EXPECT_FALSE(r.registered);
+  o.threshold_px = 0;
+  EXPECT_THROW(estimate_pose(p.correspondences, p.camera, o), Error);
+}
+
+}  // namespace
+}  // namespace visloc
