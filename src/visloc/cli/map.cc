@@ -1,13 +1,133 @@
+// visloc map import --colmap MODEL --database DB --out MAP [--holdout LIST]
+// visloc map info MAP [--json]
+#include <iomanip>
+#include <iostream>
+#include <memory>
+#include <nlohmann/json.hpp>
+
 #include "visloc/cli/commands.h"
+#include "visloc/map/colmap_import.h"
+#include "visloc/map/map.h"
+#include "visloc/util/error.h"
 
 namespace visloc::cli {
+namespace {
+
+void add_import(CLI::App& map) {
+  struct Args {
+    std::string colmap, database, out, holdout, images, bundler, list;
+    std::string pq_database, pq_images;
+    ColmapImportOptions options;
+    bool json = false;
+  };
+  auto args = std::make_shared<Args>();
+  CLI::App* cmd = map.add_subcommand(
+      "import", "Import a COLMAP model (+ its database) as a one-segment map with compressed descriptors\n"
+                "(Bundler import: not implemented yet, issue #6)");
+  cmd->add_option("--colmap", args->colmap, "COLMAP model directory (cameras/images/points3D, .bin or .txt)");
+  cmd->add_option("--database", args->database, "COLMAP database.db holding the model's keypoints and descriptors");
+  cmd->add_option("--out", args->out, "Output map directory");
+  cmd->add_option("--holdout", args->holdout,
+                  "File listing images to remove from the model (Dubrovnik protocol) and keep as queries");
+  cmd->add_option("--images", args->images, "Image directory (recorded in the manifest)");
+  cmd->add_option("--bundler", args->bundler, "Bundler bundle.out [not implemented yet: issue #6]");
+  cmd->add_option("--list", args->list, "Bundler image list [not implemented yet: issue #6]");
+  cmd->add_option("--pq-train-database", args->pq_database,
+                  "Train the PQ codebook on the image descriptors of this COLMAP database (an independent set)\n"
+                  "instead of a sample of the map's own point descriptors");
+  cmd->add_option("--pq-train-images", args->pq_images, "File listing the images of --pq-train-database to use");
+  cmd->add_option("--itq-iterations", args->options.itq.iterations, "ITQ iterations")->capture_default_str();
+  cmd->add_option("--seed", args->options.itq.seed, "Seed of ITQ's initial rotation and of PQ training")
+      ->capture_default_str();
+  cmd->add_flag("--no-descriptors", [args](int64_t) { args->options.keep_descriptors = false; },
+                "Do not keep the mean descriptors (descriptors/*.vldesc; needed by the raw-SIFT baselines)");
+  cmd->add_flag("--overwrite", args->options.overwrite, "Replace an existing map in --out");
+  cmd->add_flag("--json", args->json, "Print the import statistics as JSON");
+  cmd->callback([args] {
+    if (!args->bundler.empty() || !args->list.empty())
+      throw_error(ErrorCode::kNotImplemented, "'map import --bundler' is not implemented yet (issue #6)");
+    if (args->colmap.empty() || args->database.empty() || args->out.empty())
+      throw_error(ErrorCode::kInvalidArgument, "map import needs --colmap MODEL --database DB --out MAP");
+    ColmapImportOptions o = args->options;
+    o.pq.seed = o.itq.seed;
+    if (!args->holdout.empty()) o.holdout_images = read_image_list(args->holdout);
+    o.pq_training_database = args->pq_database;
+    if (!args->pq_images.empty()) o.pq_training_images = read_image_list(args->pq_images);
+    ColmapImportResult r = import_colmap_map(args->colmap, args->database, args->out, o);
+    nlohmann::json j = {{"map", args->out},
+                        {"images", r.images},
+                        {"points", r.points},
+                        {"observations", r.observations},
+                        {"holdout",
+                         {{"images_removed", r.holdout.images_removed},
+                          {"observations_removed", r.holdout.observations_removed},
+                          {"points_dropped", r.holdout.points_dropped}}},
+                        {"pq_training", {{"descriptors", r.pq_training_descriptors}, {"source", r.pq_training_source}}},
+                        {"itq_final_error", r.itq_final_error},
+                        {"ms",
+                         {{"read", r.ms_read},
+                          {"descriptors", r.ms_descriptors},
+                          {"pq", r.ms_pq},
+                          {"itq", r.ms_itq},
+                          {"encode", r.ms_encode},
+                          {"write", r.ms_write}}}};
+    if (args->json) {
+      std::cout << j.dump(2) << "\n";
+      return;
+    }
+    std::cout << "imported " << args->colmap << " -> " << args->out << "\n"
+              << "  images " << r.images << ", points " << r.points << ", observations " << r.observations << "\n";
+    if (r.holdout.images_removed)
+      std::cout << "  held out " << r.holdout.images_removed << " images: " << r.holdout.observations_removed
+                << " observations removed, " << r.holdout.points_dropped << " points dropped (< 2 observations)\n";
+    std::cout << "  PQ codebook trained on " << r.pq_training_descriptors << " descriptors (" << r.pq_training_source
+              << ")\n"
+              << std::fixed << std::setprecision(0) << "  time ms: read " << r.ms_read << ", descriptors "
+              << r.ms_descriptors << ", pq " << r.ms_pq << ", itq " << r.ms_itq << ", encode " << r.ms_encode
+              << ", write " << r.ms_write << "\n";
+  });
+}
+
+void add_info(CLI::App& map) {
+  struct Args {
+    std::string map;
+    bool json = false;
+  };
+  auto args = std::make_shared<Args>();
+  CLI::App* cmd = map.add_subcommand("info", "Print the segments, points, images and measured bytes per point of a map");
+  cmd->add_option("map", args->map, "Map directory")->required();
+  cmd->add_flag("--json", args->json, "Print JSON");
+  cmd->callback([args] {
+    MapInfo info = map_info(args->map);
+    if (args->json) {
+      std::cout << info.to_json().dump(2) << "\n";
+      return;
+    }
+    std::cout << "map " << args->map << ": " << info.segments.size() << " segment(s), " << info.total_points
+              << " points\n"
+              << std::setw(8) << "segment" << std::setw(10) << "points" << std::setw(8) << "images" << std::setw(12)
+              << "file bytes" << std::setw(14) << "B/pt (points)" << std::setw(12) << "B/pt (file)" << "\n";
+    for (const auto& s : info.segments)
+      std::cout << std::setw(8) << s.id << std::setw(10) << s.points << std::setw(8) << s.images << std::setw(12)
+                << s.bytes.file << std::fixed << std::setprecision(1) << std::setw(14)
+                << s.bytes.per_point_bytes_per_point(s.points) << std::setw(12)
+                << s.bytes.file_bytes_per_point(s.points) << "\n";
+    const double n = info.total_points ? double(info.total_points) : 1.0;
+    std::cout << std::fixed << std::setprecision(1) << "total: " << double(info.total_per_point_bytes) / n
+              << " bytes/point in per-point sections (xyz 12 + hash 16 + PQ 16 + 8 LUT ids × 4); "
+              << double(info.total_bytes) / n << " bytes/point with the per-segment tables (8 × 65537 offsets, "
+              << "ITQ) and the shared PQ codebook (" << info.codebook_bytes << " bytes)\n";
+  });
+}
+
+}  // namespace
 
 void add_map_command(CLI::App& app) {
   CLI::App* map = app.add_subcommand("map", "Build, import and inspect maps");
   map->require_subcommand(1);
   add_not_implemented(*map, "build", "Build a map from geotagged images with COLMAP", "issue #6");
-  add_not_implemented(*map, "import", "Import a COLMAP or Bundler model as a map", "issue #3");
-  add_not_implemented(*map, "info", "Print the segments, points and bytes per point of a map", "issue #3");
+  add_import(*map);
+  add_info(*map);
   add_not_implemented(*map, "update", "Rebuild one segment of a map", "issue #6");
 }
 

@@ -1,0 +1,58 @@
+#include "visloc/colmap/point_descriptors.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include "visloc/util/error.h"
+
+namespace visloc {
+
+PointDescriptors compute_point_descriptors(const ColmapModel& model, const ColmapDatabase& database) {
+  PointDescriptors out;
+  out.num_points = model.points.size();
+  out.mean.assign(out.num_points * kDescriptorDim, 0.0f);
+  out.track_size.assign(out.num_points, 0);
+  // Observations grouped by image so that each image's descriptors are read once.
+  std::vector<std::vector<std::pair<uint32_t, uint32_t>>> by_image(model.images.size());  // (point index, 2D idx)
+  for (size_t p = 0; p < model.points.size(); ++p)
+    for (const auto& e : model.points[p].track) {
+      const int64_t ii = model.image_index(e.image_id);
+      VISLOC_CHECK(ii >= 0, "track refers to a missing image");
+      by_image[ii].emplace_back(static_cast<uint32_t>(p), e.point2d_idx);
+    }
+  for (size_t ii = 0; ii < model.images.size(); ++ii) {
+    if (by_image[ii].empty()) continue;
+    const auto& image = model.images[ii];
+    auto db_image = database.image_by_name(image.name);
+    if (!db_image)
+      throw_error(ErrorCode::kFormat, database.path().string(), ": image ", image.name,
+                  " of the model is not in the database");
+    DescriptorMatrix d = database.descriptors(db_image->image_id);
+    for (auto [p, k] : by_image[ii]) {
+      if (k >= d.rows())
+        throw_error(ErrorCode::kFormat, database.path().string(), ": image ", image.name, " has ", d.rows(),
+                    " descriptors but the model refers to 2D point ", k,
+                    " (database and model do not belong together)");
+      float* m = &out.mean[size_t(p) * kDescriptorDim];
+      const uint8_t* r = d.row(k);
+      for (int j = 0; j < kDescriptorDim; ++j) m[j] += r[j];
+      ++out.track_size[p];
+    }
+  }
+  for (size_t p = 0; p < out.num_points; ++p) {
+    if (out.track_size[p] == 0) continue;
+    const float inv = 1.0f / static_cast<float>(out.track_size[p]);
+    for (int j = 0; j < kDescriptorDim; ++j) out.mean[p * kDescriptorDim + j] *= inv;
+  }
+  return out;
+}
+
+DescriptorMatrix round_descriptors(const std::vector<float>& values) {
+  VISLOC_CHECK(values.size() % kDescriptorDim == 0);
+  DescriptorMatrix out(values.size() / kDescriptorDim);
+  for (size_t i = 0; i < values.size(); ++i)
+    out.data()[i] = static_cast<uint8_t>(std::clamp(std::lround(values[i]), 0L, 255L));
+  return out;
+}
+
+}  // namespace visloc

@@ -1,0 +1,30 @@
+// Mean SIFT descriptor of every 3D point of a COLMAP model: the average of
+// the descriptors (from the COLMAP database) of the 2D points in its track.
+// The paper uses "mean descriptors" for each 3D point in all experiments
+// (Tran et al., section IV). A track element (image_id, point2D_idx) names
+// the point2D_idx-th keypoint of that image in the database.
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include "visloc/colmap/colmap_database.h"
+#include "visloc/colmap/colmap_model.h"
+
+namespace visloc {
+
+struct PointDescriptors {
+  size_t num_points = 0;
+  std::vector<float> mean;           // num_points × 128, float mean of the track's uint8 descriptors
+  std::vector<uint32_t> track_size;  // observations per point
+};
+
+// Reads each image's descriptors once. Throws Error(kFormat) naming the
+// image when the database lacks it or has fewer keypoints than the model's
+// 2D points refer to.
+PointDescriptors compute_point_descriptors(const ColmapModel& model, const ColmapDatabase& database);
+
+// Rounds float descriptors to uint8 (clamped) rows.
+DescriptorMatrix round_descriptors(const std::vector<float>& values);
+
+}  // namespace visloc

@@ -1,0 +1,200 @@
+#include "visloc/map/colmap_import.h"
+
+#include <iomanip>
+#include <random>
+#include <sstream>
+
+#include "visloc/colmap/colmap_database.h"
+#include "visloc/colmap/point_descriptors.h"
+#include "visloc/map/map.h"
+#include "visloc/map/segment_file.h"
+#include "visloc/matching/cascade_index.h"
+#include "visloc/util/crc32c.h"
+#include "visloc/util/error.h"
+#include "visloc/util/file_io.h"
+#include "visloc/util/mapped_file.h"
+#include "visloc/util/timer.h"
+
+namespace visloc {
+namespace fs = std::filesystem;
+
+void ColmapImportOptions::validate() const {
+  itq.validate();
+  pq.validate();
+  if (pq_training_database.empty() && !pq_training_images.empty())
+    throw_error(ErrorCode::kInvalidArgument, "ColmapImportOptions.pq_training_images needs pq_training_database");
+}
+
+std::vector<std::string> read_image_list(const fs::path& path) {
+  std::istringstream in(read_file(path));
+  std::vector<std::string> out;
+  std::string line;
+  while (std::getline(in, line)) {
+    while (!line.empty() && (line.back() == '\r' || line.back() == ' ' || line.back() == '\t')) line.pop_back();
+    const size_t first = line.find_first_not_of(" \t");
+    if (first == std::string::npos || line[first] == '#') continue;
+    out.push_back(line.substr(first));
+  }
+  return out;
+}
+
+namespace {
+
+std::string segment_name(uint32_t id, const char* ext) {
+  std::ostringstream s;
+  s << std::setw(4) << std::setfill('0') << id << ext;
+  return s.str();
+}
+
+// Descriptors of other images (an independent PQ training set), subsampled.
+std::vector<float> database_training_descriptors(const fs::path& db_path, const std::vector<std::string>& names,
+                                                 size_t max_rows, uint64_t seed) {
+  ColmapDatabase db(db_path);
+  std::vector<ColmapDbImage> images;
+  if (names.empty()) images = db.images();
+  else
+    for (const auto& n : names) {
+      auto im = db.image_by_name(n);
+      if (!im) throw_error(ErrorCode::kNotFound, db_path.string(), ": no image named ", n);
+      images.push_back(*im);
+    }
+  DescriptorMatrix all;
+  for (const auto& im : images) all.append(db.descriptors(im.image_id));
+  std::vector<size_t> rows(all.rows());
+  for (size_t i = 0; i < rows.size(); ++i) rows[i] = i;
+  if (rows.size() > max_rows) {
+    std::mt19937_64 rng(seed);
+    std::shuffle(rows.begin(), rows.end(), rng);
+    rows.resize(max_rows);
+    std::sort(rows.begin(), rows.end());
+  }
+  std::vector<float> out(rows.size() * kDescriptorDim);
+  for (size_t i = 0; i < rows.size(); ++i)
+    for (int j = 0; j < kDescriptorDim; ++j) out[i * kDescriptorDim + j] = all.row(rows[i])[j];
+  return out;
+}
+
+uint32_t file_crc(const fs::path& p) {
+  MappedFile f(p);
+  return crc32c(f.data(), f.size());
+}
+
+}  // namespace
+
+ColmapImportResult import_colmap_map(const fs::path& model_dir, const fs::path& database, const fs::path& out_dir,
+                                     const ColmapImportOptions& options) {
+  options.validate();
+  ColmapImportResult res;
+  if (fs::exists(out_dir / "manifest.json") && !options.overwrite)
+    throw_error(ErrorCode::kInvalidArgument, out_dir.string(), ": a map already exists there (use --overwrite)");
+  Timer t;
+  ColmapModel model = read_colmap_model(model_dir);
+  ColmapDatabase db(database);
+  std::vector<ColmapImage> held_out;
+  for (const auto& n : options.holdout_images) {
+    const int64_t i = model.image_index_by_name(n);
+    if (i >= 0) held_out.push_back(model.images[i]);
+  }
+  if (!options.holdout_images.empty()) res.holdout = remove_images(model, options.holdout_images);
+  if (model.points.size() < 2)
+    throw_error(ErrorCode::kInvalidArgument, model_dir.string(), ": the model has ", model.points.size(),
+                " 3D points left; a map needs at least 2");
+  res.images = model.images.size();
+  res.points = model.points.size();
+  res.observations = model.num_observations();
+  res.ms_read = t.elapsed_ms();
+
+  t.reset();
+  PointDescriptors desc = compute_point_descriptors(model, db);
+  res.ms_descriptors = t.elapsed_ms();
+
+  // PQ codebook, shared by every segment of the map.
+  t.reset();
+  PqCodebook codebook;
+  if (options.pq_training_database.empty()) {
+    codebook = PqCodebook::train(desc.mean.data(), desc.num_points, options.pq);
+    res.pq_training_descriptors = std::min(desc.num_points, options.pq.max_training);
+    res.pq_training_source = "map point descriptors";
+  } else {
+    auto x = database_training_descriptors(options.pq_training_database, options.pq_training_images,
+                                           options.pq.max_training, options.pq.seed);
+    codebook = PqCodebook::train(x.data(), x.size() / kDescriptorDim, options.pq);
+    res.pq_training_descriptors = x.size() / kDescriptorDim;
+    res.pq_training_source = "image descriptors of " + options.pq_training_database.string();
+  }
+  res.ms_pq = t.elapsed_ms();
+
+  t.reset();
+  ItqResult itq = train_itq(desc.mean.data(), desc.num_points, options.itq);
+  res.itq_final_error = itq.quantization_error.empty() ? 0 : itq.quantization_error.back();
+  res.ms_itq = t.elapsed_ms();
+
+  t.reset();
+  SegmentData seg;
+  seg.segment_id = 0;
+  seg.xyz.resize(3 * desc.num_points);
+  for (size_t p = 0; p < model.points.size(); ++p)
+    for (int k = 0; k < 3; ++k) seg.xyz[3 * p + k] = static_cast<float>(model.points[p].xyz[k]);
+  seg.hasher = std::move(itq.hasher);
+  seg.codes.resize(desc.num_points);
+  std::vector<float> ws;
+  encode_hash(seg.hasher.view(), desc.mean.data(), desc.num_points, seg.codes.data(), ws);
+  seg.pq_codes.resize(desc.num_points * kPqCodeBytes);
+  codebook.encode(desc.mean.data(), desc.num_points, seg.pq_codes.data());
+  seg.tables = build_cascade_tables(seg.codes);
+  for (const auto& im : model.images) {
+    const auto& cam = model.cameras[model.camera_index(im.camera_id)];
+    seg.images.push_back({im.name, cam.model_id, cam.width, cam.height, cam.params, im.cam_from_world_q_wxyz,
+                          im.cam_from_world_t});
+  }
+  seg.extra_meta["source"] = {{"colmap", fs::absolute(model_dir).string()}};
+  res.ms_encode = t.elapsed_ms();
+
+  t.reset();
+  fs::create_directories(out_dir / "segments");
+  MapManifest man;
+  const std::string seg_file = "segments/" + segment_name(0, ".vlseg");
+  write_segment_file(out_dir / seg_file, seg);
+  std::string desc_file;
+  if (options.keep_descriptors) {
+    fs::create_directories(out_dir / "descriptors");
+    desc_file = "descriptors/" + segment_name(0, ".vldesc");
+    write_point_descriptor_file(out_dir / desc_file, round_descriptors(desc.mean), desc.track_size);
+  }
+  nlohmann::json pq_meta = {{"dimension", kDescriptorDim},
+                            {"subvectors", kPqSubvectors},
+                            {"bits", 8},
+                            {"training_descriptors", res.pq_training_descriptors},
+                            {"training_source", res.pq_training_source},
+                            {"seed", options.pq.seed}};
+  codebook.write(out_dir / man.pq_codebook_file, pq_meta.dump());
+  if (!held_out.empty()) {
+    std::ostringstream s;
+    s << std::setprecision(17) << "# held-out images: name qw qx qy qz tx ty tz (world-to-camera, SfM pose)\n";
+    for (const auto& im : held_out) {
+      const auto& q = im.cam_from_world_q_wxyz;
+      const auto& tt = im.cam_from_world_t;
+      s << im.name << ' ' << q[0] << ' ' << q[1] << ' ' << q[2] << ' ' << q[3] << ' ' << tt[0] << ' ' << tt[1] << ' '
+        << tt[2] << '\n';
+    }
+    man.holdout_file = "holdout.txt";
+    write_file_atomic(out_dir / man.holdout_file, s.str());
+  }
+  man.holdout_images = options.holdout_images;
+  man.parameters = {{"hash", {{"method", "itq"}, {"bits", kHashBits}, {"tables", kHashTables},
+                              {"table_bits", kHashTableBits}, {"itq_iterations", options.itq.iterations},
+                              {"seed", options.itq.seed}}},
+                    {"pq", pq_meta},
+                    {"point_descriptor", "mean of track"}};
+  man.source = {{"type", "colmap"},
+                {"model", fs::absolute(model_dir).string()},
+                {"database", fs::absolute(database).string()}};
+  const fs::path seg_path = out_dir / seg_file;
+  man.segments.push_back({0, seg_file, desc_file, desc.num_points, seg.images.size(), fs::file_size(seg_path),
+                          file_crc(seg_path)});
+  write_manifest(out_dir, man);
+  res.ms_write = t.elapsed_ms();
+  return res;
+}
+
+}  // namespace visloc

@@ -1,0 +1,50 @@
+// `visloc map import --colmap`: a COLMAP model + database become a map of
+// one segment (issue 6 splits city-scale maps into many):
+//   1. read the model (binary or text) and, with a holdout list, remove those
+//      images the way the Dubrovnik protocol does (colmap_model.h
+//      remove_images): their poses are kept as the queries' reference poses;
+//   2. mean SIFT per 3D point from its track (colmap/point_descriptors.h);
+//   3. PQ codebook (16 × 8 bits), trained once per map on a sample across
+//      the whole map's point descriptors, or on another database's image
+//      descriptors (an independent set, as the paper trains its codebook);
+//   4. ITQ learned on the segment's descriptors; codes, LUTs, PQ codes;
+//   5. segment file, descriptor file, codebook, holdout poses, manifest.
+#pragma once
+
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include "visloc/colmap/colmap_model.h"
+#include "visloc/matching/binary_hasher.h"
+#include "visloc/matching/pq_codebook.h"
+
+namespace visloc {
+
+struct ColmapImportOptions {
+  std::vector<std::string> holdout_images;      // image names removed from the model
+  std::filesystem::path pq_training_database;   // empty: train on the map's own point descriptors
+  std::vector<std::string> pq_training_images;  // names in that database; empty: all its images
+  ItqOptions itq;
+  PqTrainingOptions pq;
+  bool keep_descriptors = true;  // write descriptors/NNNN.vldesc
+  bool overwrite = false;        // replace an existing map in the output directory
+  void validate() const;
+};
+
+struct ColmapImportResult {
+  size_t images = 0, points = 0, observations = 0;
+  ColmapHoldoutStats holdout;
+  size_t pq_training_descriptors = 0;
+  std::string pq_training_source;
+  double itq_final_error = 0;
+  double ms_read = 0, ms_descriptors = 0, ms_pq = 0, ms_itq = 0, ms_encode = 0, ms_write = 0;
+};
+
+ColmapImportResult import_colmap_map(const std::filesystem::path& model_dir, const std::filesystem::path& database,
+                                     const std::filesystem::path& out_dir, const ColmapImportOptions& options = {});
+
+// Reads an image list: one name per line; blank lines and '#' comments skipped.
+std::vector<std::string> read_image_list(const std::filesystem::path& path);
+
+}  // namespace visloc

@@ -1,0 +1,100 @@
+// A map directory (DESIGN.md "map/"):
+//   MAP/manifest.json          format version, ENU origin if known, parameters,
+//                              segments (file, counts, bytes, CRC32C of the file),
+//                              PQ codebook, source, held-out images
+//   MAP/segments/NNNN.vlseg    segment files (segment_file.h)
+//   MAP/pq_codebook.vlpq       the PQ codebook shared by every segment
+//   MAP/descriptors/NNNN.vldesc  mean SIFT per point (uint8), kind "PDSC":
+//                              not used on the device; kept for rebuilding
+//                              segments and for the raw-SIFT baselines
+//   MAP/holdout.txt            held-out images' reference poses
+//                              (name qw qx qy qz tx ty tz, world-to-camera)
+// Every file is written atomically; manifest.json last.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <filesystem>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "visloc/features/feature_set.h"
+#include "visloc/map/segment_file.h"
+#include "visloc/matching/pq_codebook.h"
+
+namespace visloc {
+
+inline constexpr int kMapFormatVersion = 1;
+inline constexpr uint32_t kPointDescriptorFileVersion = 1;
+
+struct MapSegmentEntry {
+  uint32_t id = 0;
+  std::string file;              // relative to the map directory
+  std::string descriptors_file;  // relative; empty when not kept
+  size_t points = 0;
+  size_t images = 0;
+  uint64_t file_bytes = 0;
+  uint32_t file_crc32c = 0;
+};
+
+struct MapManifest {
+  int format_version = kMapFormatVersion;
+  std::optional<std::array<double, 3>> enu_origin_lat_lon_alt;
+  nlohmann::json parameters = nlohmann::json::object();
+  std::string pq_codebook_file = "pq_codebook.vlpq";
+  std::vector<MapSegmentEntry> segments;
+  nlohmann::json source = nlohmann::json::object();   // e.g. {"colmap": ..., "database": ...}
+  std::vector<std::string> holdout_images;
+  std::string holdout_file;                            // relative; empty when none
+
+  nlohmann::json to_json() const;
+  static MapManifest from_json(const nlohmann::json& j, const std::string& what);
+};
+
+void write_manifest(const std::filesystem::path& map_dir, const MapManifest& manifest);
+// Throws Error naming the file for a missing, unparsable or newer-version manifest.
+MapManifest read_manifest(const std::filesystem::path& map_dir);
+
+// Mean descriptors of a segment's points (uint8, N × 128) and track sizes.
+void write_point_descriptor_file(const std::filesystem::path& path, const DescriptorMatrix& descriptors,
+                                 const std::vector<uint32_t>& track_size);
+DescriptorMatrix read_point_descriptor_file(const std::filesystem::path& path);
+
+// An opened map: manifest, shared codebook, segments mapped on demand.
+class Map {
+ public:
+  static Map open(const std::filesystem::path& dir);
+  const MapManifest& manifest() const { return manifest_; }
+  const PqCodebook& codebook() const { return codebook_; }
+  const std::filesystem::path& dir() const { return dir_; }
+  // Maps segment `index` (position in manifest().segments) and checks that
+  // its size matches the manifest.
+  std::unique_ptr<Segment> open_segment(size_t index) const;
+
+ private:
+  std::filesystem::path dir_;
+  MapManifest manifest_;
+  PqCodebook codebook_;
+};
+
+// What `visloc map info` prints.
+struct MapSegmentInfo {
+  uint32_t id = 0;
+  size_t points = 0, images = 0;
+  SegmentBytes bytes;
+};
+struct MapInfo {
+  MapManifest manifest;
+  std::vector<MapSegmentInfo> segments;
+  uint64_t codebook_bytes = 0;
+  size_t total_points = 0;
+  uint64_t total_per_point_bytes = 0;  // Σ per-point sections
+  uint64_t total_bytes = 0;            // Σ segment files + codebook
+  nlohmann::json to_json() const;
+};
+MapInfo map_info(const std::filesystem::path& dir);
+
+}  // namespace visloc

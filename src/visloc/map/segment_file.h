@@ -1,0 +1,105 @@
+// Segment files (.vlseg): one 3D sub-model with compressed descriptors only,
+// the unit the localizer maps into memory (DESIGN.md "map/"; Tran et al.
+// section III-B). A SectionFile of kind "SEGM", kind version 1; every
+// section 64-byte aligned and CRC32C-checked (util/section_file.h):
+//
+//   META    JSON: segment id, point and image counts, hash/PQ parameters,
+//           optional enu_from_segment similarity {scale, q_wxyz, t}
+//   XYZ     N × 3 float32 point positions (segment frame)
+//   CODE    N × 16 bytes ITQ hash codes (HashCode: 2 × uint64 little-endian)
+//   PQ      N × 16 bytes PQ codes (codebook shared by the map: pq_codebook.vlpq)
+//   ITQMEAN 128 float32 mean subtracted before hashing
+//   ITQW    128 × 128 float32 projection, row-major (row i gives bit i)
+//   LUTOFF  8 × 65537 uint32 bucket offsets (CSR), see cascade_index.h
+//   LUTIDS  8 × N uint32 point ids
+//   IMAGES  JSON array of the segment's images: name, camera {model, width,
+//           height, params}, cam_from_world {q_wxyz, t}
+//
+// Memory per point (the paper's 76 bytes): XYZ 12 + CODE 16 + PQ 16 +
+// LUTIDS 32; per segment: LUTOFF 2 MiB + ITQ 64.5 KiB + META + IMAGES.
+// Segment::open maps the file and points into it (no copy of the arrays).
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <filesystem>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "visloc/matching/binary_hasher.h"
+#include "visloc/matching/cascade_index.h"
+#include "visloc/util/section_file.h"
+
+namespace visloc {
+
+inline constexpr uint32_t kSegmentFileVersion = 1;
+
+struct SegmentImage {
+  std::string name;
+  int camera_model_id = 1;  // COLMAP model id
+  uint64_t width = 0, height = 0;
+  std::vector<double> camera_params;
+  std::array<double, 4> cam_from_world_q_wxyz{1, 0, 0, 0};
+  std::array<double, 3> cam_from_world_t{0, 0, 0};
+};
+nlohmann::json to_json(const SegmentImage& image);
+SegmentImage segment_image_from_json(const nlohmann::json& j);
+
+// Everything a segment file holds, owned (the writer's input).
+struct SegmentData {
+  uint32_t segment_id = 0;
+  std::vector<float> xyz;  // N × 3
+  BinaryHasher hasher;
+  std::vector<HashCode> codes;
+  std::vector<uint8_t> pq_codes;  // N × 16
+  CascadeTables tables;
+  std::vector<SegmentImage> images;
+  nlohmann::json extra_meta = nlohmann::json::object();  // merged into META (e.g. enu_from_segment)
+  size_t num_points() const { return xyz.size() / 3; }
+};
+
+void write_segment_file(const std::filesystem::path& path, const SegmentData& segment);
+
+// Measured sizes of one segment file.
+struct SegmentBytes {
+  uint64_t file = 0;        // whole file
+  uint64_t per_point = 0;   // XYZ + CODE + PQ + LUTIDS sections
+  uint64_t lut_offsets = 0; // LUTOFF section
+  uint64_t hasher = 0;      // ITQMEAN + ITQW
+  uint64_t other = 0;       // META, IMAGES, header, table, padding
+  double per_point_bytes_per_point(size_t n) const { return n ? double(per_point) / double(n) : 0; }
+  double file_bytes_per_point(size_t n) const { return n ? double(file) / double(n) : 0; }
+};
+
+// A read-only segment mapped from its file. Opening verifies the container
+// (magic, kind, version, size, every CRC) and the index structure, and
+// rejects a file with a clear message naming it.
+class Segment {
+ public:
+  static std::unique_ptr<Segment> open(const std::filesystem::path& path);
+
+  uint32_t id() const { return id_; }
+  size_t num_points() const { return num_points_; }
+  std::span<const float> xyz() const { return xyz_; }
+  const CascadeIndexView& index() const { return index_; }
+  const std::vector<SegmentImage>& images() const { return images_; }
+  const nlohmann::json& meta() const { return meta_; }
+  const SegmentBytes& bytes() const { return bytes_; }
+  const std::filesystem::path& path() const { return reader_.path(); }
+
+ private:
+  explicit Segment(const std::filesystem::path& path);
+  SectionFileReader reader_;
+  uint32_t id_ = 0;
+  size_t num_points_ = 0;
+  std::span<const float> xyz_;
+  CascadeIndexView index_;
+  std::vector<SegmentImage> images_;
+  nlohmann::json meta_;
+  SegmentBytes bytes_;
+};
+
+}  // namespace visloc

@@ -1,0 +1,177 @@
+#include "visloc/matching/binary_hasher.h"
+
+#include <Eigen/Dense>
+
+#include <algorithm>
+#include <cmath>
+#include <numeric>
+#include <random>
+
+#include "visloc/util/error.h"
+
+namespace visloc {
+namespace {
+
+using RowMatrixF = Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+using ConstRowMapF = Eigen::Map<const RowMatrixF>;
+
+template <typename T>
+void encode_impl(BinaryHasherView h, const T* x, size_t n, HashCode* codes, std::vector<float>& ws) {
+  if (n == 0) return;
+  constexpr size_t kBlock = 1024;  // rows per GEMM block: bounded workspace
+  ws.resize(kBlock * kHashBits * 2);
+  ConstRowMapF w(h.projection, kHashBits, kDescriptorDim);
+  for (size_t start = 0; start < n; start += kBlock) {
+    const size_t rows = std::min(kBlock, n - start);
+    float* centred = ws.data();
+    float* projected = ws.data() + kBlock * kHashBits;
+    for (size_t i = 0; i < rows; ++i) {
+      const T* r = x + (start + i) * kDescriptorDim;
+      float* c = centred + i * kDescriptorDim;
+      for (int j = 0; j < kDescriptorDim; ++j) c[j] = static_cast<float>(r[j]) - h.mean[j];
+    }
+    Eigen::Map<RowMatrixF> cm(centred, rows, kDescriptorDim);
+    Eigen::Map<RowMatrixF> pm(projected, rows, kHashBits);
+    pm.noalias() = cm * w.transpose();
+    for (size_t i = 0; i < rows; ++i) {
+      const float* p = projected + i * kHashBits;
+      HashCode code{{0, 0}};
+      for (int b = 0; b < kHashBits; ++b)
+        code.w[b >> 6] |= static_cast<uint64_t>(p[b] > 0.0f) << (b & 63);
+      codes[start + i] = code;
+    }
+  }
+}
+
+// Centred training rows (subsampled to at most max_rows, seeded) as a double
+// matrix, and the mean.
+Eigen::MatrixXd centred_training(const float* x, size_t n, size_t max_rows, uint64_t seed, Eigen::VectorXd& mean) {
+  std::vector<size_t> rows(n);
+  std::iota(rows.begin(), rows.end(), size_t{0});
+  if (n > max_rows) {
+    std::mt19937_64 rng(seed);
+    std::shuffle(rows.begin(), rows.end(), rng);
+    rows.resize(max_rows);
+    std::sort(rows.begin(), rows.end());
+  }
+  Eigen::MatrixXd m(rows.size(), kDescriptorDim);
+  for (size_t i = 0; i < rows.size(); ++i)
+    for (int j = 0; j < kDescriptorDim; ++j) m(i, j) = x[rows[i] * kDescriptorDim + j];
+  mean = m.colwise().mean().transpose();
+  m.rowwise() -= mean.transpose();
+  return m;
+}
+
+Eigen::MatrixXd pca_basis(const Eigen::MatrixXd& centred) {
+  Eigen::MatrixXd cov = (centred.transpose() * centred) / std::max<double>(1.0, double(centred.rows()));
+  Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> es(cov);
+  // Columns sorted by decreasing eigenvalue.
+  return es.eigenvectors().rowwise().reverse();
+}
+
+Eigen::MatrixXd random_orthogonal(int d, uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> g(0.0, 1.0);
+  Eigen::MatrixXd a(d, d);
+  for (int i = 0; i < d; ++i)
+    for (int j = 0; j < d; ++j) a(i, j) = g(rng);
+  Eigen::JacobiSVD<Eigen::MatrixXd> svd(a, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  return svd.matrixU() * svd.matrixV().transpose();
+}
+
+BinaryHasher to_hasher(const Eigen::VectorXd& mean, const Eigen::MatrixXd& w_columns) {
+  BinaryHasher h;
+  h.mean.resize(kDescriptorDim);
+  h.projection.resize(kHashBits * kDescriptorDim);
+  for (int j = 0; j < kDescriptorDim; ++j) h.mean[j] = static_cast<float>(mean(j));
+  for (int i = 0; i < kHashBits; ++i)
+    for (int j = 0; j < kDescriptorDim; ++j) h.projection[i * kDescriptorDim + j] = static_cast<float>(w_columns(j, i));
+  return h;
+}
+
+// RMS of the centred entries: the ITQ objective is evaluated on data scaled
+// to unit RMS so that its value does not depend on the descriptor scale.
+double rms(const Eigen::MatrixXd& centred) {
+  return std::sqrt(centred.squaredNorm() / std::max<double>(1.0, double(centred.size())));
+}
+
+double objective(const Eigen::MatrixXd& v) {
+  return (v.array().sign() - v.array()).matrix().squaredNorm() / std::max<double>(1.0, double(v.rows()));
+}
+
+}  // namespace
+
+void encode_hash(BinaryHasherView h, const uint8_t* x, size_t n, HashCode* codes, std::vector<float>& ws) {
+  encode_impl(h, x, n, codes, ws);
+}
+void encode_hash(BinaryHasherView h, const float* x, size_t n, HashCode* codes, std::vector<float>& ws) {
+  encode_impl(h, x, n, codes, ws);
+}
+
+void ItqOptions::validate() const {
+  if (iterations < 0) throw_error(ErrorCode::kInvalidArgument, "ItqOptions.iterations must be >= 0, got ", iterations);
+  if (max_training < 2) throw_error(ErrorCode::kInvalidArgument, "ItqOptions.max_training must be >= 2");
+}
+
+ItqResult train_itq(const float* x, size_t n, const ItqOptions& options) {
+  options.validate();
+  if (n < 2) throw_error(ErrorCode::kInvalidArgument, "ITQ needs at least 2 descriptors, got ", n);
+  Eigen::VectorXd mean;
+  Eigen::MatrixXd c = centred_training(x, n, options.max_training, options.seed, mean);
+  const double s = rms(c);
+  if (s > 0) c /= s;
+  const Eigen::MatrixXd p = pca_basis(c);
+  // The n × 128 products run in float (the hot part); the 128 × 128
+  // Procrustes solve in double.
+  const Eigen::MatrixXf v = (c * p).cast<float>();
+  Eigen::MatrixXd r = random_orthogonal(kHashBits, options.seed);
+  ItqResult out;
+  Eigen::MatrixXf vr(v.rows(), kHashBits), b(v.rows(), kHashBits);
+  for (int it = 0; it < options.iterations; ++it) {
+    vr.noalias() = v * r.cast<float>();
+    b = vr.array().sign().matrix();
+    // Orthogonal Procrustes: R = argmin ||B − V R|| = S Ŝᵀ with Vᵀ B = S Ω Ŝᵀ.
+    const Eigen::MatrixXd vtb = (v.transpose() * b).cast<double>();
+    Eigen::BDCSVD<Eigen::MatrixXd> svd(vtb, Eigen::ComputeFullU | Eigen::ComputeFullV);
+    r = svd.matrixU() * svd.matrixV().transpose();
+    vr.noalias() = v * r.cast<float>();
+    out.quantization_error.push_back(objective(vr.cast<double>()));
+  }
+  out.hasher = to_hasher(mean, p * r);
+  return out;
+}
+
+BinaryHasher make_random_rotation_hasher(const float* x, size_t n, uint64_t seed) {
+  if (n < 2) throw_error(ErrorCode::kInvalidArgument, "a PCA rotation needs at least 2 descriptors, got ", n);
+  Eigen::VectorXd mean;
+  Eigen::MatrixXd c = centred_training(x, n, 200000, seed, mean);
+  return to_hasher(mean, pca_basis(c) * random_orthogonal(kHashBits, seed));
+}
+
+BinaryHasher make_lsh_hasher(const float* x, size_t n, uint64_t seed) {
+  Eigen::VectorXd mean = Eigen::VectorXd::Zero(kDescriptorDim);
+  for (size_t i = 0; i < n; ++i)
+    for (int j = 0; j < kDescriptorDim; ++j) mean(j) += x[i * kDescriptorDim + j];
+  if (n > 0) mean /= double(n);
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> g(0.0, 1.0);
+  Eigen::MatrixXd w(kDescriptorDim, kHashBits);
+  for (int i = 0; i < kHashBits; ++i)
+    for (int j = 0; j < kDescriptorDim; ++j) w(j, i) = g(rng);
+  return to_hasher(mean, w);
+}
+
+double hash_quantization_error(BinaryHasherView h, const float* x, size_t n) {
+  if (n == 0) return 0;
+  Eigen::MatrixXd c(n, kDescriptorDim);
+  for (size_t i = 0; i < n; ++i)
+    for (int j = 0; j < kDescriptorDim; ++j) c(i, j) = x[i * kDescriptorDim + j] - h.mean[j];
+  const double s = rms(c);
+  if (s > 0) c /= s;
+  Eigen::MatrixXd w(kDescriptorDim, kHashBits);
+  for (int i = 0; i < kHashBits; ++i)
+    for (int j = 0; j < kDescriptorDim; ++j) w(j, i) = h.projection[i * kDescriptorDim + j];
+  return objective(c * w);
+}
+
+}  // namespace visloc

@@ -1,0 +1,87 @@
+// 128-bit binary codes of SIFT descriptors by a linear sign hash:
+//   h(x) = sign(W (x − μ)),  W ∈ R^{128×128}, bit i = [w_iᵀ(x − μ) > 0]
+// learned by Iterative Quantization (ITQ, Gong & Lazebnik, CVPR 2011; the
+// paper's eq. (2): min_{B,R} ||B − V R||_F², V the PCA projection of the
+// centred descriptors, R orthogonal) or drawn at random (LSH, Charikar 2002;
+// the CasHash baseline of Cheng et al., CVPR 2014).
+//
+// Code layout: 2 × uint64 words, bit i of the code in word i/64, bit i%64.
+// The k-th 16-bit sub-code (k = 0..7, the k-th lookup table of the cascade)
+// is bits [16k, 16k+16): (word[k/4] >> 16·(k%4)) & 0xFFFF.
+#pragma once
+
+#include <bit>
+#include <cstdint>
+#include <span>
+#include <vector>
+
+#include "visloc/features/feature_set.h"
+
+namespace visloc {
+
+inline constexpr int kHashBits = 128;
+inline constexpr int kHashTables = 8;      // m
+inline constexpr int kHashTableBits = 16;  // b
+inline constexpr uint32_t kHashBuckets = 1u << kHashTableBits;
+
+struct HashCode {
+  uint64_t w[2];
+};
+static_assert(sizeof(HashCode) == 16);
+
+inline uint32_t hamming_distance(const HashCode& a, const HashCode& b) {
+  return static_cast<uint32_t>(std::popcount(a.w[0] ^ b.w[0]) + std::popcount(a.w[1] ^ b.w[1]));
+}
+inline uint32_t hash_subcode(const HashCode& c, int table) {
+  return static_cast<uint32_t>((c.w[table >> 2] >> (16 * (table & 3))) & 0xFFFFu);
+}
+
+// Non-owning view of the hash parameters (e.g. into a mapped segment file):
+// mean[128] and projection[128 × 128] row-major (row i = w_i).
+struct BinaryHasherView {
+  const float* mean = nullptr;
+  const float* projection = nullptr;
+};
+
+// Owning hash parameters.
+struct BinaryHasher {
+  std::vector<float> mean;        // 128
+  std::vector<float> projection;  // 128 × 128 row-major
+  BinaryHasherView view() const { return {mean.data(), projection.data()}; }
+};
+
+// Encodes n descriptors (uint8 or float rows of 128) into codes. `workspace`
+// is reused between calls (n × 256 floats).
+void encode_hash(BinaryHasherView hasher, const uint8_t* descriptors, size_t n, HashCode* codes,
+                 std::vector<float>& workspace);
+void encode_hash(BinaryHasherView hasher, const float* descriptors, size_t n, HashCode* codes,
+                 std::vector<float>& workspace);
+
+struct ItqOptions {
+  int iterations = 50;     // Gong & Lazebnik use 50
+  uint64_t seed = 1;       // initial random rotation
+  size_t max_training = 200000;  // a larger set is subsampled (seeded)
+  void validate() const;
+};
+
+struct ItqResult {
+  BinaryHasher hasher;
+  std::vector<double> quantization_error;  // ||B − V R||_F² / n after each iteration
+};
+
+// Learns ITQ on n float descriptors (rows of 128): centring, full PCA
+// (128 → 128), then alternating B = sign(V R) and the orthogonal Procrustes
+// update R = S Ŝᵀ from the SVD Vᵀ B = S Ω Ŝᵀ. projection = (P R)ᵀ.
+ItqResult train_itq(const float* descriptors, size_t n, const ItqOptions& options = {});
+
+// Random hyperplanes (i.i.d. Gaussian rows) through the data mean: LSH.
+BinaryHasher make_lsh_hasher(const float* descriptors, size_t n, uint64_t seed);
+
+// A random orthogonal rotation of the PCA basis (the ITQ initialisation;
+// the reference that ITQ must improve on).
+BinaryHasher make_random_rotation_hasher(const float* descriptors, size_t n, uint64_t seed);
+
+// Mean over the descriptors of ||sign(W(x−μ)) − W(x−μ)||² (the ITQ objective).
+double hash_quantization_error(BinaryHasherView hasher, const float* descriptors, size_t n);
+
+}  // namespace visloc

@@ -1,0 +1,339 @@
+#include <gtest/gtest.h>
+
+#include <Eigen/Dense>
+#include <algorithm>
+#include <filesystem>
+#include <random>
+
+#include "visloc/matching/binary_hasher.h"
+#include "visloc/matching/cascade_index.h"
+#include "visloc/matching/correspondence_arrays.h"
+#include "visloc/matching/exact_matcher.h"
+#include "visloc/matching/faiss_baselines.h"
+#include "visloc/matching/pq_codebook.h"
+#include "visloc/util/error.h"
+#include "visloc/util/file_io.h"
+
+using namespace visloc;
+namespace fs = std::filesystem;
+
+namespace {
+
+// FAISS searches and k-means run on one thread in tests: OpenMP threads
+// spinning on a loaded machine make them slow, not faster.
+const int kOneThread = (set_faiss_threads(1), 1);
+
+// SIFT-like synthetic descriptors: a mixture of clusters in [0, 255].
+DescriptorMatrix clustered_descriptors(size_t n, uint64_t seed, int clusters = 24) {
+  std::mt19937 rng(static_cast<uint32_t>(seed));
+  std::uniform_int_distribution<int> centre(0, 110), noise(-35, 35), pick(0, clusters - 1);
+  std::vector<std::array<int, 128>> c(clusters);
+  std::mt19937 crng(7);  // same centres for every call
+  for (auto& a : c)
+    for (int& v : a) v = std::uniform_int_distribution<int>(0, 110)(crng);
+  DescriptorMatrix d(n);
+  for (size_t i = 0; i < n; ++i) {
+    const auto& a = c[pick(rng)];
+    for (int j = 0; j < 128; ++j) d.row(i)[j] = static_cast<uint8_t>(std::clamp(a[j] + noise(rng), 0, 255));
+  }
+  return d;
+}
+
+std::vector<float> to_float(const DescriptorMatrix& d) {
+  return std::vector<float>(d.data(), d.data() + d.size_bytes());
+}
+
+DescriptorMatrix perturbed(const DescriptorMatrix& db, const std::vector<size_t>& rows, int amplitude, uint64_t seed) {
+  std::mt19937 rng(static_cast<uint32_t>(seed));
+  std::uniform_int_distribution<int> noise(-amplitude, amplitude);
+  DescriptorMatrix q(rows.size());
+  for (size_t i = 0; i < rows.size(); ++i)
+    for (int j = 0; j < 128; ++j) q.row(i)[j] = static_cast<uint8_t>(std::clamp(db.row(rows[i])[j] + noise(rng), 0, 255));
+  return q;
+}
+
+// A complete in-memory index over a database.
+struct TestIndex {
+  BinaryHasher hasher;
+  PqCodebook codebook;
+  std::vector<HashCode> codes;
+  std::vector<uint8_t> pq;
+  CascadeTables tables;
+  CascadeIndexView view() const {
+    return {codes.size(), hasher.view(), codes.data(), pq.data(), tables.offsets.data(), tables.ids.data()};
+  }
+};
+
+TestIndex make_index(const DescriptorMatrix& db, bool lsh = false) {
+  TestIndex t;
+  auto f = to_float(db);
+  t.hasher = lsh ? make_lsh_hasher(f.data(), db.rows(), 5) : train_itq(f.data(), db.rows(), {.iterations = 10}).hasher;
+  t.codebook = PqCodebook::train(f.data(), db.rows(), {.iterations = 10});
+  t.codes.resize(db.rows());
+  std::vector<float> ws;
+  encode_hash(t.hasher.view(), db.data(), db.rows(), t.codes.data(), ws);
+  t.pq.resize(db.rows() * kPqCodeBytes);
+  t.codebook.encode(f.data(), db.rows(), t.pq.data());
+  t.tables = build_cascade_tables(t.codes);
+  return t;
+}
+
+}  // namespace
+
+TEST(Itq, IsOrthogonalAndBeatsARandomRotation) {
+  DescriptorMatrix d = clustered_descriptors(3000, 1);
+  auto f = to_float(d);
+  auto itq = train_itq(f.data(), d.rows(), {.iterations = 30, .seed = 3});
+  Eigen::Map<const Eigen::Matrix<float, 128, 128, Eigen::RowMajor>> w(itq.hasher.projection.data());
+  EXPECT_LT((w * w.transpose() - Eigen::Matrix<float, 128, 128>::Identity()).cwiseAbs().maxCoeff(), 1e-4);
+  ASSERT_EQ(itq.quantization_error.size(), 30u);
+  // ITQ's alternating minimisation never increases the objective (up to rounding).
+  for (size_t i = 1; i < itq.quantization_error.size(); ++i)
+    EXPECT_LE(itq.quantization_error[i], itq.quantization_error[i - 1] + 1e-6);
+  const double e_itq = hash_quantization_error(itq.hasher.view(), f.data(), d.rows());
+  EXPECT_NEAR(e_itq, itq.quantization_error.back(), 1e-3 * e_itq);
+  for (uint64_t seed : {3u, 11u, 12u}) {
+    BinaryHasher r = make_random_rotation_hasher(f.data(), d.rows(), seed);
+    const double e_rand = hash_quantization_error(r.view(), f.data(), d.rows());
+    EXPECT_LT(e_itq, 0.97 * e_rand) << "seed " << seed;
+  }
+  EXPECT_THROW(train_itq(f.data(), 1), Error);
+}
+
+TEST(Itq, EncodeMatchesScalarReference) {
+  DescriptorMatrix d = clustered_descriptors(1500, 2);  // more than one encode block
+  auto f = to_float(d);
+  BinaryHasher h = make_lsh_hasher(f.data(), d.rows(), 9);
+  std::vector<HashCode> codes(d.rows()), codes_f(d.rows());
+  std::vector<float> ws;
+  encode_hash(h.view(), d.data(), d.rows(), codes.data(), ws);
+  encode_hash(h.view(), f.data(), d.rows(), codes_f.data(), ws);
+  int disagreements = 0;
+  for (size_t i = 0; i < d.rows(); ++i) {
+    EXPECT_EQ(codes[i].w[0], codes_f[i].w[0]);
+    for (int b = 0; b < 128; ++b) {
+      double s = 0;
+      for (int j = 0; j < 128; ++j) s += double(h.projection[b * 128 + j]) * (f[i * 128 + j] - h.mean[j]);
+      const bool bit = (codes[i].w[b / 64] >> (b % 64)) & 1;
+      if (std::abs(s) > 1e-2) EXPECT_EQ(bit, s > 0) << i << " " << b;
+      else disagreements += bit != (s > 0);
+    }
+  }
+  EXPECT_LE(disagreements, 5);
+}
+
+TEST(Hamming, PopcountAndSubcodesMatchScalarReference) {
+  std::mt19937_64 rng(4);
+  for (int t = 0; t < 2000; ++t) {
+    HashCode a{{rng(), rng()}}, b{{rng(), rng()}};
+    if (t % 3 == 0) b = a, b.w[t % 2] ^= 1ull << (t % 64);
+    uint32_t ref = 0;
+    for (int i = 0; i < 128; ++i) ref += ((a.w[i / 64] >> (i % 64)) & 1) != ((b.w[i / 64] >> (i % 64)) & 1);
+    ASSERT_EQ(hamming_distance(a, b), ref);
+    for (int k = 0; k < 8; ++k) {
+      uint32_t sub = 0;
+      for (int i = 0; i < 16; ++i) sub |= uint32_t((a.w[(16 * k + i) / 64] >> ((16 * k + i) % 64)) & 1) << i;
+      ASSERT_EQ(hash_subcode(a, k), sub);
+    }
+  }
+}
+
+TEST(ProductQuantizer, AdcEqualsBruteForceDistanceAndFileRoundTrips) {
+  DescriptorMatrix d = clustered_descriptors(3000, 3);
+  auto f = to_float(d);
+  PqCodebook cb = PqCodebook::train(f.data(), d.rows(), {.iterations = 8});
+  std::vector<uint8_t> codes(d.rows() * 16);
+  cb.encode(f.data(), d.rows(), codes.data());
+  std::vector<float> table(kPqTableSize);
+  DescriptorMatrix q = clustered_descriptors(20, 99);
+  auto qf = to_float(q);
+  for (size_t i = 0; i < q.rows(); ++i) {
+    cb.distance_table(&qf[i * 128], table.data());
+    for (size_t p = 0; p < d.rows(); p += 37) {
+      const double ref = cb.reconstruction_sqdist(&codes[p * 16], &qf[i * 128]);
+      EXPECT_NEAR(adc_distance(table.data(), &codes[p * 16]), ref, 1e-4 * ref + 1e-3);
+    }
+  }
+  // Encoding picks the nearest centroid: the reconstruction error is below
+  // the error of any other code on a sample.
+  for (size_t p = 0; p < 50; ++p) {
+    const double own = cb.reconstruction_sqdist(&codes[p * 16], &f[p * 128]);
+    const double other = cb.reconstruction_sqdist(&codes[(p + 1) * 16], &f[p * 128]);
+    EXPECT_LE(own, other + 1e-3);
+  }
+  fs::path path = fs::temp_directory_path() / "visloc_cascade_test.vlpq";
+  cb.write(path, R"({"test":1})");
+  std::string meta;
+  PqCodebook back = PqCodebook::read(path, &meta);
+  EXPECT_EQ(meta, R"({"test":1})");
+  ASSERT_EQ(back.centroids().size(), cb.centroids().size());
+  EXPECT_TRUE(std::equal(back.centroids().begin(), back.centroids().end(), cb.centroids().begin()));
+  std::string bytes = read_file(path);
+  bytes[bytes.size() / 2] ^= 0x10;
+  write_file_atomic(path, bytes);
+  EXPECT_THROW(PqCodebook::read(path), Error);
+}
+
+TEST(CascadeIndex, TablesAreCsrOfSubcodes) {
+  DescriptorMatrix d = clustered_descriptors(2000, 4);
+  TestIndex t = make_index(d);
+  CascadeIndexView v = t.view();
+  v.validate("test");
+  for (int k = 0; k < 8; ++k) {
+    std::vector<int> seen(d.rows(), 0);
+    const uint32_t* off = v.lut_offsets + k * kLutOffsetsPerTable;
+    for (uint32_t b = 0; b < kHashBuckets; ++b)
+      for (uint32_t i = off[b]; i < off[b + 1]; ++i) {
+        const uint32_t id = v.lut_ids[k * d.rows() + i];
+        ASSERT_EQ(hash_subcode(t.codes[id], k), b);
+        ++seen[id];
+      }
+    EXPECT_TRUE(std::all_of(seen.begin(), seen.end(), [](int s) { return s == 1; }));
+  }
+  // A corrupted offset is caught.
+  t.tables.offsets[5] = 1000000;
+  EXPECT_THROW(t.view().validate("test"), Error);
+}
+
+TEST(CascadeSearch, FindsPlantedMatches) {
+  DescriptorMatrix db = clustered_descriptors(6000, 5);
+  std::vector<size_t> planted;
+  for (size_t i = 0; i < 400; ++i) planted.push_back(i * 13 % 6000);
+  DescriptorMatrix q = perturbed(db, planted, 4, 6);
+  DescriptorMatrix distractors = clustered_descriptors(400, 77);
+  q.append(distractors);
+  for (bool lsh : {false, true}) {
+    TestIndex t = make_index(db, lsh);
+    CascadeMatcher matcher(t.view(), t.codebook);
+    for (int radius : {0, 1}) {
+      for (bool refined : {true, false}) {
+        CascadeSearchOptions o;
+        o.lut_radius = radius;
+        o.refined = refined;
+        o.prioritize = false;
+        CascadeMatches m = matcher.match(q, o);
+        size_t correct = 0, wrong = 0;
+        for (size_t i = 0; i < m.query.size(); ++i) {
+          if (m.query[i] < planted.size()) (m.point[i] == planted[m.query[i]] ? correct : wrong)++;
+        }
+        SCOPED_TRACE(::testing::Message() << "lsh " << lsh << " radius " << radius << " refined " << refined);
+        EXPECT_GE(correct, 340u);
+        EXPECT_LE(wrong, 10u);
+        EXPECT_EQ(m.stats.features, q.rows());
+        EXPECT_FALSE(m.stats.early_stopped);
+        // 1-M: nearest first, the 1-1 point first, at most M entries.
+        ASSERT_EQ(m.many_offsets.size(), m.many_query.size() + 1);
+        for (size_t r = 0; r < m.many_query.size(); ++r) {
+          ASSERT_LE(m.many_offsets[r + 1] - m.many_offsets[r], 5u);
+          for (uint32_t k = m.many_offsets[r] + 1; k < m.many_offsets[r + 1]; ++k)
+            EXPECT_LE(m.many_distances[k - 1], m.many_distances[k]);
+        }
+      }
+    }
+  }
+}
+
+TEST(CascadeSearch, PrioritizationOrderAndEarlyStop) {
+  DescriptorMatrix db = clustered_descriptors(5000, 8);
+  std::vector<size_t> planted;
+  for (size_t i = 0; i < 600; ++i) planted.push_back(i * 7 % 5000);
+  DescriptorMatrix q = perturbed(db, planted, 4, 9);
+  TestIndex t = make_index(db);
+  CascadeMatcher matcher(t.view(), t.codebook);
+  CascadeSearchOptions full;
+  full.prioritize = false;
+  CascadeMatches all = matcher.match(q, full);
+  ASSERT_GT(all.query.size(), 300u);
+  CascadeSearchOptions pri;
+  pri.early_stop = 50;
+  CascadeMatches early = matcher.match(q, pri);
+  EXPECT_TRUE(early.stats.early_stopped);
+  EXPECT_EQ(early.query.size(), 50u);
+  EXPECT_LT(early.stats.features_searched, all.stats.features_searched);
+  // Matches come out in increasing coarse list size.
+  std::vector<HashCode> qc(q.rows());
+  std::vector<float> ws;
+  encode_hash(t.hasher.view(), q.data(), q.rows(), qc.data(), ws);
+  std::vector<uint32_t> sizes;
+  matcher.coarse_sizes(qc, pri.lut_radius, sizes);
+  for (size_t i = 1; i < early.query.size(); ++i) EXPECT_LE(sizes[early.query[i - 1]], sizes[early.query[i]]);
+  // Every early match is one the full search also finds (same ranking per feature).
+  for (size_t i = 0; i < early.query.size(); ++i) {
+    auto it = std::find(all.query.begin(), all.query.end(), early.query[i]);
+    ASSERT_NE(it, all.query.end());
+    EXPECT_EQ(all.point[it - all.query.begin()], early.point[i]);
+  }
+  // With early stop 0 the prioritized search is complete.
+  pri.early_stop = 0;
+  EXPECT_EQ(matcher.match(q, pri).query.size(), all.query.size());
+  pri.refined_list = 1;
+  EXPECT_THROW(matcher.match(q, pri), Error);
+}
+
+TEST(CascadeSearch, OneToManyRulesAndCorrespondenceArrays) {
+  DescriptorMatrix db = clustered_descriptors(4000, 10);
+  // Near-duplicate points (repetitive structure): pairs of rows almost equal.
+  for (size_t i = 0; i < 200; ++i)
+    for (int j = 0; j < 128; ++j) db.row(2000 + i)[j] = static_cast<uint8_t>(std::min(255, db.row(i)[j] + (j % 7 == 0)));
+  std::vector<size_t> rows;
+  for (size_t i = 0; i < 300; ++i) rows.push_back(i);
+  DescriptorMatrix q = perturbed(db, rows, 3, 11);
+  TestIndex t = make_index(db);
+  CascadeMatcher matcher(t.view(), t.codebook);
+  CascadeSearchOptions o;
+  o.prioritize = false;
+  CascadeMatches best = matcher.match(q, o);
+  o.one_to_many_rule = OneToManyRule::kGroupRatio;
+  CascadeMatches group = matcher.match(q, o);
+  EXPECT_EQ(best.query, group.query);  // the 1-1 set does not depend on the rule
+  const float nu2 = 0.9f * 0.9f;
+  for (size_t r = 0; r < group.many_query.size(); ++r) {
+    const uint32_t b = group.many_offsets[r], e = group.many_offsets[r + 1];
+    const float d0 = group.many_distances[b];
+    for (uint32_t k = b + 1; k < e; ++k)  // every accepted candidate is a near-tie of the best
+      EXPECT_GE(d0 * d0, nu2 * group.many_distances[k] * group.many_distances[k] * 0.999f);
+  }
+  // The near-duplicates make 2-candidate groups: features of the first 200
+  // rows keep both copies under the group rule.
+  size_t pairs = 0;
+  for (size_t r = 0; r < group.many_query.size(); ++r)
+    if (group.many_query[r] < 200 && group.many_offsets[r + 1] - group.many_offsets[r] == 2) ++pairs;
+  EXPECT_GT(pairs, 100u);
+  for (size_t r = 0; r < best.many_query.size(); ++r) EXPECT_EQ(best.many_offsets[r + 1] - best.many_offsets[r], 5u);
+
+  std::vector<Keypoint> kp(q.rows());
+  for (size_t i = 0; i < kp.size(); ++i) kp[i] = {float(i), float(2 * i), 1, 0};
+  std::vector<float> xyz(db.rows() * 3);
+  for (size_t i = 0; i < xyz.size(); ++i) xyz[i] = float(i);
+  CorrespondenceArrays c = make_correspondence_arrays(best, kp, xyz);
+  ASSERT_EQ(c.points2d.size(), best.many_query.size());
+  ASSERT_EQ(c.candidate_offsets.size(), c.points2d.size() + 1);
+  EXPECT_EQ(c.candidates.size(), best.many_points.size());
+  size_t hyp = 0;
+  for (size_t r = 0; r < c.points2d.size(); ++r) {
+    EXPECT_EQ(c.points2d[r][0], float(best.many_query[r]));
+    const uint32_t p = c.candidate_point_ids[c.candidate_offsets[r]];
+    EXPECT_EQ(c.candidates[c.candidate_offsets[r]][1], double(3 * p + 1));
+    hyp += c.in_hypothesis_set[r];
+  }
+  EXPECT_EQ(hyp, best.query.size());
+}
+
+TEST(FaissBaselines, IvfAdcAndImiFindPlantedMatches) {
+  DescriptorMatrix db = clustered_descriptors(6000, 12);
+  std::vector<size_t> planted;
+  for (size_t i = 0; i < 300; ++i) planted.push_back(i * 17 % 6000);
+  DescriptorMatrix q = perturbed(db, planted, 4, 13);
+  auto f = to_float(db);
+  for (auto kind : {FaissPqIndexKind::kIvfAdc, FaissPqIndexKind::kImi}) {
+    FaissPqIndexOptions o;
+    o.kind = kind;
+    FaissPqIndex index(f.data(), db.rows(), o);
+    FaissSearchStats st;
+    auto m = index.match(q, kind == FaissPqIndexKind::kImi ? 64 : 8, 0.8, &st);
+    size_t correct = 0;
+    for (const auto& r : m) correct += r.database == planted[r.query];
+    EXPECT_GE(correct, 240u);
+    EXPECT_GT(st.distances_per_query, 0.0);
+  }
+}
