@@ -22,6 +22,7 @@ CLI::App* add_not_implemented(CLI::App& parent, const std::string& name, const s
 
 void add_features_command(CLI::App& app);
 void add_map_command(CLI::App& app);
+void add_map_build_commands(CLI::App& map);  // map build, map update
 void add_localize_command(CLI::App& app);
 void add_eval_command(CLI::App& app);
 void add_synth_command(CLI::App& app);

@@ -125,10 +125,9 @@ void add_info(CLI::App& map) {
 void add_map_command(CLI::App& app) {
   CLI::App* map = app.add_subcommand("map", "Build, import and inspect maps");
   map->require_subcommand(1);
-  add_not_implemented(*map, "build", "Build a map from geotagged images with COLMAP", "issue #6");
+  add_map_build_commands(*map);  // build, update (map_build.cc)
   add_import(*map);
   add_info(*map);
-  add_not_implemented(*map, "update", "Rebuild one segment of a map", "issue #6");
 }
 
 }  // namespace visloc::cli

@@ -149,3 +149,27 @@ TEST(Similarity, RejectsDegenerateInput) {
   o.inlier_threshold = -1;
   EXPECT_THROW(o.validate(), Error);
 }
+
+TEST(Similarity, UprightRecoversCollinearStreet) {
+  // Camera centres along one straight street: the full similarity is
+  // ill-posed (rotation about the street), the upright one is not.
+  Similarity3d truth;
+  truth.scale = 0.8;
+  const Eigen::Matrix3d tilt = Eigen::AngleAxisd(0.4, Eigen::Vector3d(1, 0.3, 0).normalized()).toRotationMatrix();
+  truth.rotation = Eigen::AngleAxisd(2.0, Eigen::Vector3d::UnitZ()).toRotationMatrix() * tilt;
+  truth.translation = {5, -7, 1};
+  const Eigen::Vector3d up_src = tilt.transpose() * Eigen::Vector3d::UnitZ();  // src vector mapped to ENU up
+  std::vector<Eigen::Vector3d> src, dst;
+  for (int i = 0; i < 12; ++i) {
+    Eigen::Vector3d x = Eigen::Vector3d(3.0 * i, 0.0, 0.0);
+    src.push_back(x);
+    dst.push_back(truth.apply(x));
+  }
+  dst[4] += Eigen::Vector3d(0, 20, 0);
+  SimilarityEstimate e = estimate_upright_similarity_ransac(src, dst, up_src, {.inlier_threshold = 1.0});
+  EXPECT_EQ(e.inlier_count, 11);
+  EXPECT_NEAR(e.transform.scale, 0.8, 1e-9);
+  EXPECT_LT((e.transform.rotation - truth.rotation).norm(), 1e-9);
+  Eigen::Vector3d off(1, 2, 3);  // a point off the street maps right too
+  EXPECT_LT((e.transform.apply(off) - truth.apply(off)).norm(), 1e-9);
+}

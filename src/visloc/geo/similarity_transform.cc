@@ -157,4 +157,132 @@ SimilarityEstimate estimate_similarity_ransac(const std::vector<Eigen::Vector3d>
   return out;
 }
 
+namespace {
+
+// Rotation taking unit vector a onto unit vector b.
+Eigen::Matrix3d align(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
+  return Eigen::Quaterniond::FromTwoVectors(a, b).toRotationMatrix();
+}
+
+// 4-DoF least squares: x already levelled (up = +z); returns s, yaw, t.
+bool fit_upright(const std::vector<Eigen::Vector3d>& x, const std::vector<Eigen::Vector3d>& y, const std::vector<int>& idx,
+                 const Eigen::Matrix3d& level, Similarity3d& out) {
+  const int n = static_cast<int>(idx.size());
+  if (n < 2) return false;
+  Eigen::Vector2d mx = Eigen::Vector2d::Zero(), my = Eigen::Vector2d::Zero();
+  double mzx = 0, mzy = 0;
+  for (int i : idx) {
+    mx += x[i].head<2>();
+    my += y[i].head<2>();
+    mzx += x[i].z();
+    mzy += y[i].z();
+  }
+  mx /= n;
+  my /= n;
+  mzx /= n;
+  mzy /= n;
+  // 2D Procrustes with scale on the horizontal components (complex-number form).
+  double a = 0, b = 0, sxx = 0;
+  for (int i : idx) {
+    const Eigen::Vector2d p = x[i].head<2>() - mx, q = y[i].head<2>() - my;
+    a += p.x() * q.x() + p.y() * q.y();
+    b += p.x() * q.y() - p.y() * q.x();
+    sxx += p.squaredNorm();
+  }
+  if (!(sxx > 1e-12)) return false;
+  const double yaw = std::atan2(b, a);
+  const double s = std::hypot(a, b) / sxx;
+  if (!(s > 0) || !std::isfinite(s)) return false;
+  const Eigen::Matrix3d rz = Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  out.scale = s;
+  out.rotation = rz * level;
+  const Eigen::Vector2d t2 = my - s * (rz.topLeftCorner<2, 2>() * mx);
+  out.translation = {t2.x(), t2.y(), mzy - s * mzx};
+  return true;
+}
+
+}  // namespace
+
+SimilarityEstimate estimate_upright_similarity_ransac(const std::vector<Eigen::Vector3d>& src,
+                                                      const std::vector<Eigen::Vector3d>& dst,
+                                                      const Eigen::Vector3d& src_up,
+                                                      const SimilarityRansacOptions& options) {
+  options.validate();
+  const int n = static_cast<int>(src.size());
+  if (src.size() != dst.size() || n < 2)
+    throw_error(ErrorCode::kInvalidArgument, "upright similarity: need at least 2 point pairs, got ", src.size(),
+                " and ", dst.size());
+  if (!(src_up.norm() > 0)) throw_error(ErrorCode::kInvalidArgument, "upright similarity: the up vector is zero");
+  const Eigen::Matrix3d level = align(src_up.normalized(), Eigen::Vector3d::UnitZ());
+  std::vector<Eigen::Vector3d> x(n);
+  for (int i = 0; i < n; ++i) x[i] = level * src[i];
+  const double thr2 = options.inlier_threshold * options.inlier_threshold;
+  std::mt19937_64 rng(options.seed);
+  std::uniform_int_distribution<int> pick(0, n - 1);
+  int best_count = -1;
+  double best_cost = INFINITY;
+  Similarity3d best;
+  auto consider = [&](int i, int j) {
+    Similarity3d t;
+    if (!fit_upright(x, dst, {i, j}, level, t)) return;
+    int count = 0;
+    double cost = 0;
+    for (int k = 0; k < n; ++k) {
+      const double r2 = (t.apply(src[k]) - dst[k]).squaredNorm();
+      if (r2 < thr2) {
+        ++count;
+        cost += r2;
+      } else {
+        cost += thr2;
+      }
+    }
+    if (count > best_count || (count == best_count && cost < best_cost)) {
+      best_count = count;
+      best_cost = cost;
+      best = t;
+    }
+  };
+  if (n <= 60) {
+    for (int i = 0; i < n; ++i)
+      for (int j = i + 1; j < n; ++j) consider(i, j);
+  } else {
+    for (int it = 0; it < options.max_iterations; ++it) {
+      const int i = pick(rng);
+      int j = pick(rng);
+      if (i == j) continue;
+      consider(i, j);
+    }
+  }
+  const int min_inliers = std::min(options.min_inliers, n);
+  if (best_count < std::max(2, min_inliers))
+    throw_error(ErrorCode::kInvalidArgument, "upright similarity: no transform has ", min_inliers, " inliers within ",
+                options.inlier_threshold, " m (best: ", std::max(best_count, 0), " of ", n, ")");
+  SimilarityEstimate out;
+  out.transform = best;
+  for (int round = 0; round < 2; ++round) {
+    std::vector<int> inl;
+    for (int i = 0; i < n; ++i)
+      if ((out.transform.apply(src[i]) - dst[i]).squaredNorm() < thr2) inl.push_back(i);
+    Similarity3d refit;
+    if (inl.size() >= 2 && fit_upright(x, dst, inl, level, refit)) out.transform = refit;
+  }
+  out.inliers.assign(n, 0);
+  out.residuals.resize(n);
+  double sum2 = 0;
+  for (int i = 0; i < n; ++i) {
+    out.residuals[i] = (out.transform.apply(src[i]) - dst[i]).norm();
+    if (out.residuals[i] < options.inlier_threshold) {
+      out.inliers[i] = 1;
+      ++out.inlier_count;
+      sum2 += out.residuals[i] * out.residuals[i];
+    }
+  }
+  out.rms_residual = out.inlier_count ? std::sqrt(sum2 / out.inlier_count) : 0.0;
+  std::vector<double> r = out.residuals;
+  std::sort(r.begin(), r.end());
+  out.median_residual = r.size() % 2 ? r[r.size() / 2] : 0.5 * (r[r.size() / 2 - 1] + r[r.size() / 2]);
+  out.max_residual = r.back();
+  return out;
+}
+
 }  // namespace visloc

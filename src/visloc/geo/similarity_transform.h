@@ -39,6 +39,17 @@ struct SimilarityEstimate {
   std::vector<double> residuals;  // per correspondence, metres
 };
 
+// Upright similarity: the source frame's "up" direction is known (the mean
+// of the cameras' up axes for street-level imagery), so the rotation is that
+// alignment followed by a yaw about the destination's z axis (ENU up). Only
+// 4 degrees of freedom (yaw, scale, translation) remain, solvable from 2
+// pairs; unlike the full similarity it is well-posed when the camera
+// centres lie along one straight street. Robust in the same way.
+SimilarityEstimate estimate_upright_similarity_ransac(const std::vector<Eigen::Vector3d>& src,
+                                                      const std::vector<Eigen::Vector3d>& dst,
+                                                      const Eigen::Vector3d& src_up,
+                                                      const SimilarityRansacOptions& options = {});
+
 // Least squares over all pairs (at least 3, not collinear). Throws Error when degenerate.
 Similarity3d estimate_similarity(const std::vector<Eigen::Vector3d>& src, const std::vector<Eigen::Vector3d>& dst);
 

@@ -133,3 +133,23 @@ TEST(PoseList, ReadsStrechaTruth) {
   Eigen::Vector3d c(v[21], v[22], v[23]);
   EXPECT_LT((poses[0].cam_from_world.center() - c).norm(), 0.05);
 }
+
+TEST(IntrinsicsList, ReadsModelsAndRejectsBadLines) {
+  namespace fs = std::filesystem;
+  fs::path p = fs::temp_directory_path() / "visloc_geometry_test_intrinsics.txt";
+  write_file_atomic(p, "# q\nq1.jpg PINHOLE 800 600 500 502 400 300\nq2.jpg SIMPLE_RADIAL 640 480 400 320 240 -0.1\n");
+  auto cams = read_intrinsics_list(p);
+  ASSERT_EQ(cams.size(), 2u);
+  EXPECT_DOUBLE_EQ(cams[0].camera.focal, 501);
+  EXPECT_TRUE(cams[0].camera.has_focal);
+  EXPECT_DOUBLE_EQ(cams[1].camera.k1, -0.1);
+  write_file_atomic(p, "q1.jpg OPENCV 800 600 1 2 3 4 5 6 7 8\n");
+  EXPECT_THROW(read_intrinsics_list(p), Error);
+  write_file_atomic(p, "q1.jpg PINHOLE 800 600 500\n");
+  try {
+    read_intrinsics_list(p);
+    FAIL();
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find(":1:"), std::string::npos) << e.what();
+  }
+}

@@ -7,6 +7,7 @@
 #include <string>
 #include <vector>
 
+#include "visloc/geometry/camera.h"
 #include "visloc/geometry/pose.h"
 
 namespace visloc {
@@ -18,6 +19,16 @@ struct NamedPose {
 
 std::vector<NamedPose> read_pose_list(const std::filesystem::path& path);
 void write_pose_list(const std::filesystem::path& path, const std::vector<NamedPose>& poses);
+
+// Per-image intrinsics in hloc's query-list format, one image per line:
+// `name MODEL width height params...` with MODEL SIMPLE_PINHOLE (f cx cy),
+// PINHOLE (fx fy cx cy; fx and fy averaged), SIMPLE_RADIAL (f cx cy k) or
+// RADIAL (f cx cy k1 k2; k2 must be 0). Errors name the file and the line.
+struct NamedCamera {
+  std::string name;
+  PinholeCamera camera;
+};
+std::vector<NamedCamera> read_intrinsics_list(const std::filesystem::path& path);
 
 // A list of image names, one per line ('#' comments, blank lines ignored).
 std::vector<std::string> read_name_list(const std::filesystem::path& path);

@@ -1,4 +1,5 @@
 #include "visloc/map/colmap_import.h"
+#include "visloc/map/segment_builder.h"
 
 #include <iomanip>
 #include <random>
@@ -125,30 +126,12 @@ ColmapImportResult import_colmap_map(const fs::path& model_dir, const fs::path& 
   res.ms_pq = t.elapsed_ms();
 
   t.reset();
-  ItqResult itq = train_itq(desc.mean.data(), desc.num_points, options.itq);
-  res.itq_final_error = itq.quantization_error.empty() ? 0 : itq.quantization_error.back();
-  res.ms_itq = t.elapsed_ms();
-
-  t.reset();
-  SegmentData seg;
-  seg.segment_id = 0;
-  seg.xyz.resize(3 * desc.num_points);
-  for (size_t p = 0; p < model.points.size(); ++p)
-    for (int k = 0; k < 3; ++k) seg.xyz[3 * p + k] = static_cast<float>(model.points[p].xyz[k]);
-  seg.hasher = std::move(itq.hasher);
-  seg.codes.resize(desc.num_points);
-  std::vector<float> ws;
-  encode_hash(seg.hasher.view(), desc.mean.data(), desc.num_points, seg.codes.data(), ws);
-  seg.pq_codes.resize(desc.num_points * kPqCodeBytes);
-  codebook.encode(desc.mean.data(), desc.num_points, seg.pq_codes.data());
-  seg.tables = build_cascade_tables(seg.codes);
-  for (const auto& im : model.images) {
-    const auto& cam = model.cameras[model.camera_index(im.camera_id)];
-    seg.images.push_back({im.name, cam.model_id, cam.width, cam.height, cam.params, im.cam_from_world_q_wxyz,
-                          im.cam_from_world_t});
-  }
+  SegmentBuildStats seg_stats;
+  SegmentData seg = make_segment_data(model, desc, codebook, options.itq, 0, &seg_stats);
+  res.itq_final_error = seg_stats.itq_final_error;
+  res.ms_itq = seg_stats.ms_itq;
   seg.extra_meta["source"] = {{"colmap", fs::absolute(model_dir).string()}};
-  res.ms_encode = t.elapsed_ms();
+  res.ms_encode = seg_stats.ms_encode;
 
   t.reset();
   fs::create_directories(out_dir / "segments");

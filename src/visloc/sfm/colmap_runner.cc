@@ -40,6 +40,15 @@ void ColmapRunner::match(const std::filesystem::path& database, ColmapMatchStrat
   run_process(argv, log);
 }
 
+void ColmapRunner::match_pairs(const std::filesystem::path& database, const std::filesystem::path& pair_list,
+                               const std::filesystem::path& log) const {
+  run_process({options_.binary, "matches_importer", "--database_path", database.string(), "--match_list_path",
+               pair_list.string(), "--match_type", "pairs", "--SiftMatching.use_gpu", "0",
+               "--SiftMatching.num_threads", std::to_string(options_.threads), "--random_seed",
+               std::to_string(options_.random_seed)},
+              log);
+}
+
 std::filesystem::path ColmapRunner::map(const std::filesystem::path& database, const std::filesystem::path& image_dir,
                                         const std::filesystem::path& output_dir,
                                         const std::filesystem::path& log) const {

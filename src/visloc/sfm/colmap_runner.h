@@ -29,6 +29,10 @@ class ColmapRunner {
   explicit ColmapRunner(const ColmapRunnerOptions& options);
   void match(const std::filesystem::path& database, ColmapMatchStrategy strategy,
              const std::filesystem::path& log) const;
+  // Matches exactly the listed image pairs (names, one pair per line:
+  // "a.jpg b.jpg"), through COLMAP's matches_importer.
+  void match_pairs(const std::filesystem::path& database, const std::filesystem::path& pair_list,
+                   const std::filesystem::path& log) const;
   // Runs the mapper into output_dir (COLMAP writes numbered sub-models);
   // returns the directory of the largest sub-model. Throws when none was made.
   std::filesystem::path map(const std::filesystem::path& database, const std::filesystem::path& image_dir,

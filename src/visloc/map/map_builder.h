@@ -1,0 +1,102 @@
+// MapBuilder: `visloc map build` (paper section III-A). A city's geotagged
+// images are cut into segments of 8-10 consecutive placemarks (2 shared with
+// the next segment); each segment is reconstructed on its own by COLMAP
+// (a process), compressed into a segment file (mean SIFT → ITQ codes, LUTs,
+// PQ codes with the map's shared codebook) and geo-registered to local ENU
+// by a robust similarity transform from its camera centres to their GPS
+// (upright: the cameras' mean up axis is aligned with ENU up, leaving yaw,
+// scale and translation, which stay well-posed along a straight street).
+//
+// Work layout inside the map directory:
+//   MAP/work/features/NAME.vlfeat   our SIFT per image (shared by segments)
+//   MAP/work/segNNNN/               database.db, sparse/, log.txt, result.json
+//   MAP/segments/NNNN.vlseg         finished segments
+//   MAP/manifest.json               rewritten (atomically) after every segment
+// A segment is finished when its result.json records success and its
+// segment file exists; a build started again redoes only the others. One
+// failing segment is reported and the rest of the map stays usable.
+#pragma once
+
+#include <filesystem>
+#include <functional>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "visloc/features/sift_extractor.h"
+#include "visloc/geo/similarity_transform.h"
+#include "visloc/retrieval/image_index.h"
+#include "visloc/retrieval/triangulation_embedding.h"
+#include "visloc/matching/binary_hasher.h"
+#include "visloc/matching/pq_codebook.h"
+#include "visloc/sfm/colmap_runner.h"
+#include "visloc/sfm/segment_plan.h"
+
+namespace visloc {
+
+enum class PoseSource {
+  kSfm,    // COLMAP's mapper estimates the poses
+  kKnown,  // exact poses are given (street-view captures); COLMAP triangulates
+};
+
+struct MapBuildOptions {
+  std::filesystem::path images_dir;
+  std::filesystem::path gps_csv;         // empty: read GPS from each image's EXIF
+  PoseSource poses = PoseSource::kSfm;
+  std::filesystem::path known_poses;     // kKnown: a COLMAP model directory (text or binary) whose image names match
+  SegmentPlanOptions plan;
+  SiftOptions sift;
+  ColmapRunnerOptions colmap;
+  size_t exhaustive_max_images = 20;        // COLMAP exhaustive matching up to this many images, else:
+  double pair_max_distance = 30;            //   known poses: pairs of views at most this far apart (m)
+  double pair_max_angle_deg = 60;           //   and looking within this angle of each other;
+                                            //   SfM: COLMAP's spatial matcher on the GPS priors
+  ItqOptions itq;
+  PqTrainingOptions pq;
+  size_t pq_training_descriptors = 100000;  // sampled across all map images
+  SimilarityRansacOptions registration;     // GPS → ENU registration (threshold in metres)
+  double fallback_focal_factor = 1.2;       // focal = factor × max(w, h) when EXIF has none
+  int jobs = 0;                             // segments built in parallel (0: number of cores)
+  std::vector<int> only_segments;           // rebuild just these (map update); empty: all
+  bool build_retrieval = true;              // train and write MAP/retrieval (T-embedding + IVF-PQ)
+  TriangulationEmbeddingOptions embedding;  // retrieval: global descriptor
+  ImageIndexOptions image_index;            // retrieval: IVF-PQ index
+  bool keep_work = true;                    // keep MAP/work (databases, logs) after success
+  void validate() const;
+};
+
+struct SegmentBuildResult {
+  int id = 0;
+  bool ok = false;
+  bool reused = false;              // finished in an earlier run
+  std::string error;
+  size_t images = 0;                // images given to COLMAP
+  size_t registered_images = 0;     // images with a pose in the model
+  size_t points = 0;
+  double bytes_per_point = 0;       // whole segment file / points
+  double registration_rms_m = 0;    // GPS residual over inliers
+  double registration_median_m = 0;
+  double registration_max_m = 0;
+  int registration_inliers = 0;
+  double seconds = 0;
+  uint64_t file_bytes = 0;          // segment file size and checksum (for the manifest)
+  uint32_t file_crc32c = 0;
+};
+
+struct MapBuildResult {
+  std::vector<SegmentBuildResult> segments;
+  size_t images = 0, placemarks = 0;
+  double seconds_features = 0, seconds_segments = 0, seconds_retrieval = 0, seconds_total = 0;
+  size_t failed() const;
+};
+
+struct MapBuildProgress {
+  std::string stage;  // "features", "segments", "retrieval"
+  size_t done = 0, total = 0;
+  double elapsed_s = 0;
+};
+
+MapBuildResult build_map(const std::filesystem::path& map_dir, const MapBuildOptions& options,
+                         const std::function<void(const MapBuildProgress&)>& progress = {});
+
+}  // namespace visloc

@@ -1,0 +1,27 @@
+// From a reconstructed COLMAP model and the mean SIFT of its points to the
+// compressed segment (paper section III-B): ITQ learned on the segment's
+// descriptors → 128-bit codes and the 8 LUTs; PQ codes with the map's shared
+// codebook; XYZ; the images' poses and cameras. Used by `map import` (one
+// segment) and `map build` (many).
+#pragma once
+
+#include <cstdint>
+
+#include "visloc/colmap/colmap_model.h"
+#include "visloc/colmap/point_descriptors.h"
+#include "visloc/map/segment_file.h"
+#include "visloc/matching/binary_hasher.h"
+#include "visloc/matching/pq_codebook.h"
+
+namespace visloc {
+
+struct SegmentBuildStats {
+  double itq_final_error = 0;
+  double ms_itq = 0, ms_encode = 0;
+};
+
+SegmentData make_segment_data(const ColmapModel& model, const PointDescriptors& descriptors,
+                              const PqCodebook& codebook, const ItqOptions& itq, uint32_t segment_id,
+                              SegmentBuildStats* stats = nullptr);
+
+}  // namespace visloc

@@ -1,0 +1,37 @@
+#include "visloc/pipeline/localization_json.h"
+
+namespace visloc {
+
+nlohmann::json to_json(const LocalizationResult& r) {
+  nlohmann::json j;
+  j["image"] = r.image;
+  j["registered"] = r.registered;
+  if (!r.error.empty()) j["error"] = r.error;
+  j["segment"] = r.segment;
+  j["inliers"] = r.inliers;
+  if (r.segment >= 0) {
+    const auto q = r.cam_from_segment.q_wxyz();
+    j["q_wxyz"] = {q[0], q[1], q[2], q[3]};
+    const auto& t = r.cam_from_segment.translation;
+    j["t"] = {t.x(), t.y(), t.z()};
+    j["focal_px"] = r.focal_px;
+    j["focal_estimated"] = r.focal_estimated;
+  }
+  if (r.center_enu) j["center_enu"] = {r.center_enu->x(), r.center_enu->y(), r.center_enu->z()};
+  if (r.position) {
+    j["lat"] = r.position->lat;
+    j["lon"] = r.position->lon;
+    j["alt"] = r.position->alt;
+  }
+  if (r.heading_deg) j["heading_deg"] = *r.heading_deg;
+  j["candidates"] = r.candidates;
+  j["features"] = r.features;
+  j["times_ms"] = {{"features", r.times.features},
+                   {"retrieval", r.times.retrieval},
+                   {"matching", r.times.matching},
+                   {"ransac", r.times.ransac},
+                   {"total", r.times.total}};
+  return j;
+}
+
+}  // namespace visloc

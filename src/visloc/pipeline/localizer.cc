@@ -1,0 +1,235 @@
+#include "visloc/pipeline/localizer.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include "visloc/map/map.h"
+#include "visloc/matching/correspondence_arrays.h"
+#include "visloc/geo/similarity_transform.h"
+#include "visloc/retrieval/retrieval_map.h"
+#include "visloc/pipeline/segment_cache.h"
+#include "visloc/util/error.h"
+#include "visloc/util/timer.h"
+
+namespace visloc {
+
+PaperSetting parse_paper_setting(const std::string& name) {
+  if (name == "1") return PaperSetting::k1;
+  if (name == "2") return PaperSetting::k2;
+  if (name == "3") return PaperSetting::k3;
+  if (name == "3+") return PaperSetting::k3Plus;
+  throw_error(ErrorCode::kInvalidArgument, "setting must be 1, 2, 3 or 3+, got '", name, "'");
+}
+
+std::string to_string(PaperSetting s) {
+  switch (s) {
+    case PaperSetting::k1: return "1";
+    case PaperSetting::k2: return "2";
+    case PaperSetting::k3: return "3";
+    case PaperSetting::k3Plus: return "3+";
+  }
+  return "?";
+}
+
+void LocalizerOptions::validate() const {
+  sift.validate();
+  search.validate();
+  ransac.validate();
+  if (top_images < 1) throw_error(ErrorCode::kInvalidArgument, "top_images must be >= 1, got ", top_images);
+  if (max_segments < 1) throw_error(ErrorCode::kInvalidArgument, "max_segments must be >= 1, got ", max_segments);
+  if (cache_bytes < (1u << 20)) throw_error(ErrorCode::kInvalidArgument, "cache_bytes must be at least 1 MiB");
+}
+
+namespace {
+
+struct SegmentFrame {
+  Similarity3d enu_from_segment;
+  bool georegistered = false;
+};
+
+SegmentFrame segment_frame(const Segment& seg) {
+  SegmentFrame f;
+  const auto& meta = seg.meta();
+  auto it = meta.find("enu_from_segment");
+  if (it == meta.end()) return f;
+  const auto& j = *it;
+  f.enu_from_segment.scale = j.at("scale").get<double>();
+  const auto r = j.at("rotation_row_major").get<std::vector<double>>();
+  const auto t = j.at("translation").get<std::vector<double>>();
+  if (r.size() != 9 || t.size() != 3)
+    throw_error(ErrorCode::kFormat, seg.path().string(), ": bad enu_from_segment in META");
+  for (int i = 0; i < 3; ++i)
+    for (int k = 0; k < 3; ++k) f.enu_from_segment.rotation(i, k) = r[3 * i + k];
+  f.enu_from_segment.translation = {t[0], t[1], t[2]};
+  f.georegistered = true;
+  return f;
+}
+
+}  // namespace
+
+struct Localizer::Impl {
+  Map map;
+  std::unique_ptr<SegmentCache> cache;
+  std::unique_ptr<RetrievalMap> retrieval;  // null when the map has none
+  SegmentVoterOptions voting;
+  std::optional<EnuFrame> frame;
+  std::unique_ptr<SiftExtractor> sift;
+  CascadeSearchOptions search;
+  RansacOptions ransac;
+};
+
+Localizer::Localizer(const std::filesystem::path& map_dir, const LocalizerOptions& options)
+    : options_(options), impl_(std::make_unique<Impl>()) {
+  options_.validate();
+  impl_->map = Map::open(map_dir);
+  const auto& man = impl_->map.manifest();
+  if (man.segments.empty()) throw_error(ErrorCode::kFormat, map_dir.string(), ": the map has no segments");
+  impl_->cache = std::make_unique<SegmentCache>(impl_->map, options_.cache_bytes);
+  impl_->voting.top_images = options_.top_images;
+  impl_->voting.max_candidates = options_.max_segments;
+  if (std::filesystem::exists(map_dir / "retrieval"))
+    impl_->retrieval = std::make_unique<RetrievalMap>(RetrievalMap::load(map_dir / "retrieval"));
+  if (!impl_->retrieval && static_cast<int>(man.segments.size()) > options_.max_segments)
+    throw_error(ErrorCode::kFormat, map_dir.string(), ": the map has ", man.segments.size(),
+                " segments but no retrieval index to choose among them");
+  if (man.enu_origin_lat_lon_alt) {
+    const auto& o = *man.enu_origin_lat_lon_alt;
+    impl_->frame.emplace(GeoPosition{o[0], o[1], o[2]});
+  }
+  impl_->sift = std::make_unique<SiftExtractor>(options_.sift);
+  impl_->search = options_.search;
+  impl_->ransac = options_.ransac;
+  switch (options_.setting) {
+    case PaperSetting::k1:
+      impl_->search.prioritize = false;
+      impl_->ransac.variant = RansacVariant::kClassic11;
+      break;
+    case PaperSetting::k2:
+      impl_->search.prioritize = false;
+      impl_->ransac.variant = RansacVariant::kOneManyFixed;
+      break;
+    case PaperSetting::k3:
+      impl_->search.prioritize = true;
+      impl_->ransac.variant = RansacVariant::kOneManyFixed;
+      break;
+    case PaperSetting::k3Plus:
+      impl_->search.prioritize = true;
+      impl_->ransac.variant = RansacVariant::kOneManySprt;
+      break;
+  }
+}
+
+Localizer::~Localizer() = default;
+
+size_t Localizer::num_segments() const { return impl_->map.manifest().segments.size(); }
+bool Localizer::has_retrieval() const { return impl_->retrieval != nullptr; }
+uint64_t Localizer::cache_resident_bytes() const { return impl_->cache->resident_bytes(); }
+
+LocalizationResult Localizer::localize_file(const std::filesystem::path& image,
+                                            const std::optional<PinholeCamera>& intrinsics) const {
+  Timer total;
+  LocalizationResult res;
+  res.image = image.filename().string();
+  try {
+    ImageMetadata meta;
+    FeatureSet f = impl_->sift->extract_file(image, &meta);
+    PinholeCamera cam;
+    if (intrinsics) {
+      cam = *intrinsics;
+      if (cam.width == 0) {  // only the focal was given: the rest from the image
+        cam.width = meta.width;
+        cam.height = meta.height;
+        cam.cx = meta.width / 2.0;
+        cam.cy = meta.height / 2.0;
+      }
+    } else {
+      std::optional<double> focal;
+      if (options_.use_exif_focal) focal = meta.focal_px();
+      cam = PinholeCamera::centered(meta.width, meta.height, focal);
+    }
+    const double features_ms = total.elapsed_ms();
+    res = localize_features(f, cam);
+    res.image = image.filename().string();
+    res.times.features = features_ms;
+    res.times.total = total.elapsed_ms();
+  } catch (const Error& e) {
+    if (e.code() == ErrorCode::kInternal) throw;
+    res.error = e.what();
+    res.times.total = total.elapsed_ms();
+  }
+  return res;
+}
+
+LocalizationResult Localizer::localize_features(const FeatureSet& f, const PinholeCamera& camera) const {
+  Timer total;
+  camera.validate();
+  LocalizationResult res;
+  res.image = f.image;
+  res.features = f.size();
+  const auto& man = impl_->map.manifest();
+
+  // Candidate segments (positions in the manifest).
+  Timer t;
+  std::vector<size_t> candidates;
+  if (impl_->retrieval) {
+    const RetrievalQueryResult q = impl_->retrieval->query(f.descriptors, impl_->voting);
+    for (const SegmentCandidate& c : q.candidates)
+      for (size_t i = 0; i < man.segments.size(); ++i)
+        if (static_cast<int32_t>(man.segments[i].id) == c.segment) candidates.push_back(i);
+  } else {
+    for (size_t i = 0; i < man.segments.size(); ++i) candidates.push_back(i);
+  }
+  res.times.retrieval = t.elapsed_ms();
+
+  CascadeMatches matches;
+  CorrespondenceSet set;
+  size_t best_inliers = 0;
+  for (size_t index : candidates) {
+    std::shared_ptr<const Segment> seg = impl_->cache->get(index);
+    res.candidates.push_back(static_cast<int>(seg->id()));
+    t.reset();
+    CascadeMatcher matcher(seg->index(), impl_->map.codebook());
+    matcher.match(f.descriptors, impl_->search, matches);
+    CorrespondenceArrays arrays = make_correspondence_arrays(matches, f.keypoints, seg->xyz());
+    set.clear();
+    set.points2d.reserve(arrays.points2d.size());
+    for (const auto& p : arrays.points2d) set.points2d.emplace_back(p[0], p[1]);
+    set.candidate_offsets = arrays.candidate_offsets;
+    set.candidates.reserve(arrays.candidates.size());
+    for (const auto& c : arrays.candidates) set.candidates.emplace_back(c[0], c[1], c[2]);
+    set.in_hypothesis_set = arrays.in_hypothesis_set;
+    set.candidate_point_ids = arrays.candidate_point_ids;
+    res.times.matching += t.elapsed_ms();
+    t.reset();
+    PoseEstimate pose;
+    if (set.num_hypothesis_features() >= 6 || (camera.has_focal && set.num_hypothesis_features() >= 3))
+      pose = estimate_pose(set, camera, impl_->ransac);
+    res.times.ransac += t.elapsed_ms();
+    if (pose.has_pose && pose.num_inliers > best_inliers) {
+      best_inliers = pose.num_inliers;
+      res.segment = static_cast<int>(seg->id());
+      res.inliers = pose.num_inliers;
+      res.registered = pose.registered;
+      res.cam_from_segment = pose.cam_from_world;
+      res.focal_px = pose.focal;
+      res.focal_estimated = !camera.has_focal;
+      res.matches_one_to_one = matches.query.size();
+      const SegmentFrame frame = segment_frame(*seg);
+      if (frame.georegistered) {
+        const Eigen::Vector3d c = frame.enu_from_segment.apply(pose.cam_from_world.center());
+        res.center_enu = c;
+        const Eigen::Vector3d dir = frame.enu_from_segment.rotation * pose.cam_from_world.viewing_direction();
+        res.heading_deg = heading_deg_from_enu(dir);
+        if (impl_->frame) res.position = impl_->frame->to_geo(c);
+      } else {
+        res.center_enu.reset();
+        res.heading_deg.reset();
+        res.position.reset();
+      }
+    }
+  }
+  res.times.total = total.elapsed_ms();
+  return res;
+}
+
+}  // namespace visloc

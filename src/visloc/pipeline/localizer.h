@@ -1,0 +1,97 @@
+// Localizer: one photo in, a pose on the map out (DESIGN.md "Localization"):
+//   SIFT → retrieval (T-embedding, IVF-PQ, top N_t images → ≤ 4 candidate
+//   segments by votes; every segment when the map has no retrieval index and
+//   at most max_segments segments) → per candidate segment: cascade
+//   correspondence search + one-many RANSAC → the segment with the most
+//   inliers; registered at ≥ 12 inliers. The pose is reported in the
+//   segment's frame and, through the segment's enu_from_segment similarity,
+//   as an ENU centre, WGS84 position and heading.
+// Thread-safe: localize() may be called concurrently; segments are shared
+// through an LRU cache of memory maps under a byte budget.
+#pragma once
+
+#include <filesystem>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "visloc/features/sift_extractor.h"
+#include "visloc/geo/enu_frame.h"
+#include "visloc/geometry/camera.h"
+#include "visloc/geometry/pose.h"
+#include "visloc/matching/cascade_index.h"
+#include "visloc/pose/one_many_ransac.h"
+
+namespace visloc {
+
+// The paper's ablation (section IV): matching and RANSAC per setting.
+enum class PaperSetting {
+  k1,      // CCS full search, classical 1-1 RANSAC
+  k2,      // CCS full search, 1-M RANSAC with 5000 iterations
+  k3,      // CCS prioritized, 1-M RANSAC with 5000 iterations
+  k3Plus,  // CCS prioritized, 1-M RANSAC with SPRT (default)
+};
+PaperSetting parse_paper_setting(const std::string& name);  // "1", "2", "3", "3+"
+std::string to_string(PaperSetting setting);
+
+struct LocalizerOptions {
+  SiftOptions sift;                 // query features (the map's extractor settings by default)
+  CascadeSearchOptions search;      // CCS parameters
+  RansacOptions ransac;             // pose parameters
+  PaperSetting setting = PaperSetting::k3Plus;  // overrides search.prioritize and ransac.variant
+  int top_images = 20;              // N_t
+  int max_segments = 4;             // candidate segments searched
+  uint64_t cache_bytes = 512ull << 20;  // segment cache budget
+  bool use_exif_focal = true;       // EXIF focal (when present) makes the query calibrated
+  void validate() const;
+};
+
+struct StageTimes {
+  double features = 0, retrieval = 0, matching = 0, ransac = 0, total = 0;  // milliseconds
+};
+
+struct LocalizationResult {
+  std::string image;
+  bool registered = false;
+  std::string error;                 // a bad image: the reason (the rest go on)
+  int segment = -1;                  // segment id of the best pose
+  size_t inliers = 0;
+  CameraPose cam_from_segment;       // world-to-camera in the segment frame
+  double focal_px = 0;
+  bool focal_estimated = false;
+  std::optional<Eigen::Vector3d> center_enu;
+  std::optional<GeoPosition> position;   // WGS84
+  std::optional<double> heading_deg;
+  std::vector<int> candidates;       // segment ids searched, in order
+  size_t features = 0;
+  size_t matches_one_to_one = 0;     // of the best segment
+  StageTimes times;
+};
+
+class Localizer {
+ public:
+  Localizer(const std::filesystem::path& map_dir, const LocalizerOptions& options = {});
+  ~Localizer();
+  Localizer(const Localizer&) = delete;
+  Localizer& operator=(const Localizer&) = delete;
+
+  // From an image file. `intrinsics` overrides EXIF; without either the focal
+  // length is estimated (6-point DLT).
+  LocalizationResult localize_file(const std::filesystem::path& image,
+                                   const std::optional<PinholeCamera>& intrinsics = std::nullopt) const;
+  // From features already extracted (e.g. from a COLMAP database).
+  LocalizationResult localize_features(const FeatureSet& features, const PinholeCamera& camera) const;
+
+  const LocalizerOptions& options() const { return options_; }
+  size_t num_segments() const;
+  bool has_retrieval() const;
+  uint64_t cache_resident_bytes() const;
+
+ private:
+  struct Impl;
+  LocalizerOptions options_;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace visloc

@@ -1,0 +1,251 @@
+#include "visloc/retrieval/image_index.h"
+
+#include <faiss/IndexFlat.h>
+#include <faiss/IndexIVFPQ.h>
+#include <faiss/MetaIndexes.h>
+#include <faiss/impl/FaissException.h>
+#include <faiss/impl/io.h>
+#include <faiss/index_io.h>
+
+#include <algorithm>
+#include <cmath>
+#include <nlohmann/json.hpp>
+#include <numeric>
+#include <random>
+
+#include "visloc/util/error.h"
+#include "visloc/util/section_file.h"
+
+namespace visloc {
+
+struct ImageIndex::Impl {
+  std::unique_ptr<faiss::Index> index;
+  faiss::IndexIVFPQ* ivfpq = nullptr;  // view into index when IVF-PQ
+};
+
+namespace {
+
+const char* type_name(ImageIndexType t) { return t == ImageIndexType::kIvfPq ? "ivfpq" : "flat"; }
+
+void configure_tables(faiss::IndexIVFPQ* ivfpq, bool precomputed) {
+  ivfpq->use_precomputed_table = precomputed ? 1 : -1;
+  if (precomputed) {
+    ivfpq->precompute_table();
+  } else {
+    ivfpq->precomputed_table.clear();
+  }
+}
+
+}  // namespace
+
+void ImageIndexOptions::validate() const {
+  auto bad = [](const char* field, const auto& value, const char* rule) {
+    throw_error(ErrorCode::kInvalidArgument, "image index option ", field, " = ", value, ": ", rule);
+  };
+  if (nlist < 1) bad("nlist", nlist, "must be at least 1");
+  if (nprobe < 1) bad("nprobe", nprobe, "must be at least 1");
+  if (pq_bytes < 1) bad("pq_bytes", pq_bytes, "must be at least 1");
+  if (pq_bits < 1 || pq_bits > 16) bad("pq_bits", pq_bits, "must be in [1, 16]");
+  if (max_training_vectors < 2) bad("max_training_vectors", max_training_vectors, "must be at least 2");
+}
+
+ImageIndex::ImageIndex() : impl_(std::make_unique<Impl>()) {}
+ImageIndex::~ImageIndex() = default;
+ImageIndex::ImageIndex(ImageIndex&&) noexcept = default;
+ImageIndex& ImageIndex::operator=(ImageIndex&&) noexcept = default;
+
+ImageIndex ImageIndex::train(std::span<const float> training, int dims, const ImageIndexOptions& options) {
+  options.validate();
+  if (dims < 1) throw_error(ErrorCode::kInvalidArgument, "image index: dims = ", dims, " must be at least 1");
+  if (training.size() % static_cast<size_t>(dims) != 0)
+    throw_error(ErrorCode::kInvalidArgument, "image index: ", training.size(), " floats is not a multiple of dims ",
+                dims);
+  const size_t n = training.size() / dims;
+  ImageIndex out;
+  out.options_ = options;
+  out.dims_ = dims;
+  if (options.type == ImageIndexType::kFlat) {
+    auto idmap = std::make_unique<faiss::IndexIDMap>(new faiss::IndexFlatL2(dims));
+    idmap->own_fields = true;
+    out.impl_->index = std::move(idmap);
+    return out;
+  }
+  if (dims % options.pq_bytes != 0)
+    throw_error(ErrorCode::kInvalidArgument, "image index option pq_bytes = ", options.pq_bytes,
+                ": must divide the vector dimension ", dims);
+  if (n < 2)
+    throw_error(ErrorCode::kInvalidArgument, "image index: IVF-PQ needs at least 2 training vectors, got ", n);
+  // Sample the training set.
+  std::vector<float> sample;
+  std::span<const float> train_set = training;
+  if (n > static_cast<size_t>(options.max_training_vectors)) {
+    std::vector<size_t> idx(n);
+    std::iota(idx.begin(), idx.end(), size_t{0});
+    std::mt19937_64 rng(options.seed);
+    const size_t m = static_cast<size_t>(options.max_training_vectors);
+    for (size_t i = 0; i < m; ++i) std::swap(idx[i], idx[std::uniform_int_distribution<size_t>(i, n - 1)(rng)]);
+    idx.resize(m);
+    std::sort(idx.begin(), idx.end());
+    sample.resize(m * dims);
+    for (size_t i = 0; i < m; ++i)
+      std::copy_n(training.data() + idx[i] * dims, dims, sample.data() + i * dims);
+    train_set = sample;
+  }
+  const size_t nt = train_set.size() / dims;
+  out.effective_nlist_ = static_cast<int>(std::min<size_t>(options.nlist, std::max<size_t>(1, nt / 39)));
+  out.effective_pq_bits_ = std::min(options.pq_bits, static_cast<int>(std::floor(std::log2(static_cast<double>(nt)))));
+  auto* quantizer = new faiss::IndexFlatL2(dims);
+  auto ivfpq = std::make_unique<faiss::IndexIVFPQ>(quantizer, dims, out.effective_nlist_, options.pq_bytes,
+                                                   out.effective_pq_bits_);
+  ivfpq->own_fields = true;
+  ivfpq->cp.seed = static_cast<int>(options.seed & 0x7fffffff);
+  ivfpq->pq.cp.seed = static_cast<int>((options.seed + 1) & 0x7fffffff);
+  ivfpq->cp.min_points_per_centroid = 1;  // sizes are chosen above; no FAISS warnings
+  ivfpq->pq.cp.min_points_per_centroid = 1;
+  ivfpq->use_precomputed_table = options.precomputed_tables ? 1 : -1;
+  ivfpq->nprobe = static_cast<size_t>(options.nprobe);
+  try {
+    ivfpq->train(static_cast<faiss::Index::idx_t>(nt), train_set.data());
+  } catch (const faiss::FaissException& ex) {
+    throw_error(ErrorCode::kInvalidArgument, "image index training failed: ", ex.what());
+  }
+  configure_tables(ivfpq.get(), options.precomputed_tables);
+  out.impl_->ivfpq = ivfpq.get();
+  out.impl_->index = std::move(ivfpq);
+  return out;
+}
+
+ImageIndex ImageIndex::build(std::span<const float> vectors, std::span<const int64_t> ids, int dims,
+                             const ImageIndexOptions& options) {
+  ImageIndex index = train(vectors, dims, options);
+  index.add(vectors, ids);
+  return index;
+}
+
+void ImageIndex::add(std::span<const float> vectors, std::span<const int64_t> ids) {
+  VISLOC_CHECK(impl_->index != nullptr, "add() on an empty ImageIndex");
+  if (vectors.size() != ids.size() * static_cast<size_t>(dims_))
+    throw_error(ErrorCode::kInvalidArgument, "image index add: ", vectors.size(), " floats for ", ids.size(),
+                " ids of dimension ", dims_);
+  static_assert(sizeof(faiss::Index::idx_t) == sizeof(int64_t));
+  impl_->index->add_with_ids(static_cast<faiss::Index::idx_t>(ids.size()), vectors.data(),
+                             reinterpret_cast<const faiss::Index::idx_t*>(ids.data()));
+}
+
+std::vector<ImageSearchResult> ImageIndex::search(std::span<const float> query, int top) const {
+  std::vector<ImageSearchResult> out;
+  search(query, top, out);
+  while (!out.empty() && out.back().image < 0) out.pop_back();
+  return out;
+}
+
+void ImageIndex::search(std::span<const float> queries, int top, std::vector<ImageSearchResult>& out) const {
+  VISLOC_CHECK(impl_->index != nullptr, "search() on an empty ImageIndex");
+  if (top < 1) throw_error(ErrorCode::kInvalidArgument, "image index search: top = ", top, " must be at least 1");
+  if (queries.size() % static_cast<size_t>(dims_) != 0)
+    throw_error(ErrorCode::kInvalidArgument, "image index search: ", queries.size(),
+                " floats is not a multiple of dims ", dims_);
+  const size_t n = queries.size() / dims_;
+  std::vector<float> distances(n * top);
+  std::vector<faiss::Index::idx_t> labels(n * top);
+  impl_->index->search(static_cast<faiss::Index::idx_t>(n), queries.data(), top, distances.data(), labels.data());
+  out.resize(n * top);
+  for (size_t i = 0; i < n * top; ++i) out[i] = {labels[i], distances[i]};
+}
+
+void ImageIndex::set_nprobe(int nprobe) {
+  if (nprobe < 1) throw_error(ErrorCode::kInvalidArgument, "image index option nprobe = ", nprobe, ": must be at least 1");
+  options_.nprobe = nprobe;
+  if (impl_->ivfpq) impl_->ivfpq->nprobe = static_cast<size_t>(nprobe);
+}
+
+size_t ImageIndex::size() const { return impl_->index ? static_cast<size_t>(impl_->index->ntotal) : 0; }
+
+size_t ImageIndex::bytes_per_image() const {
+  if (impl_->ivfpq) return impl_->ivfpq->code_size + sizeof(faiss::Index::idx_t);
+  return static_cast<size_t>(dims_) * sizeof(float) + sizeof(faiss::Index::idx_t);
+}
+
+size_t ImageIndex::fixed_bytes() const {
+  const faiss::IndexIVFPQ* q = impl_->ivfpq;
+  if (!q) return 0;
+  return sizeof(float) * (q->nlist * static_cast<size_t>(q->d) + q->pq.centroids.size() + q->precomputed_table.size());
+}
+
+void ImageIndex::save(const std::filesystem::path& path) const {
+  VISLOC_CHECK(impl_->index != nullptr, "saving an empty ImageIndex");
+  faiss::VectorIOWriter writer;
+  faiss::write_index(impl_->index.get(), &writer);
+  const nlohmann::json meta = {{"type", type_name(options_.type)},
+                               {"dims", dims_},
+                               {"count", size()},
+                               {"nlist", options_.nlist},
+                               {"nprobe", options_.nprobe},
+                               {"pq_bytes", options_.pq_bytes},
+                               {"pq_bits", options_.pq_bits},
+                               {"precomputed_tables", options_.precomputed_tables},
+                               {"max_training_vectors", options_.max_training_vectors},
+                               {"seed", options_.seed},
+                               {"effective_nlist", effective_nlist_},
+                               {"effective_pq_bits", effective_pq_bits_}};
+  SectionFileWriter w(path, "IIDX", kImageIndexFileVersion);
+  w.add_text("META", meta.dump());
+  w.add("FAIS", writer.data.data(), writer.data.size());
+  w.commit();
+}
+
+ImageIndex ImageIndex::load(const std::filesystem::path& path) {
+  SectionFileReader r(path, "IIDX", 1, kImageIndexFileVersion);
+  auto fail = [&](const auto&... parts) { throw_error(ErrorCode::kFormat, path.string(), ": ", parts...); };
+  ImageIndex out;
+  size_t count = 0;
+  try {
+    const auto meta = nlohmann::json::parse(r.text("META"));
+    const std::string type = meta.at("type").get<std::string>();
+    if (type != "ivfpq" && type != "flat") fail("unknown index type '", type, "'");
+    out.options_.type = type == "ivfpq" ? ImageIndexType::kIvfPq : ImageIndexType::kFlat;
+    out.dims_ = meta.at("dims").get<int>();
+    count = meta.at("count").get<size_t>();
+    out.options_.nlist = meta.at("nlist").get<int>();
+    out.options_.nprobe = meta.at("nprobe").get<int>();
+    out.options_.pq_bytes = meta.at("pq_bytes").get<int>();
+    out.options_.pq_bits = meta.at("pq_bits").get<int>();
+    out.options_.precomputed_tables = meta.at("precomputed_tables").get<bool>();
+    out.options_.max_training_vectors = meta.at("max_training_vectors").get<int>();
+    out.options_.seed = meta.at("seed").get<uint64_t>();
+    out.effective_nlist_ = meta.at("effective_nlist").get<int>();
+    out.effective_pq_bits_ = meta.at("effective_pq_bits").get<int>();
+  } catch (const nlohmann::json::exception& ex) {
+    fail("META is not valid (", ex.what(), ")");
+  }
+  try {
+    out.options_.validate();
+  } catch (const Error& ex) {
+    fail("stored options are invalid: ", ex.what());
+  }
+  const auto bytes = r.bytes("FAIS");
+  faiss::VectorIOReader reader;
+  reader.data.assign(bytes.begin(), bytes.end());
+  std::unique_ptr<faiss::Index> index;
+  try {
+    index.reset(faiss::read_index(&reader, faiss::IO_FLAG_SKIP_PRECOMPUTE_TABLE));
+  } catch (const faiss::FaissException& ex) {
+    fail("FAISS index section cannot be read (", ex.what(), ")");
+  }
+  if (index->d != out.dims_ || static_cast<size_t>(index->ntotal) != count)
+    fail("FAISS index has dimension ", index->d, " and ", index->ntotal, " vectors, META says ", out.dims_, " and ",
+         count);
+  if (out.options_.type == ImageIndexType::kIvfPq) {
+    auto* ivfpq = dynamic_cast<faiss::IndexIVFPQ*>(index.get());
+    if (!ivfpq) fail("META says ivfpq but the FAISS index is not an IndexIVFPQ");
+    ivfpq->nprobe = static_cast<size_t>(out.options_.nprobe);
+    configure_tables(ivfpq, out.options_.precomputed_tables);
+    out.impl_->ivfpq = ivfpq;
+  } else if (!dynamic_cast<faiss::IndexIDMap*>(index.get())) {
+    fail("META says flat but the FAISS index is not an IndexIDMap");
+  }
+  out.impl_->index = std::move(index);
+  return out;
+}
+
+}  // namespace visloc
