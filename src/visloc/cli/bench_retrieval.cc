@@ -287,7 +287,7 @@ void add_bench_retrieval(CLI::App& bench) {
     TriangulationEmbeddingOptions embedding;
     ImageIndexOptions index;
     SegmentVoterOptions voter;
-    std::string weighting = "one";
+    std::string weighting = "rank";
     CorrectSegmentOptions truth_options;
     SiftOptions sift;
     size_t synthetic_size = 100000;

@@ -284,6 +284,7 @@ TEST(SegmentVoter, VotesOrderAndCap) {
   SegmentVoterOptions o;
   o.top_images = 5;
   o.max_candidates = 2;
+  o.weighting = VoteWeighting::kOnePerImage;
   SegmentVoter voter(table, o);
   // Ranked: 6 (seg 3), 1 (0,1), 3 (1,2), 7 (3,4), 0 (0), then 5 (beyond top 5).
   std::vector<ImageSearchResult> ranked{{6, 0}, {1, 0}, {3, 0}, {7, 0}, {0, 0}, {5, 0}};

@@ -15,6 +15,10 @@ void ColmapRunnerOptions::validate() const {
   if (!(spatial_max_distance > 0))
     throw_error(ErrorCode::kInvalidArgument, "spatial_max_distance must be positive, got ", spatial_max_distance);
   if (min_model_size < 2) throw_error(ErrorCode::kInvalidArgument, "min_model_size must be >= 2, got ", min_model_size);
+  if (!(init_min_tri_angle > 0 && init_min_tri_angle < 90))
+    throw_error(ErrorCode::kInvalidArgument, "init_min_tri_angle must be in (0, 90) degrees, got ", init_min_tri_angle);
+  if (init_min_num_inliers < 8)
+    throw_error(ErrorCode::kInvalidArgument, "init_min_num_inliers must be >= 8, got ", init_min_num_inliers);
 }
 
 ColmapRunner::ColmapRunner(const ColmapRunnerOptions& options) : options_(options) { options_.validate(); }
@@ -56,7 +60,9 @@ std::filesystem::path ColmapRunner::map(const std::filesystem::path& database, c
   run_process({options_.binary, "mapper", "--database_path", database.string(), "--image_path", image_dir.string(),
                "--output_path", output_dir.string(), "--Mapper.num_threads", std::to_string(options_.threads),
                "--Mapper.min_model_size", std::to_string(options_.min_model_size), "--Mapper.ba_refine_focal_length",
-               options_.refine_focal ? "1" : "0", "--random_seed", std::to_string(options_.random_seed)},
+               options_.refine_focal ? "1" : "0", "--Mapper.init_min_tri_angle",
+               std::to_string(options_.init_min_tri_angle), "--Mapper.init_min_num_inliers",
+               std::to_string(options_.init_min_num_inliers), "--random_seed", std::to_string(options_.random_seed)},
               log);
   // The largest sub-model by the size of its points3D.bin.
   std::filesystem::path best;

@@ -20,6 +20,8 @@ struct ColmapRunnerOptions {
   int spatial_max_neighbors = 30;
   int min_model_size = 3;            // mapper: smallest model kept
   bool refine_focal = true;          // mapper: refine focal lengths in BA
+  double init_min_tri_angle = 4;     // mapper: degrees (COLMAP's 16 rejects street sequences' small baselines)
+  int init_min_num_inliers = 50;     // mapper: matches of the initial pair (COLMAP: 100)
   int random_seed = 1;
   void validate() const;
 };
