@@ -57,6 +57,29 @@ bool fit(const std::vector<Eigen::Vector3d>& src, const std::vector<Eigen::Vecto
   return true;
 }
 
+// Residuals, inlier mask and their statistics for out.transform.
+void fill_residuals(const std::vector<Eigen::Vector3d>& src, const std::vector<Eigen::Vector3d>& dst, double threshold,
+                    SimilarityEstimate& out) {
+  const size_t n = src.size();
+  out.inliers.assign(n, 0);
+  out.residuals.resize(n);
+  out.inlier_count = 0;
+  double sum2 = 0;
+  for (size_t i = 0; i < n; ++i) {
+    out.residuals[i] = (out.transform.apply(src[i]) - dst[i]).norm();
+    if (out.residuals[i] < threshold) {
+      out.inliers[i] = 1;
+      ++out.inlier_count;
+      sum2 += out.residuals[i] * out.residuals[i];
+    }
+  }
+  out.rms_residual = out.inlier_count ? std::sqrt(sum2 / out.inlier_count) : 0.0;
+  std::vector<double> r = out.residuals;
+  std::sort(r.begin(), r.end());
+  out.median_residual = r.size() % 2 ? r[r.size() / 2] : 0.5 * (r[r.size() / 2 - 1] + r[r.size() / 2]);
+  out.max_residual = r.back();
+}
+
 }  // namespace
 
 Similarity3d estimate_similarity(const std::vector<Eigen::Vector3d>& src, const std::vector<Eigen::Vector3d>& dst) {
@@ -138,22 +161,7 @@ SimilarityEstimate estimate_similarity_ransac(const std::vector<Eigen::Vector3d>
     Similarity3d refit;
     if (static_cast<int>(inl.size()) >= 3 && fit(src, dst, inl, refit)) out.transform = refit;
   }
-  out.inliers.assign(n, 0);
-  out.residuals.resize(n);
-  double sum2 = 0;
-  for (int i = 0; i < n; ++i) {
-    out.residuals[i] = (out.transform.apply(src[i]) - dst[i]).norm();
-    if (out.residuals[i] < options.inlier_threshold) {
-      out.inliers[i] = 1;
-      ++out.inlier_count;
-      sum2 += out.residuals[i] * out.residuals[i];
-    }
-  }
-  out.rms_residual = out.inlier_count ? std::sqrt(sum2 / out.inlier_count) : 0.0;
-  std::vector<double> r = out.residuals;
-  std::sort(r.begin(), r.end());
-  out.median_residual = r.size() % 2 ? r[r.size() / 2] : 0.5 * (r[r.size() / 2 - 1] + r[r.size() / 2]);
-  out.max_residual = r.back();
+  fill_residuals(src, dst, options.inlier_threshold, out);
   return out;
 }
 
@@ -266,22 +274,7 @@ SimilarityEstimate estimate_upright_similarity_ransac(const std::vector<Eigen::V
     Similarity3d refit;
     if (inl.size() >= 2 && fit_upright(x, dst, inl, level, refit)) out.transform = refit;
   }
-  out.inliers.assign(n, 0);
-  out.residuals.resize(n);
-  double sum2 = 0;
-  for (int i = 0; i < n; ++i) {
-    out.residuals[i] = (out.transform.apply(src[i]) - dst[i]).norm();
-    if (out.residuals[i] < options.inlier_threshold) {
-      out.inliers[i] = 1;
-      ++out.inlier_count;
-      sum2 += out.residuals[i] * out.residuals[i];
-    }
-  }
-  out.rms_residual = out.inlier_count ? std::sqrt(sum2 / out.inlier_count) : 0.0;
-  std::vector<double> r = out.residuals;
-  std::sort(r.begin(), r.end());
-  out.median_residual = r.size() % 2 ? r[r.size() / 2] : 0.5 * (r[r.size() / 2 - 1] + r[r.size() / 2]);
-  out.max_residual = r.back();
+  fill_residuals(src, dst, options.inlier_threshold, out);
   return out;
 }
 
