@@ -52,6 +52,10 @@ void bind_build_options(CLI::App* cmd, MapBuildArgs& a, bool update) {
   cmd->add_option("--registration-threshold", a.options.registration.inlier_threshold,
                   "Metres: GPS inlier threshold of the geo-registration")
       ->capture_default_str();
+  cmd->add_option("--retrieval-dims", a.options.embedding.output_dims,
+                  "Retrieval embedding dimensions after PCA-whitening (0: full 4096)")
+      ->capture_default_str();
+  cmd->add_flag("!--no-retrieval", a.options.build_retrieval, "Do not build the retrieval index");
   add_sift_options(cmd, a.options.sift);
   if (update) cmd->add_option("--segment", a.segment, "The segment to rebuild")->required();
 }

@@ -59,7 +59,14 @@ struct MapBuildOptions {
   int jobs = 0;                             // segments built in parallel (0: number of cores)
   std::vector<int> only_segments;           // rebuild just these (map update); empty: all
   bool build_retrieval = true;              // train and write MAP/retrieval (T-embedding + IVF-PQ)
-  TriangulationEmbeddingOptions embedding;  // retrieval: global descriptor
+  // Retrieval: global descriptor, PCA-whitened to 512-D by default (8.4 MB of
+  // parameters instead of 67 MB for full 4096-D whitening; under IVF-PQ at
+  // 100K images it kept more recall and was 3× faster: see issue #7's notes).
+  TriangulationEmbeddingOptions embedding = [] {
+    TriangulationEmbeddingOptions o;
+    o.output_dims = 512;
+    return o;
+  }();
   ImageIndexOptions image_index;            // retrieval: IVF-PQ index
   bool keep_work = true;                    // keep MAP/work (databases, logs) after success
   void validate() const;

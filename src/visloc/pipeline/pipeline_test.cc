@@ -81,3 +81,76 @@ TEST(Localizer, LocalizesHeldOutFountainImages) {
     EXPECT_NEAR(r.focal_px, cam.focal, 0.02 * cam.focal);
   }
 }
+
+#include "visloc/map/map_builder.h"
+#include "visloc/sfm/process.h"
+#include "visloc/synth/city_writer.h"
+
+// The whole system on a small synthetic street: render, build a map with
+// COLMAP from the known poses, localize queries from other cameras. Skips
+// when the colmap binary is absent.
+TEST(Localizer, EndToEndOnSyntheticStreet) {
+  if (!program_exists("colmap")) GTEST_SKIP() << "colmap is not installed";
+  const fs::path dir = fs::temp_directory_path() / "visloc_pipeline_test_city";
+  fs::remove_all(dir);
+  synth::CityOptions city;
+  city.layout.road_length_m = 60;
+  city.views.headings = 8;
+  city.views.elevations_deg = {10};
+  city.views.width = city.views.height = 400;
+  city.queries.count = 4;
+  city.queries.fov_min_deg = 60;
+  city.queries.fov_max_deg = 70;
+  city.queries.resolutions = {{640, 480}};
+  city.queries.pitch_min_deg = 0;
+  city.queries.pitch_max_deg = 10;
+  city.queries.roll_max_deg = 0;
+  city.queries.exposure_min = city.queries.exposure_max = 1.0;
+  city.queries.gamma_min = city.queries.gamma_max = 1.0;
+  city.queries.blur_max_px = 0;
+  city.queries.noise_max = 0;
+  city.queries.cars_max = city.queries.trees_max = 0;
+  city.queries.side_view_probability = 1.0;
+  city.jobs = 2;
+  synth::write_city(city, dir / "city");
+
+  MapBuildOptions mb;
+  mb.images_dir = dir / "city" / "images";
+  mb.gps_csv = dir / "city" / "gps.csv";
+  mb.poses = PoseSource::kKnown;
+  mb.known_poses = dir / "city" / "sparse";
+  mb.jobs = 2;
+  mb.itq.iterations = 10;
+  mb.pq.iterations = 10;
+  mb.pq_training_descriptors = 20000;
+  mb.build_retrieval = false;
+  mb.exhaustive_max_images = 0;  // pairs of overlapping views (the known-pose path)
+  MapBuildResult built = build_map(dir / "map", mb);
+  ASSERT_EQ(built.failed(), 0u) << built.segments[0].error;
+  ASSERT_GE(built.segments.size(), 1u);
+  EXPECT_GT(built.segments[0].points, 500u);
+  EXPECT_LT(built.segments[0].registration_max_m, 0.01);  // known poses are ENU exactly
+  // A second run reuses the finished segments.
+  MapBuildResult again = build_map(dir / "map", mb);
+  EXPECT_TRUE(again.segments[0].reused);
+
+  std::map<std::string, CameraPose> truth;
+  for (const auto& p : read_pose_list(dir / "city" / "queries" / "truth.txt")) truth[p.name] = p.cam_from_world;
+  std::map<std::string, PinholeCamera> cams;
+  for (const auto& c : read_intrinsics_list(dir / "city" / "queries" / "intrinsics.txt")) cams[c.name] = c.camera;
+  Localizer loc(dir / "map");
+  int accurate = 0;
+  for (const auto& [name, pose] : truth) {
+    LocalizationResult r = loc.localize_file(dir / "city" / "queries" / "images" / name, cams.at(name));
+    EXPECT_TRUE(r.error.empty()) << r.error;
+    if (!r.registered) continue;
+    const double err = position_error(r.cam_from_segment, pose);
+    EXPECT_LT(err, 0.5) << name << " registered with " << r.inliers << " inliers but " << err << " m off";
+    // Geo-registration: the WGS84 position, expressed in the city's ENU frame
+    // (the map's own ENU origin is its first image), is the true centre.
+    ASSERT_TRUE(r.position.has_value());
+    EXPECT_LT((EnuFrame(city.origin).to_enu(*r.position) - pose.center()).norm(), 0.5);
+    accurate += err < 0.5;
+  }
+  EXPECT_GE(accurate, 2) << "of " << truth.size() << " queries";
+}

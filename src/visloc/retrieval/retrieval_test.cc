@@ -1,4 +1,5 @@
 #include <gtest/gtest.h>
+#include <omp.h>
 
 #include <cmath>
 #include <filesystem>
@@ -17,6 +18,13 @@ namespace visloc {
 namespace {
 
 namespace fs = std::filesystem;
+
+// FAISS's OpenMP regions crawl when the machine is oversubscribed (a parallel
+// ctest run); these small problems need one thread. Process-wide, tests only.
+const int kOneThread = [] {
+  omp_set_num_threads(1);
+  return 1;
+}();
 
 // Synthetic "scenes": each scene has its own set of prototype descriptors;
 // an image of a scene draws descriptors near its prototypes (uint8, with
