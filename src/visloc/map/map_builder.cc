@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <atomic>
+#include <exception>
 #include <cmath>
 #include <iomanip>
 #include <map>
@@ -113,16 +114,28 @@ nlohmann::json similarity_json(const Similarity3d& s) {
   return {{"scale", s.scale}, {"rotation_row_major", r}, {"translation", {s.translation.x(), s.translation.y(), s.translation.z()}}};
 }
 
-// Runs fn(i) for i in [0, n) on `jobs` threads; exceptions are the caller's to catch inside fn.
+// Runs fn(i) for i in [0, n) on `jobs` threads. The first exception stops
+// the hand-out of new items and is rethrown here once every thread has ended.
 void parallel_for(size_t n, int jobs, const std::function<void(size_t)>& fn) {
   std::atomic<size_t> next{0};
+  std::mutex error_mutex;
+  std::exception_ptr error;
   auto worker = [&] {
-    for (size_t i = next++; i < n; i = next++) fn(i);
+    for (size_t i = next++; i < n; i = next++) {
+      try {
+        fn(i);
+      } catch (...) {
+        std::lock_guard lock(error_mutex);
+        if (!error) error = std::current_exception();
+        next = n;
+      }
+    }
   };
   std::vector<std::thread> threads;
   for (int t = 1; t < std::min<int>(jobs, static_cast<int>(n)); ++t) threads.emplace_back(worker);
   worker();
   for (auto& t : threads) t.join();
+  if (error) std::rethrow_exception(error);
 }
 
 // The camera's "up" (image −y) in world coordinates. Street-level cameras are
@@ -535,9 +548,13 @@ MapBuildResult build_map(const fs::path& map_dir, const MapBuildOptions& opt,
       try {
         r = build_segment(ctx, id);
       } catch (const Error& e) {
+        if (e.code() == ErrorCode::kInternal) throw;
         r = SegmentBuildResult{};
         r.id = id;
-        r.ok = false;
+        r.error = e.what();
+      } catch (const std::filesystem::filesystem_error& e) {  // e.g. disk full, permissions
+        r = SegmentBuildResult{};
+        r.id = id;
         r.error = e.what();
       }
       write_file_atomic(result_file, to_json(r).dump(2));
