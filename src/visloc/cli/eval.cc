@@ -1,4 +1,6 @@
 // visloc eval: localize a query list against a map and report against the truth.
+#include <unistd.h>
+
 #include <filesystem>
 #include <iostream>
 #include <memory>
@@ -59,15 +61,16 @@ void add_eval_command(CLI::App& app) {
     Localizer localizer(args->map, args->options);
     std::vector<LocalizationResult> results;
     std::ostringstream lines;
+    const bool tty = ::isatty(STDERR_FILENO);
     for (size_t i = 0; i < names.size(); ++i) {
       if (!truth.count(names[i])) throw_error(ErrorCode::kNotFound, args->truth, ": no reference for '", names[i], "'");
       std::optional<PinholeCamera> cam;
       if (auto it = cameras.find(names[i]); it != cameras.end()) cam = it->second;
       results.push_back(localizer.localize_file(fs::path(args->images) / names[i], cam));
       lines << to_json(results.back()).dump() << '\n';
-      std::cerr << "\reval: " << i + 1 << "/" << names.size() << std::flush;
+      if (tty) std::cerr << "\reval: " << i + 1 << "/" << names.size() << std::flush;
     }
-    std::cerr << "\n";
+    if (tty) std::cerr << "\n";
     EvaluationReport rep = evaluate(results, truth);
     nlohmann::json context = {{"map", fs::absolute(args->map).string()}, {"setting", args->setting},
                               {"truth", fs::absolute(args->truth).string()}};
