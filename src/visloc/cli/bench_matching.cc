@@ -172,7 +172,7 @@ SceneResult run_scene(const Args& a, const std::string& map_dir, const std::stri
     if (!db_path.empty()) cdb = std::make_unique<ColmapDatabase>(db_path);
     std::unique_ptr<SiftExtractor> sift;
     if (a.extract) sift = std::make_unique<SiftExtractor>(a.sift);
-    auto names = read_image_list(query_list);
+    auto names = read_name_list(query_list);
     if (a.max_queries > 0 && names.size() > size_t(a.max_queries)) names.resize(a.max_queries);
     std::vector<ColmapDbCamera> cams = cdb ? cdb->cameras() : std::vector<ColmapDbCamera>{};
     for (const auto& n : names) {

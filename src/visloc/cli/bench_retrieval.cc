@@ -56,17 +56,9 @@ namespace {
 constexpr int kRecallAt[] = {1, 5, 10, 20, 50};
 constexpr int kMaxRetrieved = 50;
 
-std::vector<std::string> read_name_list(const fs::path& path) {
-  std::ifstream in(path);
-  if (!in) throw_error(ErrorCode::kIo, path.string(), ": cannot open");
-  std::vector<std::string> names;
-  std::string line;
-  while (std::getline(in, line)) {
-    const auto a = line.find_first_not_of(" \t\r");
-    if (a == std::string::npos || line[a] == '#') continue;
-    const auto b = line.find_last_not_of(" \t\r");
-    names.push_back(line.substr(a, b - a + 1));
-  }
+// A name list that must not be empty.
+std::vector<std::string> read_names(const fs::path& path) {
+  std::vector<std::string> names = visloc::read_name_list(path);
   if (names.empty()) throw_error(ErrorCode::kInvalidArgument, path.string(), ": no image names");
   return names;
 }
@@ -384,16 +376,16 @@ void add_bench_retrieval(CLI::App& bench) {
     Dataset d;
     std::vector<std::string> all = list_images(image_dir);
     if (a.leave_one_out) {
-      d.map_names = a.map_list.empty() ? all : read_name_list(a.map_list);
+      d.map_names = a.map_list.empty() ? all : read_names(a.map_list);
       d.query_names = d.map_names;
     } else {
-      d.query_names = read_name_list(a.queries);
+      d.query_names = read_names(a.queries);
       if (a.map_list.empty()) {
         const std::set<std::string> q(d.query_names.begin(), d.query_names.end());
         for (const auto& n : all)
           if (!q.count(n)) d.map_names.push_back(n);
       } else {
-        d.map_names = read_name_list(a.map_list);
+        d.map_names = read_names(a.map_list);
       }
     }
     std::sort(d.map_names.begin(), d.map_names.end());
@@ -647,7 +639,7 @@ void add_retrieval_command(CLI::App& app) {
     if (b->placemark_size < 1)
       throw_error(ErrorCode::kInvalidArgument, "--placemark-size = ", b->placemark_size, ": must be at least 1");
     const fs::path dir = b->images;
-    std::vector<std::string> names = b->list.empty() ? list_images(dir) : read_name_list(b->list);
+    std::vector<std::string> names = b->list.empty() ? list_images(dir) : read_names(b->list);
     std::map<std::string, int> placemark_of;
     if (!b->truth.empty())
       for (const auto& r : read_gps_csv(b->truth))

@@ -50,9 +50,9 @@ void add_import(CLI::App& map) {
       throw_error(ErrorCode::kInvalidArgument, "map import needs --colmap MODEL --database DB --out MAP");
     ColmapImportOptions o = args->options;
     o.pq.seed = o.itq.seed;
-    if (!args->holdout.empty()) o.holdout_images = read_image_list(args->holdout);
+    if (!args->holdout.empty()) o.holdout_images = read_name_list(args->holdout);
     o.pq_training_database = args->pq_database;
-    if (!args->pq_images.empty()) o.pq_training_images = read_image_list(args->pq_images);
+    if (!args->pq_images.empty()) o.pq_training_images = read_name_list(args->pq_images);
     ColmapImportResult r = import_colmap_map(args->colmap, args->database, args->out, o);
     nlohmann::json j = {{"map", args->out},
                         {"images", r.images},

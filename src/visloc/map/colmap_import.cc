@@ -26,18 +26,6 @@ void ColmapImportOptions::validate() const {
     throw_error(ErrorCode::kInvalidArgument, "ColmapImportOptions.pq_training_images needs pq_training_database");
 }
 
-std::vector<std::string> read_image_list(const fs::path& path) {
-  std::istringstream in(read_file(path));
-  std::vector<std::string> out;
-  std::string line;
-  while (std::getline(in, line)) {
-    while (!line.empty() && (line.back() == '\r' || line.back() == ' ' || line.back() == '\t')) line.pop_back();
-    const size_t first = line.find_first_not_of(" \t");
-    if (first == std::string::npos || line[first] == '#') continue;
-    out.push_back(line.substr(first));
-  }
-  return out;
-}
 
 namespace {
 

@@ -16,6 +16,7 @@
 #include <vector>
 
 #include "visloc/colmap/colmap_model.h"
+#include "visloc/geometry/pose_list.h"  // read_name_list
 #include "visloc/matching/binary_hasher.h"
 #include "visloc/matching/pq_codebook.h"
 
@@ -44,7 +45,5 @@ struct ColmapImportResult {
 ColmapImportResult import_colmap_map(const std::filesystem::path& model_dir, const std::filesystem::path& database,
                                      const std::filesystem::path& out_dir, const ColmapImportOptions& options = {});
 
-// Reads an image list: one name per line; blank lines and '#' comments skipped.
-std::vector<std::string> read_image_list(const std::filesystem::path& path);
 
 }  // namespace visloc

@@ -120,7 +120,7 @@ TEST(MapImport, FountainWithHoldout) {
   if (!fs::exists(scene / "colmap" / "sparse" / "points3D.bin")) GTEST_SKIP() << "shared data absent: " << scene;
   auto out = temp_dir("fountain");
   ColmapImportOptions o;
-  o.holdout_images = read_image_list(scene / "queries.txt");
+  o.holdout_images = read_name_list(scene / "queries.txt");
   ASSERT_EQ(o.holdout_images.size(), 3u);
   o.itq.iterations = 3;  // speed; quality is measured by the benchmark
   o.pq.iterations = 3;
