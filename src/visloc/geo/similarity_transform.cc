@@ -57,6 +57,23 @@ bool fit(const std::vector<Eigen::Vector3d>& src, const std::vector<Eigen::Vecto
   return true;
 }
 
+// Truncated quadratic (MSAC) score of a transform: inliers within the
+// threshold and their cost (outliers cost thr²).
+void score_similarity(const Similarity3d& t, const std::vector<Eigen::Vector3d>& src,
+                      const std::vector<Eigen::Vector3d>& dst, double thr2, int& count, double& cost) {
+  count = 0;
+  cost = 0;
+  for (size_t i = 0; i < src.size(); ++i) {
+    const double r2 = (t.apply(src[i]) - dst[i]).squaredNorm();
+    if (r2 < thr2) {
+      ++count;
+      cost += r2;
+    } else {
+      cost += thr2;
+    }
+  }
+}
+
 // Residuals, inlier mask and their statistics for out.transform.
 void fill_residuals(const std::vector<Eigen::Vector3d>& src, const std::vector<Eigen::Vector3d>& dst, double threshold,
                     SimilarityEstimate& out) {
@@ -107,19 +124,6 @@ SimilarityEstimate estimate_similarity_ransac(const std::vector<Eigen::Vector3d>
   double best_cost = INFINITY;
   Similarity3d best;
   std::vector<int> sample(3);
-  auto score = [&](const Similarity3d& t, int& count, double& cost) {
-    count = 0;
-    cost = 0;
-    for (int i = 0; i < n; ++i) {
-      const double r2 = (t.apply(src[i]) - dst[i]).squaredNorm();
-      if (r2 < thr2) {
-        ++count;
-        cost += r2;
-      } else {
-        cost += thr2;
-      }
-    }
-  };
   // With few points, every triple is tried; otherwise random triples.
   const bool exhaustive = n <= 20;
   int iterations = 0;
@@ -128,7 +132,7 @@ SimilarityEstimate estimate_similarity_ransac(const std::vector<Eigen::Vector3d>
     if (!fit(src, dst, s, t)) return;
     int count;
     double cost;
-    score(t, count, cost);
+    score_similarity(t, src, dst, thr2, count, cost);
     if (count > best_count || (count == best_count && cost < best_cost)) {
       best_count = count;
       best_cost = cost;
@@ -235,15 +239,7 @@ SimilarityEstimate estimate_upright_similarity_ransac(const std::vector<Eigen::V
     if (!fit_upright(x, dst, {i, j}, level, t)) return;
     int count = 0;
     double cost = 0;
-    for (int k = 0; k < n; ++k) {
-      const double r2 = (t.apply(src[k]) - dst[k]).squaredNorm();
-      if (r2 < thr2) {
-        ++count;
-        cost += r2;
-      } else {
-        cost += thr2;
-      }
-    }
+    score_similarity(t, src, dst, thr2, count, cost);
     if (count > best_count || (count == best_count && cost < best_cost)) {
       best_count = count;
       best_cost = cost;

@@ -225,6 +225,17 @@ PinholeCamera camera_from_fov(int width, int height, double fov_deg) {
   return PinholeCamera::centered(width, height, width / 2.0 / std::tan(fov_deg * kDegToRad / 2));
 }
 
+void add_markers(const CityOptions& options, CityScene& scene) {
+  for (const auto& m : options.markers) {
+    SpherePrimitive s;
+    s.center = m;
+    s.radius = options.marker_radius_m;
+    s.kind = ObjectKind::kMarker;
+    s.colour = {1.0f, 0.0f, 0.0f};
+    scene.objects.spheres.push_back(s);
+  }
+}
+
 std::string database_image_name(int placemark, int heading_index, int elevation_index) {
   char buf[64];
   std::snprintf(buf, sizeof buf, "p%05d_h%02d_e%d", placemark, heading_index, elevation_index);
@@ -386,14 +397,7 @@ CityStats write_city(const CityOptions& options_in, const fs::path& out, const C
 
   const CityScene scene_base = generate_city_scene(options.layout);
   CityScene scene = scene_base;
-  for (const auto& m : options.markers) {
-    SpherePrimitive s;
-    s.center = m;
-    s.radius = options.marker_radius_m;
-    s.kind = ObjectKind::kMarker;
-    s.colour = {1.0f, 0.0f, 0.0f};
-    scene.objects.spheres.push_back(s);
-  }
+  add_markers(options, scene);
   PhotoCropSet photos;
   if (!options.photo_dir.empty()) photos = load_photo_crops(options.photo_dir, options.photo_crops);
   const EnuFrame enu(options.origin);

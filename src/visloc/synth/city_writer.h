@@ -100,6 +100,8 @@ CameraPose street_view_pose(const Eigen::Vector3d& center, double heading_deg, d
                             double roll_deg = 0.0);
 PinholeCamera camera_from_fov(int width, int height, double horizontal_fov_deg);
 std::string database_image_name(int placemark, int heading_index, int elevation_index);
+// Adds the options' red marker spheres (tests, calibration) to a scene.
+void add_markers(const CityOptions& options, CityScene& scene);
 
 // A query: camera, pose, photometric conditions and occluders; a pure
 // function of (scene, options, index).

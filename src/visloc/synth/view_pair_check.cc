@@ -108,14 +108,7 @@ AdjacentPairReport measure_adjacent_placemarks(const CityOptions& options, const
   check.validate();
   if (pairs < 1) throw_error(ErrorCode::kInvalidArgument, "pair measurement option pairs: must be >= 1, got ", pairs);
   CityScene scene = generate_city_scene(options.layout);
-  for (const auto& m : options.markers) {
-    SpherePrimitive s;
-    s.center = m;
-    s.radius = options.marker_radius_m;
-    s.kind = ObjectKind::kMarker;
-    s.colour = {1.0f, 0.0f, 0.0f};
-    scene.objects.spheres.push_back(s);
-  }
+  add_markers(options, scene);
   // Candidate k: placemarks k and k+1 on the same road.
   std::vector<size_t> starts;
   for (size_t k = 0; k + 1 < scene.placemarks.size(); ++k)
