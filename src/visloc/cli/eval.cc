@@ -1,13 +1,17 @@
-// visloc eval: localize a query list against a map and report against the truth.
+// visloc eval: localize a query list against a map and report against the
+// truth; or, for an imported COLMAP model, leave-one-out over its images;
+// optionally with COLMAP's image_registrator on the same queries.
 #include <unistd.h>
 
 #include <filesystem>
+#include <iomanip>
 #include <iostream>
 #include <memory>
 
 #include "visloc/cli/commands.h"
-#include "visloc/cli/sift_options.h"
+#include "visloc/cli/localizer_options.h"
 #include "visloc/eval/evaluation.h"
+#include "visloc/eval/protocols.h"
 #include "visloc/geo/gps_csv.h"
 #include "visloc/geometry/pose_list.h"
 #include "visloc/map/map.h"
@@ -19,64 +23,195 @@
 namespace visloc::cli {
 namespace fs = std::filesystem;
 
+namespace {
+
+void write_results(const fs::path& dir, const std::vector<LocalizationResult>& results, const EvaluationReport& rep,
+                   const nlohmann::json& context) {
+  write_report(dir, rep, results, context);
+  std::ostringstream lines;
+  for (const auto& r : results) lines << to_json(r).dump() << '\n';
+  write_file_atomic(dir / "results.jsonl", lines.str());
+}
+
+// One row of the side-by-side table, from a report's JSON.
+std::string comparison_row(const std::string& method, const nlohmann::json& j, double ms_per_query) {
+  auto num = [](const nlohmann::json& v, int precision) {
+    if (v.is_null()) return std::string("–");
+    std::ostringstream s;
+    s << std::setprecision(precision) << v.get<double>();
+    return s.str();
+  };
+  std::ostringstream s;
+  s << "| " << method << " | " << j["queries"] << " | " << j["registered"] << " | "
+    << num(j["registration_rate"], 3) << " | " << num(j["position_error_m"].is_null() ? nlohmann::json() : j["position_error_m"]["median"], 3)
+    << " | " << num(j["rotation_error_deg"].is_null() ? nlohmann::json() : j["rotation_error_deg"]["median"], 3)
+    << " | " << std::fixed << std::setprecision(1) << ms_per_query << " |\n";
+  return s.str();
+}
+
+double median_of(std::vector<double> v) {
+  if (v.empty()) return NAN;
+  std::sort(v.begin(), v.end());
+  const size_t n = v.size();
+  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
+}  // namespace
+
 void add_eval_command(CLI::App& app) {
   struct Args {
-    std::string map, queries, images, truth, out, intrinsics, setting = "3+";
+    std::string map, queries, images, truth, out, intrinsics, setting = "3+", query_features = "images", compare;
+    bool leave_one_out = false;
     LocalizerOptions options;
+    ColmapRunnerOptions colmap;
   };
   auto args = std::make_shared<Args>();
   CLI::App* cmd = app.add_subcommand(
-      "eval", "Localize a query list against a map and write report.json, report.md and plots");
+      "eval",
+      "Localize a query list against a map and write report.json, report.md and plots.\n"
+      "With --leave-one-out (a map imported from a COLMAP model): every image of the model in turn is removed,\n"
+      "the map rebuilt without it, and the image localized (truth: its pose in the model).\n"
+      "With --compare colmap: COLMAP's image_registrator registers the same queries into the same model\n"
+      "(report in OUT/colmap/, side by side in OUT/comparison.md).");
   cmd->add_option("--map", args->map, "Map directory")->required();
-  cmd->add_option("--queries", args->queries, "Query image names, one per line")->required();
-  cmd->add_option("--images", args->images, "Directory of the query images")->required();
+  cmd->add_option("--queries", args->queries,
+                  "Query image names, one per line (required unless --leave-one-out; with it: the images to leave out)");
+  cmd->add_option("--images", args->images, "Directory of the query images (needed with --query-features images)");
   cmd->add_option("--truth", args->truth,
-                  "Reference: poses 'name qw qx qy qz tx ty tz' (the map's frame) or a GPS CSV (.csv: positions)")
-      ->required();
+                  "Reference: poses 'name qw qx qy qz tx ty tz' (the map's frame) or a GPS CSV (.csv: positions); "
+                  "not used with --leave-one-out (the model's poses are the truth)");
   cmd->add_option("--out", args->out, "Report directory")->required();
   cmd->add_option("--intrinsics", args->intrinsics, "Per-image intrinsics 'name MODEL w h params...'");
-  cmd->add_option("--setting", args->setting, "The paper's ablation setting: 1, 2, 3 or 3+")
-      ->check(CLI::IsMember({"1", "2", "3", "3+"}))
+  cmd->add_option("--query-features", args->query_features,
+                  "Query features: 'images' (our SIFT on the photos) or 'database' (the imported model's own "
+                  "features and intrinsics)")
+      ->check(CLI::IsMember({"images", "database"}))
       ->capture_default_str();
-  cmd->add_option("--max-segments", args->options.max_segments, "Candidate segments searched")->capture_default_str();
-  add_sift_options(cmd, args->options.sift);
+  cmd->add_flag("--leave-one-out", args->leave_one_out,
+                "Localize every image of the imported COLMAP model against the model without it");
+  cmd->add_option("--compare", args->compare, "Also run a peer on the same queries: 'colmap' (image_registrator)")
+      ->check(CLI::IsMember({"colmap"}));
+  cmd->add_option("--colmap", args->colmap.binary, "COLMAP executable (with --compare colmap)")->capture_default_str();
+  add_localizer_options(cmd, args->options, args->setting);
   cmd->callback([args] {
     args->options.setting = parse_paper_setting(args->setting);
-    const auto names = read_name_list(args->queries);
-    if (names.empty()) throw_error(ErrorCode::kInvalidArgument, args->queries, ": no query names");
-    std::map<std::string, QueryTruth> truth;
-    if (fs::path(args->truth).extension() == ".csv") {
-      const MapManifest man = read_manifest(args->map);
-      if (!man.enu_origin_lat_lon_alt)
-        throw_error(ErrorCode::kInvalidArgument, args->map, ": the map has no ENU origin; GPS truth needs one");
-      const auto& o = *man.enu_origin_lat_lon_alt;
-      EnuFrame frame({o[0], o[1], o[2]});
-      for (const auto& r : read_gps_csv(args->truth)) truth[r.image].center = frame.to_enu(r.position);
-    } else {
-      for (const auto& p : read_pose_list(args->truth)) truth[p.name].cam_from_world = p.cam_from_world;
-    }
+    const QueryFeatureSource source = parse_query_feature_source(args->query_features);
+    const bool compare = args->compare == "colmap";
+    const fs::path out(args->out);
+    if (source == QueryFeatureSource::kImages && args->images.empty())
+      throw_error(ErrorCode::kInvalidArgument, "eval: --images is needed with --query-features images");
     std::map<std::string, PinholeCamera> cameras;
     if (!args->intrinsics.empty())
       for (auto& c : read_intrinsics_list(args->intrinsics)) cameras[c.name] = c.camera;
-    Localizer localizer(args->map, args->options);
-    std::vector<LocalizationResult> results;
-    std::ostringstream lines;
     const bool tty = ::isatty(STDERR_FILENO);
-    for (size_t i = 0; i < names.size(); ++i) {
-      if (!truth.count(names[i])) throw_error(ErrorCode::kNotFound, args->truth, ": no reference for '", names[i], "'");
-      std::optional<PinholeCamera> cam;
-      if (auto it = cameras.find(names[i]); it != cameras.end()) cam = it->second;
-      results.push_back(localizer.localize_file(fs::path(args->images) / names[i], cam));
-      lines << to_json(results.back()).dump() << '\n';
-      if (tty) std::cerr << "\reval: " << i + 1 << "/" << names.size() << std::flush;
+    auto progress = [tty](size_t done, size_t total) {
+      if (tty) std::cerr << "\reval: " << done << "/" << total << std::flush;
+      else if (done == total || done % 10 == 0) std::cerr << "eval: " << done << "/" << total << "\n";
+    };
+
+    std::vector<LocalizationResult> results;
+    std::map<std::string, QueryTruth> truth;
+    std::optional<ColmapRegistrationResult> peer;
+    nlohmann::json context = {{"map", fs::absolute(args->map).string()},
+                              {"setting", args->setting},
+                              {"query_features", args->query_features}};
+    if (args->leave_one_out) {
+      const SourceFeatureStore store(args->map);  // checks the map was imported from COLMAP
+      LeaveOneOutOptions o;
+      o.localizer = args->options;
+      o.features = source;
+      o.images_dir = args->images;
+      if (!args->queries.empty()) o.images = read_name_list(args->queries);
+      o.intrinsics = cameras;
+      o.work_dir = out / "work";
+      o.compare_colmap = compare;
+      o.colmap = args->colmap;
+      o.progress = progress;
+      LeaveOneOutResult r = run_leave_one_out(store.model_dir(), store.database(), o);
+      if (tty) std::cerr << "\n";
+      results = std::move(r.results);
+      truth = std::move(r.truth);
+      peer = std::move(r.colmap);
+      context["protocol"] = "leave-one-out";
+      context["truth"] = "poses of the model " + store.model_dir().string();
+      context["seconds_rebuilding_maps"] = r.seconds_import;
+    } else {
+      if (args->queries.empty() || args->truth.empty())
+        throw_error(ErrorCode::kInvalidArgument, "eval: --queries and --truth are needed (or --leave-one-out)");
+      const auto names = read_name_list(args->queries);
+      if (names.empty()) throw_error(ErrorCode::kInvalidArgument, args->queries, ": no query names");
+      if (fs::path(args->truth).extension() == ".csv") {
+        const MapManifest man = read_manifest(args->map);
+        if (!man.enu_origin_lat_lon_alt)
+          throw_error(ErrorCode::kInvalidArgument, args->map, ": the map has no ENU origin; GPS truth needs one");
+        const auto& o = *man.enu_origin_lat_lon_alt;
+        EnuFrame frame({o[0], o[1], o[2]});
+        for (const auto& r : read_gps_csv(args->truth)) truth[r.image].center = frame.to_enu(r.position);
+      } else {
+        for (const auto& p : read_pose_list(args->truth)) truth[p.name].cam_from_world = p.cam_from_world;
+      }
+      for (const auto& n : names)
+        if (!truth.count(n)) throw_error(ErrorCode::kNotFound, args->truth, ": no reference for '", n, "'");
+      std::unique_ptr<SourceFeatureStore> store;
+      if (source == QueryFeatureSource::kDatabase || compare) store = std::make_unique<SourceFeatureStore>(args->map);
+      Localizer localizer(args->map, args->options);
+      std::vector<PreparedQuery> prepared;
+      for (size_t i = 0; i < names.size(); ++i) {
+        std::optional<PinholeCamera> cam;
+        if (auto it = cameras.find(names[i]); it != cameras.end()) cam = it->second;
+        PreparedQuery q = prepare_query(names[i], source, args->images, args->options.sift, store.get(), cam,
+                                        args->options.use_exif_focal);
+        results.push_back(localize_prepared(localizer, q));
+        if (compare) prepared.push_back(std::move(q));
+        progress(i + 1, names.size());
+      }
+      if (tty) std::cerr << "\n";
+      if (compare) {
+        std::cerr << "eval: registering " << prepared.size() << " queries with COLMAP's image_registrator\n";
+        ColmapModel model = read_colmap_model(store->model_dir());
+        std::vector<std::string> in_model;
+        for (const auto& q : prepared)
+          if (model.image_index_by_name(q.name) >= 0) in_model.push_back(q.name);
+        const MapManifest man = read_manifest(args->map);
+        for (const auto& n : in_model)
+          if (std::find(man.holdout_images.begin(), man.holdout_images.end(), n) == man.holdout_images.end())
+            throw_error(ErrorCode::kInvalidArgument, "eval --compare colmap: query '", n,
+                        "' is part of the map (import the map with --holdout, or use --leave-one-out)");
+        remove_images(model, man.holdout_images);
+        peer = register_with_colmap(model, store->database(), prepared, args->colmap, out / "work" / "colmap");
+        fs::remove_all(out / "work");
+      }
+      context["truth"] = fs::absolute(args->truth).string();
     }
-    if (tty) std::cerr << "\n";
+
     EvaluationReport rep = evaluate(results, truth);
-    nlohmann::json context = {{"map", fs::absolute(args->map).string()}, {"setting", args->setting},
-                              {"truth", fs::absolute(args->truth).string()}};
-    write_report(args->out, rep, results, context);
-    write_file_atomic(fs::path(args->out) / "results.jsonl", lines.str());
-    std::cout << read_file(fs::path(args->out) / "report.md");
+    write_results(out, results, rep, context);
+    std::cout << read_file(out / "report.md");
+    if (peer) {
+      EvaluationReport peer_rep = evaluate(peer->results, truth);
+      nlohmann::json peer_context = context;
+      peer_context["method"] = "COLMAP 3.8 image_registrator (matches_importer against every model image)";
+      peer_context["seconds_matching"] = peer->seconds_matching;
+      peer_context["seconds_registration"] = peer->seconds_registration;
+      write_results(out / "colmap", peer->results, peer_rep, peer_context);
+      std::vector<double> ours_ms, peer_ms;
+      for (const auto& r : results) ours_ms.push_back(r.times.total - r.times.features);
+      for (const auto& r : peer->results) peer_ms.push_back(r.times.total - r.times.features);
+      const double ours = median_of(ours_ms), theirs = median_of(peer_ms);
+      std::ostringstream md;
+      md << "# visloc against COLMAP on the same queries\n\n"
+         << "Query features: " << args->query_features << "; setting " << args->setting
+         << (args->leave_one_out ? "; leave-one-out" : "") << ".\n\n"
+         << "| method | queries | registered | rate | median pos. error (m) | median rot. error (°) | "
+            "median ms/query excl. features |\n|---|---|---|---|---|---|---|\n"
+         << comparison_row("visloc", rep.to_json(results, context), ours)
+         << comparison_row("COLMAP image_registrator", peer_rep.to_json(peer->results, peer_context), theirs)
+         << "\nCOLMAP wall time: matching " << peer->seconds_matching << " s, registration "
+         << peer->seconds_registration << " s; speed-up of visloc (medians): " << std::setprecision(3)
+         << theirs / ours << "×.\n";
+      write_file_atomic(out / "comparison.md", md.str());
+      std::cout << "\n" << md.str();
+    }
   });
 }
 

@@ -6,7 +6,7 @@
 #include <memory>
 
 #include "visloc/cli/commands.h"
-#include "visloc/cli/sift_options.h"
+#include "visloc/cli/localizer_options.h"
 #include "visloc/geometry/pose_list.h"
 #include "visloc/pipeline/localization_json.h"
 #include "visloc/pipeline/localizer.h"
@@ -32,18 +32,8 @@ void add_localize_command(CLI::App& app) {
   cmd->add_option("--intrinsics", args->intrinsics,
                   "Per-image intrinsics: 'name MODEL width height params...' (SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL)")
       ->excludes("--focal");
-  cmd->add_option("--setting", args->setting, "The paper's ablation setting: 1, 2, 3 or 3+")
-      ->check(CLI::IsMember({"1", "2", "3", "3+"}))
-      ->capture_default_str();
-  cmd->add_option("--top-images", args->options.top_images, "Retrieval: images N_t")->capture_default_str();
-  cmd->add_option("--max-segments", args->options.max_segments, "Candidate segments searched")->capture_default_str();
+  add_localizer_options(cmd, args->options, args->setting);
   cmd->add_option("--cache-mib", args->cache_mib, "Segment cache budget (MiB)")->capture_default_str();
-  cmd->add_option("--threshold", args->options.ransac.threshold_px, "RANSAC reprojection threshold (px)")
-      ->capture_default_str();
-  cmd->add_option("--min-inliers", args->options.ransac.min_inliers, "Registered at this many inliers")
-      ->capture_default_str();
-  cmd->add_flag("!--no-exif-focal", args->options.use_exif_focal, "Ignore EXIF focal lengths");
-  add_sift_options(cmd, args->options.sift);
   cmd->callback([args] {
     args->options.setting = parse_paper_setting(args->setting);
     args->options.cache_bytes = static_cast<uint64_t>(args->cache_mib * 1024 * 1024);

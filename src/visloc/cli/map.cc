@@ -1,8 +1,10 @@
 // visloc map import --colmap MODEL --database DB --out MAP [--holdout LIST]
+// visloc map import --bundler bundle.out --list LIST [--keys DIR] [--images DIR] --out MAP [--holdout LIST]
 // visloc map info MAP [--json]
 #include <iomanip>
 #include <iostream>
 #include <memory>
+#include <optional>
 #include <nlohmann/json.hpp>
 
 #include "visloc/cli/commands.h"
@@ -15,23 +17,40 @@ namespace {
 
 void add_import(CLI::App& map) {
   struct Args {
-    std::string colmap, database, out, holdout, images, bundler, list;
+    std::string colmap, database, out, holdout, images, bundler, list, keys;
     std::string pq_database, pq_images;
     ColmapImportOptions options;
+    bool raw_sift = false;
     bool json = false;
   };
   auto args = std::make_shared<Args>();
   CLI::App* cmd = map.add_subcommand(
-      "import", "Import a COLMAP model (+ its database) as a one-segment map with compressed descriptors\n"
-                "(Bundler import: not implemented yet, issue #6)");
+      "import",
+      "Import a reconstruction as a one-segment map with compressed descriptors:\n"
+      "  COLMAP:  --colmap MODEL_DIR --database DB --out MAP\n"
+      "  Bundler: --bundler bundle.out --list list.txt [--keys DIR] [--images DIR] --out MAP\n"
+      "           (Dubrovnik, Rome, Vienna, Aachen: bundle.out + image list + Lowe SIFT .key/.key.gz files;\n"
+      "           camera i of bundle.out is line i of the list, a view's key index is a row of that image's\n"
+      "           key file; Bundler's -z-looking, y-up cameras become COLMAP's via diag(1,-1,-1); cameras\n"
+      "           with f = 0 are dropped; principal point = image centre, from --images or the key files;\n"
+      "           key descriptors are converted to RootSIFT like our SIFT's, see docs/formats.md)");
   cmd->add_option("--colmap", args->colmap, "COLMAP model directory (cameras/images/points3D, .bin or .txt)");
   cmd->add_option("--database", args->database, "COLMAP database.db holding the model's keypoints and descriptors");
+  cmd->add_option("--bundler", args->bundler, "Bundler v0.3 bundle.out (plain or gzip)");
+  cmd->add_option("--list", args->list, "Bundler image list (\"name [0 focal]\" per camera of bundle.out)");
+  cmd->add_option("--keys", args->keys,
+                  "Folder of the Lowe key files (NAME.key or NAME.key.gz, NAME the listed image name or its\n"
+                  "file name, extension replaced); default: next to the listed images, relative to the list");
+  cmd->add_option("--images", args->images,
+                  "Bundler: image folder; the principal point is the image centre read from each image's size\n"
+                  "(default: derived from the key files and the views' centred coordinates; unused by --colmap)");
+  cmd->add_flag("--raw-sift", args->raw_sift,
+                "Bundler: keep Lowe's L2 SIFT integers instead of converting them to RootSIFT\n"
+                "(our queries and COLMAP's features are RootSIFT: keep the default unless the queries are raw too)");
   cmd->add_option("--out", args->out, "Output map directory");
   cmd->add_option("--holdout", args->holdout,
-                  "File listing images to remove from the model (Dubrovnik protocol) and keep as queries");
-  cmd->add_option("--images", args->images, "Image directory (recorded in the manifest)");
-  cmd->add_option("--bundler", args->bundler, "Bundler bundle.out [not implemented yet: issue #6]");
-  cmd->add_option("--list", args->list, "Bundler image list [not implemented yet: issue #6]");
+                  "File listing images to remove from the model (Dubrovnik protocol) and keep as queries\n"
+                  "(Bundler: names as written in the list)");
   cmd->add_option("--pq-train-database", args->pq_database,
                   "Train the PQ codebook on the image descriptors of this COLMAP database (an independent set)\n"
                   "instead of a sample of the map's own point descriptors");
@@ -44,16 +63,37 @@ void add_import(CLI::App& map) {
   cmd->add_flag("--overwrite", args->options.overwrite, "Replace an existing map in --out");
   cmd->add_flag("--json", args->json, "Print the import statistics as JSON");
   cmd->callback([args] {
-    if (!args->bundler.empty() || !args->list.empty())
-      throw_error(ErrorCode::kNotImplemented, "'map import --bundler' is not implemented yet (issue #6)");
-    if (args->colmap.empty() || args->database.empty() || args->out.empty())
-      throw_error(ErrorCode::kInvalidArgument, "map import needs --colmap MODEL --database DB --out MAP");
+    const bool bundler = !args->bundler.empty() || !args->list.empty();
+    if (bundler) {
+      if (args->bundler.empty() || args->list.empty() || args->out.empty())
+        throw_error(ErrorCode::kInvalidArgument, "map import needs --bundler bundle.out --list LIST --out MAP");
+      if (!args->colmap.empty() || !args->database.empty())
+        throw_error(ErrorCode::kInvalidArgument, "map import: give either --bundler/--list or --colmap/--database");
+    } else {
+      if (args->colmap.empty() || args->database.empty() || args->out.empty())
+        throw_error(ErrorCode::kInvalidArgument,
+                    "map import needs --colmap MODEL --database DB --out MAP, or --bundler FILE --list FILE --out MAP");
+      if (!args->keys.empty() || args->raw_sift)
+        throw_error(ErrorCode::kInvalidArgument, "map import: --keys and --raw-sift belong to --bundler");
+    }
     ColmapImportOptions o = args->options;
     o.pq.seed = o.itq.seed;
     if (!args->holdout.empty()) o.holdout_images = read_name_list(args->holdout);
     o.pq_training_database = args->pq_database;
     if (!args->pq_images.empty()) o.pq_training_images = read_name_list(args->pq_images);
-    ColmapImportResult r = import_colmap_map(args->colmap, args->database, args->out, o);
+    ColmapImportResult r;
+    std::optional<BundlerConversionStats> conv;
+    if (bundler) {
+      BundlerConversionOptions b;
+      b.keys_dir = args->keys;
+      b.images_dir = args->images;
+      b.root_sift = !args->raw_sift;
+      BundlerImportResult br = import_bundler_map(args->bundler, args->list, args->out, b, o);
+      r = br.map;
+      conv = br.conversion;
+    } else {
+      r = import_colmap_map(args->colmap, args->database, args->out, o);
+    }
     nlohmann::json j = {{"map", args->out},
                         {"images", r.images},
                         {"points", r.points},
@@ -71,12 +111,38 @@ void add_import(CLI::App& map) {
                           {"itq", r.ms_itq},
                           {"encode", r.ms_encode},
                           {"write", r.ms_write}}}};
+    if (conv)
+      j["bundler"] = {{"cameras", conv->cameras},
+                      {"cameras_unregistered", conv->cameras_unregistered},
+                      {"images", conv->images},
+                      {"images_dropped_no_principal_point", conv->images_dropped_no_principal_point},
+                      {"points_read", conv->points_read},
+                      {"points", conv->points},
+                      {"observations", conv->observations},
+                      {"observations_dropped", conv->observations_dropped},
+                      {"observations_off_key", conv->observations_off_key},
+                      {"keys", conv->keys},
+                      {"principal_point", conv->principal_point},
+                      {"descriptors", args->raw_sift ? "lowe" : "rootsift"},
+                      {"ms", {{"bundle", conv->ms_bundle}, {"keys", conv->ms_keys}}}};
     if (args->json) {
       std::cout << j.dump(2) << "\n";
       return;
     }
-    std::cout << "imported " << args->colmap << " -> " << args->out << "\n"
-              << "  images " << r.images << ", points " << r.points << ", observations " << r.observations << "\n";
+    std::cout << "imported " << (bundler ? args->bundler : args->colmap) << " -> " << args->out << "\n";
+    if (conv) {
+      std::cout << "  bundler: " << conv->cameras << " cameras (" << conv->cameras_unregistered
+                << " unregistered, dropped with " << conv->observations_dropped << " observations), "
+                << conv->points_read << " points read, " << conv->keys << " keys; principal point from "
+                << conv->principal_point << "; descriptors " << (args->raw_sift ? "Lowe's (raw)" : "RootSIFT") << "\n";
+      if (conv->images_dropped_no_principal_point)
+        std::cout << "  " << conv->images_dropped_no_principal_point
+                  << " registered images without observations dropped (no principal point: give --images)\n";
+      if (conv->observations_off_key)
+        std::cout << "  warning: " << conv->observations_off_key
+                  << " observations lie more than 1 px from their key (key files from another run?)\n";
+    }
+    std::cout << "  images " << r.images << ", points " << r.points << ", observations " << r.observations << "\n";
     if (r.holdout.images_removed)
       std::cout << "  held out " << r.holdout.images_removed << " images: " << r.holdout.observations_removed
                 << " observations removed, " << r.holdout.points_dropped << " points dropped (< 2 observations)\n";

@@ -28,7 +28,10 @@ void bind_build_options(CLI::App* cmd, MapBuildArgs& a, bool update) {
       ->check(CLI::IsMember({"sfm", "known"}))
       ->capture_default_str();
   cmd->add_option("--known-poses", a.known_poses,
-                  "With --poses known: a COLMAP model directory (text or binary) with the images' exact poses");
+                  "With --poses known: a COLMAP model directory (text or binary) with the images' exact poses, "
+                  "or a pose list 'name qw qx qy qz tx ty tz' (world-to-camera; needs --known-intrinsics)");
+  cmd->add_option("--known-intrinsics", a.options.known_intrinsics,
+                  "With a pose list: intrinsics 'name MODEL width height params...' per line ('*' for every image)");
   cmd->add_option("--jobs", a.jobs, "Segments built in parallel (0: number of cores)")->capture_default_str();
   cmd->add_option("--colmap", a.colmap, "COLMAP executable")->capture_default_str();
   cmd->add_option("--colmap-threads", a.options.colmap.threads, "Threads per COLMAP call")->capture_default_str();

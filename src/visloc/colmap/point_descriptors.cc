@@ -7,7 +7,8 @@
 
 namespace visloc {
 
-PointDescriptors compute_point_descriptors(const ColmapModel& model, const ColmapDatabase& database) {
+PointDescriptors compute_point_descriptors(const ColmapModel& model, const ImageDescriptorSource& source,
+                                           const std::string& source_name) {
   PointDescriptors out;
   out.num_points = model.points.size();
   out.mean.assign(out.num_points * kDescriptorDim, 0.0f);
@@ -23,16 +24,12 @@ PointDescriptors compute_point_descriptors(const ColmapModel& model, const Colma
   for (size_t ii = 0; ii < model.images.size(); ++ii) {
     if (by_image[ii].empty()) continue;
     const auto& image = model.images[ii];
-    auto db_image = database.image_by_name(image.name);
-    if (!db_image)
-      throw_error(ErrorCode::kFormat, database.path().string(), ": image ", image.name,
-                  " of the model is not in the database");
-    DescriptorMatrix d = database.descriptors(db_image->image_id);
+    DescriptorMatrix d = source(image);
     for (auto [p, k] : by_image[ii]) {
       if (k >= d.rows())
-        throw_error(ErrorCode::kFormat, database.path().string(), ": image ", image.name, " has ", d.rows(),
+        throw_error(ErrorCode::kFormat, source_name, ": image ", image.name, " has ", d.rows(),
                     " descriptors but the model refers to 2D point ", k,
-                    " (database and model do not belong together)");
+                    " (descriptors and model do not belong together)");
       float* m = &out.mean[size_t(p) * kDescriptorDim];
       const uint8_t* r = d.row(k);
       for (int j = 0; j < kDescriptorDim; ++j) m[j] += r[j];
@@ -45,6 +42,20 @@ PointDescriptors compute_point_descriptors(const ColmapModel& model, const Colma
     for (int j = 0; j < kDescriptorDim; ++j) out.mean[p * kDescriptorDim + j] *= inv;
   }
   return out;
+}
+
+ImageDescriptorSource database_descriptor_source(const ColmapDatabase& database) {
+  return [&database](const ColmapImage& image) {
+    auto db_image = database.image_by_name(image.name);
+    if (!db_image)
+      throw_error(ErrorCode::kFormat, database.path().string(), ": image ", image.name,
+                  " of the model is not in the database");
+    return database.descriptors(db_image->image_id);
+  };
+}
+
+PointDescriptors compute_point_descriptors(const ColmapModel& model, const ColmapDatabase& database) {
+  return compute_point_descriptors(model, database_descriptor_source(database), database.path().string());
 }
 
 DescriptorMatrix round_descriptors(const std::vector<float>& values) {

@@ -1,11 +1,14 @@
 // Mean SIFT descriptor of every 3D point of a COLMAP model: the average of
-// the descriptors (from the COLMAP database) of the 2D points in its track.
+// the descriptors of the 2D points in its track, from the COLMAP database or
+// any other source (a Bundler image's key file, colmap/bundler.h).
 // The paper uses "mean descriptors" for each 3D point in all experiments
 // (Tran et al., section IV). A track element (image_id, point2D_idx) names
 // the point2D_idx-th keypoint of that image in the database.
 #pragma once
 
 #include <cstdint>
+#include <functional>
+#include <string>
 #include <vector>
 
 #include "visloc/colmap/colmap_database.h"
@@ -23,6 +26,21 @@ struct PointDescriptors {
 // image when the database lacks it or has fewer keypoints than the model's
 // 2D points refer to.
 PointDescriptors compute_point_descriptors(const ColmapModel& model, const ColmapDatabase& database);
+
+// The descriptors of one image of a model: row i belongs to its i-th 2D
+// point (a COLMAP database's keypoints, a Bundler image's key file...).
+using ImageDescriptorSource = std::function<DescriptorMatrix(const ColmapImage& image)>;
+
+// The same from any descriptor source, called once per image that observes a
+// point. `source_name` starts the error message when an image has fewer
+// descriptors than its 2D points that the model refers to.
+PointDescriptors compute_point_descriptors(const ColmapModel& model, const ImageDescriptorSource& source,
+                                           const std::string& source_name);
+
+// A database as a descriptor source: the descriptors of the image of the same
+// name; Error(kFormat) naming the database when it lacks the image. The
+// database must outlive the source.
+ImageDescriptorSource database_descriptor_source(const ColmapDatabase& database);
 
 // Rounds float descriptors to uint8 (clamped) rows.
 DescriptorMatrix round_descriptors(const std::vector<float>& values);

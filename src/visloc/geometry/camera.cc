@@ -8,6 +8,35 @@
 
 namespace visloc {
 
+PinholeCamera PinholeCamera::from_colmap(const std::string& model, int width, int height,
+                                         const std::vector<double>& p) {
+  auto need = [&](size_t n) {
+    if (p.size() != n)
+      throw_error(ErrorCode::kInvalidArgument, "camera model ", model, " takes ", n, " parameters, found ", p.size());
+  };
+  PinholeCamera k = centered(width, height);
+  if (model == "SIMPLE_PINHOLE") {
+    need(3);
+    k.focal = p[0], k.cx = p[1], k.cy = p[2];
+  } else if (model == "PINHOLE") {
+    need(4);
+    k.focal = 0.5 * (p[0] + p[1]), k.cx = p[2], k.cy = p[3];
+  } else if (model == "SIMPLE_RADIAL") {
+    need(4);
+    k.focal = p[0], k.cx = p[1], k.cy = p[2], k.k1 = p[3];
+  } else if (model == "RADIAL") {
+    need(5);
+    if (p[4] != 0.0) throw_error(ErrorCode::kInvalidArgument, "camera model RADIAL with k2 != 0 is not supported");
+    k.focal = p[0], k.cx = p[1], k.cy = p[2], k.k1 = p[3];
+  } else {
+    throw_error(ErrorCode::kInvalidArgument, "camera model '", model,
+                "' is not supported (SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL)");
+  }
+  k.has_focal = true;
+  k.validate();
+  return k;
+}
+
 PinholeCamera PinholeCamera::centered(int width, int height, std::optional<double> focal_px) {
   PinholeCamera c;
   c.width = width;

@@ -9,6 +9,8 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 #include <optional>
+#include <string>
+#include <vector>
 
 namespace visloc {
 
@@ -23,6 +25,12 @@ struct PinholeCamera {
 
   // A camera with principal point at the image centre.
   static PinholeCamera centered(int width, int height, std::optional<double> focal_px = {});
+
+  // From a COLMAP camera model: SIMPLE_PINHOLE (f cx cy), PINHOLE (fx fy cx
+  // cy; fx and fy averaged), SIMPLE_RADIAL (f cx cy k), RADIAL (f cx cy k1 k2;
+  // k2 must be 0). Throws Error(kInvalidArgument) for another model, a wrong
+  // parameter count or invalid values.
+  static PinholeCamera from_colmap(const std::string& model, int width, int height, const std::vector<double>& params);
 
   // Throws Error(kInvalidArgument) naming the bad field.
   void validate() const;

@@ -70,37 +70,11 @@ std::vector<NamedCamera> read_intrinsics_list(const std::filesystem::path& path)
     std::vector<double> p;
     double v;
     while (s >> v) p.push_back(v);
-    auto need = [&](size_t n) {
-      if (p.size() != n)
-        throw_error(ErrorCode::kFormat, path.string(), ":", line_no, ": ", model, " takes ", n, " parameters, found ",
-                    p.size());
-    };
-    PinholeCamera k = PinholeCamera::centered(w, h);
-    if (model == "SIMPLE_PINHOLE") {
-      need(3);
-      k.focal = p[0], k.cx = p[1], k.cy = p[2];
-    } else if (model == "PINHOLE") {
-      need(4);
-      k.focal = 0.5 * (p[0] + p[1]), k.cx = p[2], k.cy = p[3];
-    } else if (model == "SIMPLE_RADIAL") {
-      need(4);
-      k.focal = p[0], k.cx = p[1], k.cy = p[2], k.k1 = p[3];
-    } else if (model == "RADIAL") {
-      need(5);
-      if (p[4] != 0.0)
-        throw_error(ErrorCode::kFormat, path.string(), ":", line_no, ": RADIAL with k2 != 0 is not supported");
-      k.focal = p[0], k.cx = p[1], k.cy = p[2], k.k1 = p[3];
-    } else {
-      throw_error(ErrorCode::kFormat, path.string(), ":", line_no, ": camera model '", model,
-                  "' is not supported (SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL)");
-    }
-    k.has_focal = true;
     try {
-      k.validate();
+      c.camera = PinholeCamera::from_colmap(model, w, h, p);
     } catch (const Error& e) {
       throw_error(ErrorCode::kFormat, path.string(), ":", line_no, ": ", e.what());
     }
-    c.camera = k;
     out.push_back(std::move(c));
   }
   return out;

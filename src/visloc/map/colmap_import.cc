@@ -68,17 +68,24 @@ uint32_t file_crc(const fs::path& p) {
   return crc32c(f.data(), f.size());
 }
 
-}  // namespace
+// The steps shared by both imports, from a model in memory (its reading
+// already timed in res.ms_read) and a descriptor source.
+struct ModelSource {
+  std::string model_name;            // starts error messages about the model
+  ImageDescriptorSource descriptors;
+  std::string descriptors_name;      // starts error messages about descriptors
+  nlohmann::json segment_source;     // segment META "source"
+  nlohmann::json manifest_source;    // manifest "source"
+};
 
-ColmapImportResult import_colmap_map(const fs::path& model_dir, const fs::path& database, const fs::path& out_dir,
-                                     const ColmapImportOptions& options) {
-  options.validate();
-  ColmapImportResult res;
+void check_out_dir(const fs::path& out_dir, const ColmapImportOptions& options) {
   if (fs::exists(out_dir / "manifest.json") && !options.overwrite)
     throw_error(ErrorCode::kInvalidArgument, out_dir.string(), ": a map already exists there (use --overwrite)");
+}
+
+void import_model_map(ColmapModel model, const ModelSource& source, const fs::path& out_dir,
+                      const ColmapImportOptions& options, ColmapImportResult& res) {
   Timer t;
-  ColmapModel model = read_colmap_model(model_dir);
-  ColmapDatabase db(database);
   std::vector<ColmapImage> held_out;
   for (const auto& n : options.holdout_images) {
     const int64_t i = model.image_index_by_name(n);
@@ -86,15 +93,15 @@ ColmapImportResult import_colmap_map(const fs::path& model_dir, const fs::path& 
   }
   if (!options.holdout_images.empty()) res.holdout = remove_images(model, options.holdout_images);
   if (model.points.size() < 2)
-    throw_error(ErrorCode::kInvalidArgument, model_dir.string(), ": the model has ", model.points.size(),
+    throw_error(ErrorCode::kInvalidArgument, source.model_name, ": the model has ", model.points.size(),
                 " 3D points left; a map needs at least 2");
   res.images = model.images.size();
   res.points = model.points.size();
   res.observations = model.num_observations();
-  res.ms_read = t.elapsed_ms();
+  res.ms_read += t.elapsed_ms();
 
   t.reset();
-  PointDescriptors desc = compute_point_descriptors(model, db);
+  PointDescriptors desc = compute_point_descriptors(model, source.descriptors, source.descriptors_name);
   res.ms_descriptors = t.elapsed_ms();
 
   // PQ codebook, shared by every segment of the map.
@@ -118,7 +125,7 @@ ColmapImportResult import_colmap_map(const fs::path& model_dir, const fs::path& 
   SegmentData seg = make_segment_data(model, desc, codebook, options.itq, 0, &seg_stats);
   res.itq_final_error = seg_stats.itq_final_error;
   res.ms_itq = seg_stats.ms_itq;
-  seg.extra_meta["source"] = {{"colmap", fs::absolute(model_dir).string()}};
+  seg.extra_meta["source"] = source.segment_source;
   res.ms_encode = seg_stats.ms_encode;
 
   t.reset();
@@ -157,15 +164,62 @@ ColmapImportResult import_colmap_map(const fs::path& model_dir, const fs::path& 
                               {"seed", options.itq.seed}}},
                     {"pq", pq_meta},
                     {"point_descriptor", "mean of track"}};
-  man.source = {{"type", "colmap"},
-                {"model", fs::absolute(model_dir).string()},
-                {"database", fs::absolute(database).string()}};
+  man.source = source.manifest_source;
   const fs::path seg_path = out_dir / seg_file;
   man.segments.push_back({0, seg_file, desc_file, desc.num_points, seg.images.size(), fs::file_size(seg_path),
                           file_crc(seg_path)});
   write_manifest(out_dir, man);
   res.ms_write = t.elapsed_ms();
+}
+
+}  // namespace
+
+ColmapImportResult import_colmap_map(const fs::path& model_dir, const fs::path& database, const fs::path& out_dir,
+                                     const ColmapImportOptions& options) {
+  options.validate();
+  ColmapImportResult res;
+  check_out_dir(out_dir, options);
+  Timer t;
+  ColmapModel model = read_colmap_model(model_dir);
+  ColmapDatabase db(database);
+  res.ms_read = t.elapsed_ms();
+  ModelSource source;
+  source.model_name = model_dir.string();
+  source.descriptors_name = database.string();
+  source.descriptors = database_descriptor_source(db);
+  source.segment_source = {{"colmap", fs::absolute(model_dir).string()}};
+  source.manifest_source = {{"type", "colmap"},
+                            {"model", fs::absolute(model_dir).string()},
+                            {"database", fs::absolute(database).string()}};
+  import_model_map(std::move(model), source, out_dir, options, res);
   return res;
+}
+
+BundlerImportResult import_bundler_map(const fs::path& bundle_file, const fs::path& list_file, const fs::path& out_dir,
+                                       const BundlerConversionOptions& bundler, const ColmapImportOptions& options) {
+  options.validate();
+  bundler.validate();
+  BundlerImportResult out;
+  check_out_dir(out_dir, options);
+  Timer t;
+  BundlerModel bm = read_bundler_model(bundle_file, list_file, bundler);
+  out.conversion = bm.stats;
+  out.map.ms_read = t.elapsed_ms();
+  ModelSource source;
+  source.model_name = bundle_file.string();
+  source.descriptors_name = "key files of " + list_file.string();
+  source.descriptors = [&bm](const ColmapImage& image) { return bm.descriptors(image); };
+  const std::string descriptor = bundler.root_sift ? "rootsift" : "lowe";
+  source.segment_source = {{"bundler", fs::absolute(bundle_file).string()}};
+  source.manifest_source = {{"type", "bundler"},
+                            {"bundle", fs::absolute(bundle_file).string()},
+                            {"list", fs::absolute(list_file).string()},
+                            {"keys", bundler.keys_dir.empty() ? std::string("next to the images")
+                                                              : fs::absolute(bundler.keys_dir).string()},
+                            {"principal_point", bm.stats.principal_point},
+                            {"descriptors", descriptor}};
+  import_model_map(std::move(bm.model), source, out_dir, options, out.map);
+  return out;
 }
 
 }  // namespace visloc

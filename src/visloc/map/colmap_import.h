@@ -1,9 +1,12 @@
-// `visloc map import --colmap`: a COLMAP model + database become a map of
-// one segment (issue 6 splits city-scale maps into many):
+// `visloc map import --colmap` / `--bundler`: a COLMAP model + database, or a
+// Bundler reconstruction (bundle.out + list + Lowe key files, converted by
+// colmap/bundler.h), become a map of one segment (issue 6 splits city-scale
+// maps into many):
 //   1. read the model (binary or text) and, with a holdout list, remove those
 //      images the way the Dubrovnik protocol does (colmap_model.h
 //      remove_images): their poses are kept as the queries' reference poses;
-//   2. mean SIFT per 3D point from its track (colmap/point_descriptors.h);
+//   2. mean SIFT per 3D point from its track (colmap/point_descriptors.h),
+//      the descriptors taken from the database or from the key files;
 //   3. PQ codebook (16 × 8 bits), trained once per map on a sample across
 //      the whole map's point descriptors, or on another database's image
 //      descriptors (an independent set, as the paper trains its codebook);
@@ -15,6 +18,7 @@
 #include <string>
 #include <vector>
 
+#include "visloc/colmap/bundler.h"
 #include "visloc/colmap/colmap_model.h"
 #include "visloc/geometry/pose_list.h"  // read_name_list
 #include "visloc/matching/binary_hasher.h"
@@ -45,5 +49,17 @@ struct ColmapImportResult {
 ColmapImportResult import_colmap_map(const std::filesystem::path& model_dir, const std::filesystem::path& database,
                                      const std::filesystem::path& out_dir, const ColmapImportOptions& options = {});
 
+// Bundler import: read_bundler_model (bundler options: key folder, image
+// folder, RootSIFT or raw descriptors), then the same steps as the COLMAP
+// import with the key files as the descriptor source. Holdout names are the
+// list's image names as written.
+struct BundlerImportResult {
+  ColmapImportResult map;             // ms_read covers the conversion
+  BundlerConversionStats conversion;
+};
+BundlerImportResult import_bundler_map(const std::filesystem::path& bundle_file,
+                                       const std::filesystem::path& list_file, const std::filesystem::path& out_dir,
+                                       const BundlerConversionOptions& bundler = {},
+                                       const ColmapImportOptions& options = {});
 
 }  // namespace visloc

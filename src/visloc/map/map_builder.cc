@@ -17,6 +17,7 @@
 #include "visloc/colmap/colmap_model.h"
 #include "visloc/colmap/point_descriptors.h"
 #include "visloc/geo/gps_csv.h"
+#include "visloc/geometry/pose_list.h"
 #include "visloc/image/image_io.h"
 #include "visloc/map/map.h"
 #include "visloc/map/segment_builder.h"
@@ -145,18 +146,52 @@ Eigen::Vector3d camera_up(const CameraPose& pose) {
 }
 
 PinholeCamera camera_of(const ColmapCamera& c) {
-  PinholeCamera k = PinholeCamera::centered(static_cast<int>(c.width), static_cast<int>(c.height));
-  const auto& p = c.params;
-  switch (c.model_id) {
-    case 0: k.focal = p[0]; k.cx = p[1]; k.cy = p[2]; break;                               // SIMPLE_PINHOLE
-    case 1: k.focal = 0.5 * (p[0] + p[1]); k.cx = p[2]; k.cy = p[3]; break;                // PINHOLE
-    case 2: case 3: k.focal = p[0]; k.cx = p[1]; k.cy = p[2]; k.k1 = p[3]; break;          // SIMPLE_RADIAL, RADIAL
-    default:
-      throw_error(ErrorCode::kInvalidArgument, "known poses: camera model ", colmap_camera_model_name(c.model_id),
-                  " is not supported (use SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL or RADIAL)");
+  try {
+    return PinholeCamera::from_colmap(colmap_camera_model_name(c.model_id), static_cast<int>(c.width),
+                                      static_cast<int>(c.height), c.params);
+  } catch (const Error& e) {
+    throw_error(ErrorCode::kInvalidArgument, "known poses: camera ", c.camera_id, ": ", e.what());
   }
-  k.has_focal = true;
-  return k;
+}
+
+// Known poses as a COLMAP model: read from a model directory, or made from a
+// pose list and an intrinsics list (one COLMAP camera per image).
+ColmapModel load_known_poses(const MapBuildOptions& opt) {
+  if (fs::is_directory(opt.known_poses)) return read_colmap_model(opt.known_poses);
+  if (opt.known_intrinsics.empty())
+    throw_error(ErrorCode::kInvalidArgument, "map build: ", opt.known_poses.string(),
+                " is a pose list; it needs --known-intrinsics (lines 'name MODEL w h params', '*' for all images)");
+  const std::vector<NamedPose> poses = read_pose_list(opt.known_poses);
+  std::map<std::string, PinholeCamera> cams;
+  for (const NamedCamera& c : read_intrinsics_list(opt.known_intrinsics)) cams[c.name] = c.camera;
+  ColmapModel model;
+  uint32_t id = 0;
+  for (const NamedPose& p : poses) {
+    auto it = cams.find(p.name);
+    if (it == cams.end()) it = cams.find("*");
+    if (it == cams.end())
+      throw_error(ErrorCode::kNotFound, opt.known_intrinsics.string(), ": no intrinsics for image '", p.name,
+                  "' (and no '*' line)");
+    const PinholeCamera& k = it->second;
+    ++id;
+    ColmapCamera cam;
+    cam.camera_id = id;
+    cam.model_id = 2;  // SIMPLE_RADIAL
+    cam.width = static_cast<uint64_t>(k.width);
+    cam.height = static_cast<uint64_t>(k.height);
+    cam.params = {k.focal, k.cx, k.cy, k.k1};
+    model.cameras.push_back(cam);
+    ColmapImage im;
+    im.image_id = id;
+    im.name = p.name;
+    im.camera_id = id;
+    const Eigen::Quaterniond& q = p.cam_from_world.rotation;
+    im.cam_from_world_q_wxyz = {q.w(), q.x(), q.y(), q.z()};
+    const Eigen::Vector3d& t = p.cam_from_world.translation;
+    im.cam_from_world_t = {t.x(), t.y(), t.z()};
+    model.images.push_back(std::move(im));
+  }
+  return model;
 }
 
 struct BuildContext {
@@ -396,7 +431,7 @@ MapBuildResult build_map(const fs::path& map_dir, const MapBuildOptions& opt,
   // Known poses: one similarity from the poses' frame to ENU for the whole map.
   ColmapModel known;
   if (opt.poses == PoseSource::kKnown) {
-    known = read_colmap_model(opt.known_poses);
+    known = load_known_poses(opt);
     std::vector<Eigen::Vector3d> src, dst;
     Eigen::Vector3d up = Eigen::Vector3d::Zero();
     for (size_t i = 0; i < ctx.records.size(); ++i) {

@@ -43,7 +43,13 @@ struct MapBuildOptions {
   std::filesystem::path images_dir;
   std::filesystem::path gps_csv;         // empty: read GPS from each image's EXIF
   PoseSource poses = PoseSource::kSfm;
-  std::filesystem::path known_poses;     // kKnown: a COLMAP model directory (text or binary) whose image names match
+  // kKnown: a COLMAP model directory (text or binary) whose image names
+  // match, or a pose list file ('name qw qx qy qz tx ty tz', world-to-camera)
+  // with known_intrinsics giving the cameras.
+  std::filesystem::path known_poses;
+  // With a pose list: intrinsics 'name MODEL width height params...' per image;
+  // a line named '*' applies to every image without a line of its own.
+  std::filesystem::path known_intrinsics;
   SegmentPlanOptions plan;
   SiftOptions sift;
   ColmapRunnerOptions colmap;

@@ -25,6 +25,7 @@ nlohmann::json to_json(const LocalizationResult& r) {
   }
   if (r.heading_deg) j["heading_deg"] = *r.heading_deg;
   j["candidates"] = r.candidates;
+  if (r.full_search_fallback) j["full_search_fallback"] = true;
   j["features"] = r.features;
   j["times_ms"] = {{"features", r.times.features},
                    {"retrieval", r.times.retrieval},

@@ -160,6 +160,38 @@ LocalizationResult Localizer::localize_file(const std::filesystem::path& image,
   return res;
 }
 
+LocalizationResult Localizer::localize_image(const GrayImage& image,
+                                             const std::optional<PinholeCamera>& intrinsics) const {
+  Timer total;
+  if (image.width <= 0 || image.height <= 0 ||
+      image.pixels.size() != static_cast<size_t>(image.width) * static_cast<size_t>(image.height))
+    throw_error(ErrorCode::kInvalidArgument, "image: ", image.width, "x", image.height, " with ",
+                image.pixels.size(), " pixels is not a valid greyscale image");
+  if (static_cast<int64_t>(image.width) * image.height > options_.sift.image.max_pixels)
+    throw_error(ErrorCode::kInvalidArgument, "image: ", image.width, "x", image.height,
+                " is over the limit of ", options_.sift.image.max_pixels, " pixels");
+  PinholeCamera cam = PinholeCamera::centered(image.width, image.height);
+  if (intrinsics) {
+    cam = *intrinsics;
+    if (cam.width == 0 && cam.height == 0) {  // only the focal was given: the rest from the image
+      cam.width = image.width;
+      cam.height = image.height;
+      cam.cx = image.width / 2.0;
+      cam.cy = image.height / 2.0;
+    } else if (cam.width != image.width || cam.height != image.height) {
+      throw_error(ErrorCode::kInvalidArgument, "intrinsics are for a ", cam.width, "x", cam.height,
+                  " image but the image is ", image.width, "x", image.height);
+    }
+  }
+  cam.validate();
+  const FeatureSet f = impl_->sift->extract(image);
+  const double features_ms = total.elapsed_ms();
+  LocalizationResult res = localize_features(f, cam);
+  res.times.features = features_ms;
+  res.times.total = total.elapsed_ms();
+  return res;
+}
+
 LocalizationResult Localizer::localize_features(const FeatureSet& f, const PinholeCamera& camera) const {
   Timer total;
   camera.validate();
@@ -184,48 +216,64 @@ LocalizationResult Localizer::localize_features(const FeatureSet& f, const Pinho
   CascadeMatches matches;
   CorrespondenceSet set;
   size_t best_inliers = 0;
-  for (size_t index : candidates) {
-    std::shared_ptr<const Segment> seg = impl_->cache->get(index);
-    res.candidates.push_back(static_cast<int>(seg->id()));
-    t.reset();
-    CascadeMatcher matcher(seg->index(), impl_->map.codebook());
-    matcher.match(f.descriptors, impl_->search, matches);
-    CorrespondenceArrays arrays = make_correspondence_arrays(matches, f.keypoints, seg->xyz());
-    set.clear();
-    set.points2d.reserve(arrays.points2d.size());
-    for (const auto& p : arrays.points2d) set.points2d.emplace_back(p[0], p[1]);
-    set.candidate_offsets = arrays.candidate_offsets;
-    set.candidates.reserve(arrays.candidates.size());
-    for (const auto& c : arrays.candidates) set.candidates.emplace_back(c[0], c[1], c[2]);
-    set.in_hypothesis_set = arrays.in_hypothesis_set;
-    set.candidate_point_ids = arrays.candidate_point_ids;
-    res.times.matching += t.elapsed_ms();
-    t.reset();
-    PoseEstimate pose;
-    if (set.num_hypothesis_features() >= 6 || (camera.has_focal && set.num_hypothesis_features() >= 3))
-      pose = estimate_pose(set, camera, impl_->ransac);
-    res.times.ransac += t.elapsed_ms();
-    if (pose.has_pose && pose.num_inliers > best_inliers) {
-      best_inliers = pose.num_inliers;
-      res.segment = static_cast<int>(seg->id());
-      res.inliers = pose.num_inliers;
-      res.registered = pose.registered;
-      res.cam_from_segment = pose.cam_from_world;
-      res.focal_px = pose.focal;
-      res.focal_estimated = !camera.has_focal;
-      res.matches_one_to_one = matches.query.size();
-      const SegmentFrame frame = segment_frame(*seg);
-      if (frame.georegistered) {
-        const Eigen::Vector3d c = frame.enu_from_segment.apply(pose.cam_from_world.center());
-        res.center_enu = c;
-        const Eigen::Vector3d dir = frame.enu_from_segment.rotation * pose.cam_from_world.viewing_direction();
-        res.heading_deg = heading_deg_from_enu(dir);
-        if (impl_->frame) res.position = impl_->frame->to_geo(c);
-      } else {
-        res.center_enu.reset();
-        res.heading_deg.reset();
-        res.position.reset();
+  // One pass over the candidates with the given search; the best pose wins.
+  auto search_candidates = [&](const CascadeSearchOptions& search) {
+    for (size_t index : candidates) {
+      std::shared_ptr<const Segment> seg = impl_->cache->get(index);
+      res.candidates.push_back(static_cast<int>(seg->id()));
+      t.reset();
+      CascadeMatcher matcher(seg->index(), impl_->map.codebook());
+      matcher.match(f.descriptors, search, matches);
+      CorrespondenceArrays arrays = make_correspondence_arrays(matches, f.keypoints, seg->xyz());
+      set.clear();
+      set.points2d.reserve(arrays.points2d.size());
+      for (const auto& p : arrays.points2d) set.points2d.emplace_back(p[0], p[1]);
+      set.candidate_offsets = arrays.candidate_offsets;
+      set.candidates.reserve(arrays.candidates.size());
+      for (const auto& c : arrays.candidates) set.candidates.emplace_back(c[0], c[1], c[2]);
+      set.in_hypothesis_set = arrays.in_hypothesis_set;
+      set.candidate_point_ids = arrays.candidate_point_ids;
+      res.times.matching += t.elapsed_ms();
+      t.reset();
+      PoseEstimate pose;
+      if (set.num_hypothesis_features() >= 6 || (camera.has_focal && set.num_hypothesis_features() >= 3))
+        pose = estimate_pose(set, camera, impl_->ransac);
+      res.times.ransac += t.elapsed_ms();
+      if (pose.has_pose && pose.num_inliers > best_inliers) {
+        best_inliers = pose.num_inliers;
+        res.segment = static_cast<int>(seg->id());
+        res.inliers = pose.num_inliers;
+        res.registered = pose.registered;
+        res.cam_from_segment = pose.cam_from_world;
+        res.focal_px = pose.focal;
+        res.focal_estimated = !camera.has_focal;
+        res.matches_one_to_one = matches.query.size();
+        const SegmentFrame frame = segment_frame(*seg);
+        if (frame.georegistered) {
+          const Eigen::Vector3d c = frame.enu_from_segment.apply(pose.cam_from_world.center());
+          res.center_enu = c;
+          const Eigen::Vector3d dir = frame.enu_from_segment.rotation * pose.cam_from_world.viewing_direction();
+          res.heading_deg = heading_deg_from_enu(dir);
+          if (impl_->frame) res.position = impl_->frame->to_geo(c);
+        } else {
+          res.center_enu.reset();
+          res.heading_deg.reset();
+          res.position.reset();
+        }
       }
+    }
+  };
+  if (!candidates.empty()) {
+    res.candidates.clear();
+    search_candidates(impl_->search);
+    // Prioritized search stops at N_early matches; on repetitive facades they
+    // can all be wrong. Before giving up, search every feature once more.
+    if (!res.registered && impl_->search.prioritize && options_.full_search_fallback) {
+      CascadeSearchOptions full = impl_->search;
+      full.prioritize = false;
+      res.candidates.clear();
+      res.full_search_fallback = true;
+      search_candidates(full);
     }
   }
   res.times.total = total.elapsed_ms();

@@ -44,6 +44,10 @@ struct LocalizerOptions {
   int max_segments = 4;             // candidate segments searched
   uint64_t cache_bytes = 512ull << 20;  // segment cache budget
   bool use_exif_focal = true;       // EXIF focal (when present) makes the query calibrated
+  // Settings 3 and 3+: when the prioritized search gives no registered pose,
+  // search all features of the candidates once more (not in the paper; it
+  // costs time only on queries that would otherwise fail).
+  bool full_search_fallback = true;
   void validate() const;
 };
 
@@ -64,6 +68,7 @@ struct LocalizationResult {
   std::optional<GeoPosition> position;   // WGS84
   std::optional<double> heading_deg;
   std::vector<int> candidates;       // segment ids searched, in order
+  bool full_search_fallback = false; // the prioritized search failed; all features were searched
   size_t features = 0;
   size_t matches_one_to_one = 0;     // of the best segment
   StageTimes times;
@@ -80,6 +85,12 @@ class Localizer {
   // length is estimated (6-point DLT).
   LocalizationResult localize_file(const std::filesystem::path& image,
                                    const std::optional<PinholeCamera>& intrinsics = std::nullopt) const;
+  // From decoded pixels (a camera frame in memory: no EXIF). `intrinsics`
+  // (width/height 0: the image's, principal point at its centre) or, without
+  // them, an estimated focal length. Unlike localize_file, a bad image or bad
+  // intrinsics throw Error (kInvalidArgument) instead of filling `error`.
+  LocalizationResult localize_image(const GrayImage& image,
+                                    const std::optional<PinholeCamera>& intrinsics = std::nullopt) const;
   // From features already extracted (e.g. from a COLMAP database).
   LocalizationResult localize_features(const FeatureSet& features, const PinholeCamera& camera) const;
 

@@ -154,3 +154,197 @@ TEST(Localizer, EndToEndOnSyntheticStreet) {
   }
   EXPECT_GE(accurate, 2) << "of " << truth.size() << " queries";
 }
+
+#include <zlib.h>
+
+#include <charconv>
+
+#include "visloc/colmap/bundler.h"
+#include "visloc/colmap/colmap_model.h"
+#include "visloc/util/file_io.h"
+#include "visloc/util/timer.h"
+
+namespace {
+
+// Test-side writer: a COLMAP model + database as a Bundler reconstruction.
+// bundle.out: camera i = model image i with R_b = diag(1,−1,−1) R, t_b the
+// same flip of t, f = (fx + fy)/2, no distortion; then one unregistered
+// camera (f = 0) with a view of every point, which the import must drop.
+// Views are the model's 2D points centred on the image, y up; key files
+// hold every database keypoint at (row, col) = (y − 0.5, x − 0.5) with
+// Lowe-style descriptors: the database's RootSIFT squared (back to SIFT's
+// proportions), L2-normalized, × 512, truncated, ≤ 255.
+struct NumberWriter {
+  std::string s;
+  void add(double v) {
+    char b[32];
+    auto [p, ec] = std::to_chars(b, b + sizeof b, v);
+    s.append(b, p);
+  }
+  void add(uint64_t v) {
+    char b[24];
+    auto [p, ec] = std::to_chars(b, b + sizeof b, v);
+    s.append(b, p);
+  }
+  void sp() { s.push_back(' '); }
+  void nl() { s.push_back('\n'); }
+};
+
+std::string lowe_key_text(const FeatureSet& f) {
+  NumberWriter w;
+  w.s.reserve(f.size() * 520);
+  w.add(uint64_t(f.size()));
+  w.s += " 128\n";
+  for (size_t i = 0; i < f.size(); ++i) {
+    const Keypoint& k = f.keypoints[i];
+    w.add(double(k.y) - 0.5), w.sp(), w.add(double(k.x) - 0.5), w.sp(), w.add(double(k.scale)), w.sp();
+    w.add(-double(k.orientation)), w.nl();
+    const uint8_t* r = f.descriptors.row(i);
+    double l2 = 0;
+    for (int j = 0; j < kDescriptorDim; ++j) l2 += std::pow(double(r[j]), 4);
+    const double inv = l2 > 0 ? 1.0 / std::sqrt(l2) : 0.0;
+    for (int j = 0; j < kDescriptorDim; ++j) {
+      w.add(uint64_t(std::min(255.0, std::floor(512.0 * double(r[j]) * r[j] * inv))));
+      if (j % 20 == 19 || j == kDescriptorDim - 1) w.nl();
+      else w.sp();
+    }
+  }
+  return w.s;
+}
+
+void write_bundler_export(const ColmapModel& m, const ColmapDatabase& db, const fs::path& dir) {
+  fs::create_directories(dir / "keys");
+  NumberWriter b;
+  b.s = "# Bundle file v0.3\n";
+  b.add(uint64_t(m.images.size() + 1)), b.sp(), b.add(uint64_t(m.points.size())), b.nl();
+  std::string list;
+  const Eigen::Vector3d flip(1, -1, -1);
+  for (size_t i = 0; i < m.images.size(); ++i) {
+    const ColmapImage& im = m.images[i];
+    const ColmapCamera& c = m.cameras[m.camera_index(im.camera_id)];
+    ASSERT_EQ(c.model_id, 1) << "PINHOLE expected";
+    const CameraPose pose = CameraPose::from_wxyz(im.cam_from_world_q_wxyz, Eigen::Vector3d(im.cam_from_world_t.data()));
+    const Eigen::Matrix3d R = flip.asDiagonal() * pose.rotation_matrix();
+    const Eigen::Vector3d t = flip.asDiagonal() * pose.translation;
+    b.add(0.5 * (c.params[0] + c.params[1])), b.s += " 0 0\n";
+    for (int r = 0; r < 3; ++r) b.add(R(r, 0)), b.sp(), b.add(R(r, 1)), b.sp(), b.add(R(r, 2)), b.nl();
+    b.add(t.x()), b.sp(), b.add(t.y()), b.sp(), b.add(t.z()), b.nl();
+    list += im.name + "\n";
+    FeatureSet f = db.features(db.image_by_name(im.name)->image_id);
+    const std::string text = lowe_key_text(f);
+    fs::path key = dir / "keys" / im.name;
+    key.replace_extension(".key");
+    if (i == 1) {  // one gzip key file
+      gzFile gz = gzopen((key.string() + ".gz").c_str(), "wb1");
+      ASSERT_TRUE(gz);
+      ASSERT_EQ(gzwrite(gz, text.data(), unsigned(text.size())), int(text.size()));
+      ASSERT_EQ(gzclose(gz), Z_OK);
+    } else {
+      write_file_atomic(key, text);
+    }
+  }
+  b.s += "0 0 0\n0 0 0\n0 0 0\n0 0 0\n0 0 0\n";  // the unregistered camera
+  list += "unregistered.jpg 0 1000\n";
+  for (const auto& p : m.points) {
+    b.add(p.xyz[0]), b.sp(), b.add(p.xyz[1]), b.sp(), b.add(p.xyz[2]), b.nl();
+    b.add(uint64_t(p.rgb[0])), b.sp(), b.add(uint64_t(p.rgb[1])), b.sp(), b.add(uint64_t(p.rgb[2])), b.nl();
+    b.add(uint64_t(p.track.size() + 1));
+    for (const auto& e : p.track) {
+      const ColmapImage& im = m.images[m.image_index(e.image_id)];
+      const ColmapCamera& c = m.cameras[m.camera_index(im.camera_id)];
+      const auto& uv = im.points2d[e.point2d_idx];
+      b.sp(), b.add(uint64_t(m.image_index(e.image_id))), b.sp(), b.add(uint64_t(e.point2d_idx)), b.sp();
+      b.add(uv[0] - 0.5 * double(c.width)), b.sp(), b.add(0.5 * double(c.height) - uv[1]);
+    }
+    b.sp(), b.add(uint64_t(m.images.size())), b.s += " 0 1 1\n";
+  }
+  write_file_atomic(dir / "bundle.out", b.s);
+  write_file_atomic(dir / "list.txt", list);
+}
+
+}  // namespace
+
+// Bundler import on real data: fountain-P11's COLMAP model and database are
+// written as bundle.out + list + Lowe key files, imported through the Bundler
+// path with the queries held out, and the queries are localized from their
+// key files (RootSIFT converted from Lowe's integers).
+TEST(Localizer, LocalizesFromABundlerImportOfFountain) {
+  const fs::path scene = fs::path(VISLOC_SHARED_DATA_DIR) / "strecha" / "fountain-P11";
+  if (!fs::exists(scene / "colmap" / "database.db")) GTEST_SKIP() << "shared data absent: " << scene;
+  const fs::path dir = fs::temp_directory_path() / "visloc_pipeline_test_bundler";
+  fs::remove_all(dir);
+  const ColmapModel colmap = read_colmap_model(scene / "colmap" / "sparse");
+  ColmapDatabase db(scene / "colmap" / "database.db");
+  Timer timer;
+  write_bundler_export(colmap, db, dir / "bundler");
+  if (HasFatalFailure()) return;
+  const double ms_export = timer.elapsed_ms();
+
+  // The conversion gives back the COLMAP model's poses and points.
+  BundlerConversionOptions bo;
+  bo.keys_dir = dir / "bundler" / "keys";
+  timer.reset();
+  const BundlerModel bm = read_bundler_model(dir / "bundler" / "bundle.out", dir / "bundler" / "list.txt", bo);
+  const double ms_convert = timer.elapsed_ms();
+  EXPECT_EQ(bm.stats.cameras_unregistered, 1u);
+  EXPECT_EQ(bm.stats.observations_dropped, colmap.points.size());
+  EXPECT_EQ(bm.stats.observations_off_key, 0u);
+  ASSERT_EQ(bm.model.images.size(), colmap.images.size());
+  ASSERT_EQ(bm.model.points.size(), colmap.points.size());
+  EXPECT_EQ(bm.model.num_observations(), colmap.num_observations());
+  for (size_t i = 0; i < colmap.images.size(); ++i) {
+    const auto& a = colmap.images[i];
+    const auto& b = bm.model.images[i];
+    EXPECT_EQ(a.name, b.name);
+    const CameraPose pa = CameraPose::from_wxyz(a.cam_from_world_q_wxyz, Eigen::Vector3d(a.cam_from_world_t.data()));
+    const CameraPose pb = CameraPose::from_wxyz(b.cam_from_world_q_wxyz, Eigen::Vector3d(b.cam_from_world_t.data()));
+    EXPECT_LT(rotation_error_deg(pa, pb), 1e-6) << a.name;
+    EXPECT_LT(position_error(pa, pb), 1e-9) << a.name;
+    const auto& cam = bm.model.cameras[bm.model.camera_index(b.camera_id)];
+    EXPECT_NEAR(cam.params[1], 768.0, 1e-3);  // 1536 × 1024: the centre, derived from the keys
+    EXPECT_NEAR(cam.params[2], 512.0, 1e-3);
+  }
+  for (size_t p = 0; p < colmap.points.size(); p += 97)
+    for (int k = 0; k < 3; ++k) EXPECT_NEAR(bm.model.points[p].xyz[k], colmap.points[p].xyz[k], 1e-12);
+
+  // Import with the queries held out: as many points as the COLMAP import keeps.
+  const std::vector<std::string> queries = read_name_list(scene / "queries.txt");
+  ColmapModel expected = colmap;
+  const ColmapHoldoutStats expected_holdout = remove_images(expected, queries);
+  ColmapImportOptions io;
+  io.holdout_images = queries;
+  io.itq.iterations = 10;
+  io.pq.max_training = 20000;
+  io.pq.iterations = 10;
+  timer.reset();
+  const BundlerImportResult r =
+      import_bundler_map(dir / "bundler" / "bundle.out", dir / "bundler" / "list.txt", dir / "map", bo, io);
+  const double ms_import = timer.elapsed_ms();
+  EXPECT_EQ(r.map.points, expected.points.size());
+  EXPECT_EQ(r.map.images, expected.images.size());
+  EXPECT_EQ(r.map.holdout.points_dropped, expected_holdout.points_dropped);
+  std::cout << "[ bundler  ] fountain-P11: " << bm.model.points.size() << " points, " << bm.stats.keys
+            << " keys; export " << ms_export << " ms, conversion " << ms_convert << " ms, import " << ms_import
+            << " ms (" << r.map.points << " points after holdout)\n";
+
+  std::map<std::string, CameraPose> truth;
+  for (const auto& p : read_pose_list(dir / "map" / "holdout.txt")) truth[p.name] = p.cam_from_world;
+  ASSERT_EQ(truth.size(), queries.size());
+  const auto cams = db.cameras();
+  PinholeCamera cam = PinholeCamera::centered(static_cast<int>(cams[0].width), static_cast<int>(cams[0].height));
+  cam.focal = 0.5 * (cams[0].params[0] + cams[0].params[1]);
+  cam.cx = cams[0].params[2];
+  cam.cy = cams[0].params[3];
+  cam.has_focal = true;
+  Localizer loc(dir / "map");
+  for (const auto& [name, pose] : truth) {
+    fs::path key = dir / "bundler" / "keys" / name;
+    key.replace_extension(".key");
+    const FeatureSet f = read_lowe_key_file(key);
+    LocalizationResult lr = loc.localize_features(f, cam);
+    EXPECT_TRUE(lr.registered) << name;
+    EXPECT_GE(lr.inliers, 12u) << name;
+    EXPECT_LT(position_error(lr.cam_from_segment, pose), 0.10) << name;
+    EXPECT_LT(rotation_error_deg(lr.cam_from_segment, pose), 1.0) << name;
+  }
+}

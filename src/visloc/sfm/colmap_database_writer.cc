@@ -61,10 +61,13 @@ void exec(sqlite3* db, const std::filesystem::path& path, const char* sql) {
 
 }  // namespace
 
-ColmapDatabaseWriter::ColmapDatabaseWriter(const std::filesystem::path& path) : path_(path) {
+ColmapDatabaseWriter::ColmapDatabaseWriter(const std::filesystem::path& path, Mode mode) : path_(path) {
   std::error_code ec;
-  std::filesystem::remove(path, ec);
-  if (sqlite3_open_v2(path.c_str(), &db_, SQLITE_OPEN_READWRITE | SQLITE_OPEN_CREATE, nullptr) != SQLITE_OK) {
+  if (mode == Mode::kCreate) std::filesystem::remove(path, ec);
+  else if (!std::filesystem::is_regular_file(path))
+    throw_error(ErrorCode::kNotFound, path.string(), ": no such COLMAP database");
+  const int flags = SQLITE_OPEN_READWRITE | (mode == Mode::kCreate ? SQLITE_OPEN_CREATE : 0);
+  if (sqlite3_open_v2(path.c_str(), &db_, flags, nullptr) != SQLITE_OK) {
     std::string msg = db_ ? sqlite3_errmsg(db_) : "out of memory";
     sqlite3_close(db_);
     db_ = nullptr;
@@ -132,6 +135,32 @@ void ColmapDatabaseWriter::add_features(int64_t image_id, const FeatureSet& f) {
   sqlite3_bind_int64(s.get(), 2, static_cast<int64_t>(f.size()));
   sqlite3_bind_blob(s.get(), 3, f.descriptors.data(), static_cast<int>(f.descriptors.size_bytes()), SQLITE_TRANSIENT);
   s.run();
+}
+
+bool ColmapDatabaseWriter::remove_image(const std::string& name) {
+  int64_t id = -1;
+  {
+    Stmt s(db_, path_, "SELECT image_id FROM images WHERE name = ?");
+    sqlite3_bind_text(s.get(), 1, name.c_str(), -1, SQLITE_TRANSIENT);
+    if (sqlite3_step(s.get()) == SQLITE_ROW) id = sqlite3_column_int64(s.get(), 0);
+  }
+  if (id < 0) return false;
+  // Pair ids: id1 * 2147483647 + id2 with id1 < id2 (COLMAP).
+  constexpr int64_t kMax = 2147483647;
+  for (const char* table : {"matches", "two_view_geometries"}) {
+    const std::string sql = std::string("DELETE FROM ") + table + " WHERE pair_id / " + std::to_string(kMax) +
+                            " = ?1 OR pair_id % " + std::to_string(kMax) + " = ?1";
+    Stmt s(db_, path_, sql.c_str());
+    sqlite3_bind_int64(s.get(), 1, id);
+    s.run();
+  }
+  for (const char* table : {"keypoints", "descriptors", "images"}) {
+    const std::string sql = std::string("DELETE FROM ") + table + " WHERE image_id = ?";
+    Stmt s(db_, path_, sql.c_str());
+    sqlite3_bind_int64(s.get(), 1, id);
+    s.run();
+  }
+  return true;
 }
 
 void ColmapDatabaseWriter::commit() {

@@ -28,8 +28,10 @@ inline constexpr int kColmapSimpleRadial = 2;   // f, cx, cy, k
 
 class ColmapDatabaseWriter {
  public:
-  // Creates a new database at `path` (an existing file is replaced).
-  explicit ColmapDatabaseWriter(const std::filesystem::path& path);
+  enum class Mode { kCreate, kAppend };
+  // kCreate: a new database at `path` (an existing file is replaced);
+  // kAppend: adds to an existing COLMAP database (Error naming it if absent).
+  explicit ColmapDatabaseWriter(const std::filesystem::path& path, Mode mode = Mode::kCreate);
   ~ColmapDatabaseWriter();
   ColmapDatabaseWriter(const ColmapDatabaseWriter&) = delete;
   ColmapDatabaseWriter& operator=(const ColmapDatabaseWriter&) = delete;
@@ -43,6 +45,9 @@ class ColmapDatabaseWriter {
   int64_t add_image(const std::string& name, int64_t camera_id,
                     const std::optional<Eigen::Vector3d>& position_prior = std::nullopt);
   void add_features(int64_t image_id, const FeatureSet& features);
+  // Removes an image with its features, matches and two-view geometries;
+  // false when there is no image of that name.
+  bool remove_image(const std::string& name);
   // Commits the transaction (all or nothing).
   void commit();
 

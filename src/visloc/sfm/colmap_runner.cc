@@ -17,6 +17,8 @@ void ColmapRunnerOptions::validate() const {
   if (min_model_size < 2) throw_error(ErrorCode::kInvalidArgument, "min_model_size must be >= 2, got ", min_model_size);
   if (!(init_min_tri_angle > 0 && init_min_tri_angle < 90))
     throw_error(ErrorCode::kInvalidArgument, "init_min_tri_angle must be in (0, 90) degrees, got ", init_min_tri_angle);
+  if (!(init_max_forward_motion > 0 && init_max_forward_motion <= 1))
+    throw_error(ErrorCode::kInvalidArgument, "init_max_forward_motion must be in (0, 1], got ", init_max_forward_motion);
   if (init_min_num_inliers < 8)
     throw_error(ErrorCode::kInvalidArgument, "init_min_num_inliers must be >= 8, got ", init_min_num_inliers);
 }
@@ -62,7 +64,8 @@ std::filesystem::path ColmapRunner::map(const std::filesystem::path& database, c
                "--Mapper.min_model_size", std::to_string(options_.min_model_size), "--Mapper.ba_refine_focal_length",
                options_.refine_focal ? "1" : "0", "--Mapper.init_min_tri_angle",
                std::to_string(options_.init_min_tri_angle), "--Mapper.init_min_num_inliers",
-               std::to_string(options_.init_min_num_inliers), "--random_seed", std::to_string(options_.random_seed)},
+               std::to_string(options_.init_min_num_inliers), "--Mapper.init_max_forward_motion",
+               std::to_string(options_.init_max_forward_motion), "--random_seed", std::to_string(options_.random_seed)},
               log);
   // The largest sub-model by the size of its points3D.bin.
   std::filesystem::path best;
@@ -91,6 +94,15 @@ void ColmapRunner::triangulate(const std::filesystem::path& database, const std:
                "--Mapper.num_threads", std::to_string(options_.threads), "--Mapper.ba_refine_focal_length", "0",
                "--Mapper.ba_refine_principal_point", "0", "--Mapper.ba_refine_extra_params", "0", "--random_seed",
                std::to_string(options_.random_seed)},
+              log);
+}
+
+void ColmapRunner::register_images(const std::filesystem::path& database, const std::filesystem::path& input_model,
+                                   const std::filesystem::path& output_dir, const std::filesystem::path& log) const {
+  std::filesystem::create_directories(output_dir);
+  run_process({options_.binary, "image_registrator", "--database_path", database.string(), "--input_path",
+               input_model.string(), "--output_path", output_dir.string(), "--Mapper.num_threads",
+               std::to_string(options_.threads), "--random_seed", std::to_string(options_.random_seed)},
               log);
 }
 

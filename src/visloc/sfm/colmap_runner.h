@@ -22,6 +22,11 @@ struct ColmapRunnerOptions {
   bool refine_focal = true;          // mapper: refine focal lengths in BA
   double init_min_tri_angle = 4;     // mapper: degrees (COLMAP's 16 rejects street sequences' small baselines)
   int init_min_num_inliers = 50;     // mapper: matches of the initial pair (COLMAP: 100)
+  // mapper: largest forward-motion component of the initial pair (COLMAP:
+  // 0.95). Photos walked along a street look along the motion: with 0.95 and
+  // even 0.995 COLMAP found no initial pair in a Lund segment that it
+  // reconstructs completely (10/10 images) with 1.0.
+  double init_max_forward_motion = 1.0;
   int random_seed = 1;
   void validate() const;
 };
@@ -39,6 +44,11 @@ class ColmapRunner {
   // returns the directory of the largest sub-model. Throws when none was made.
   std::filesystem::path map(const std::filesystem::path& database, const std::filesystem::path& image_dir,
                             const std::filesystem::path& output_dir, const std::filesystem::path& log) const;
+  // Registers the database's images that `input_model` lacks into it
+  // (COLMAP's image_registrator: 2D-3D from the verified matches, P3P RANSAC,
+  // no triangulation); the model is written to output_dir.
+  void register_images(const std::filesystem::path& database, const std::filesystem::path& input_model,
+                       const std::filesystem::path& output_dir, const std::filesystem::path& log) const;
   void triangulate(const std::filesystem::path& database, const std::filesystem::path& image_dir,
                    const std::filesystem::path& input_model, const std::filesystem::path& output_dir,
                    const std::filesystem::path& log) const;

@@ -151,6 +151,37 @@ TEST(ColmapDatabaseWriter, RoundTripThroughReader) {
   EXPECT_EQ(0, std::memcmp(g.descriptors.data(), f.descriptors.data(), f.descriptors.size_bytes()));
 }
 
+TEST(ColmapDatabaseWriter, AppendsAndRemovesImages) {
+  fs::path dir = temp_dir("dbappend");
+  FeatureSet f;
+  f.keypoints = {{10.5f, 20.5f, 2.0f, 0.5f}};
+  f.descriptors = DescriptorMatrix(1);
+  EXPECT_THROW(ColmapDatabaseWriter(dir / "absent.db", ColmapDatabaseWriter::Mode::kAppend), Error);
+  {
+    ColmapDatabaseWriter w(dir / "database.db");
+    const int64_t cid = w.add_camera(PinholeCamera::centered(640, 480, 500.0));
+    w.add_features(w.add_image("a.jpg", cid), f);
+    w.add_features(w.add_image("b.jpg", cid), f);
+    w.commit();
+  }
+  {
+    ColmapDatabaseWriter w(dir / "database.db", ColmapDatabaseWriter::Mode::kAppend);
+    EXPECT_TRUE(w.remove_image("a.jpg"));
+    EXPECT_FALSE(w.remove_image("zzz.jpg"));
+    const int64_t cid = w.add_camera(PinholeCamera::centered(320, 240, 300.0));
+    w.add_features(w.add_image("c.jpg", cid), f);
+    w.commit();
+  }
+  ColmapDatabase db(dir / "database.db");
+  auto images = db.images();
+  ASSERT_EQ(images.size(), 2u);
+  EXPECT_EQ(images[0].name, "b.jpg");
+  EXPECT_EQ(images[1].name, "c.jpg");
+  EXPECT_FALSE(db.image_by_name("a.jpg").has_value());
+  EXPECT_EQ(db.features(images[1].image_id).size(), 1u);
+  EXPECT_EQ(db.cameras().size(), 2u);
+}
+
 TEST(ColmapDatabaseWriter, UncommittedWriteLeavesNoImages) {
   fs::path dir = temp_dir("dbrollback");
   {

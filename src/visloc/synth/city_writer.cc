@@ -95,6 +95,8 @@ nlohmann::json options_to_json(const CityOptions& o) {
                   {"pitch_max_deg", q.pitch_max_deg},
                   {"roll_max_deg", q.roll_max_deg},
                   {"side_view_probability", q.side_view_probability},
+                  {"min_facade_fraction", q.min_facade_fraction},
+                  {"facade_range_m", q.facade_range_m},
                   {"exposure_min", q.exposure_min},
                   {"exposure_max", q.exposure_max},
                   {"gamma_min", q.gamma_min},
@@ -183,6 +185,8 @@ void QueryOptions::validate() const {
   require(blur_max_px >= 0 && blur_max_px <= 20, "queries", "blur_max_px", "must be in [0, 20]");
   require(noise_max >= 0 && noise_max <= 100, "queries", "noise_max", "must be in [0, 100]");
   require(cars_max >= 0 && cars_max <= 20, "queries", "cars_max", "must be in [0, 20]");
+  require(min_facade_fraction >= 0 && min_facade_fraction <= 1, "queries", "min_facade_fraction", "must be in [0, 1]");
+  require(facade_range_m > 0, "queries", "facade_range_m", "must be positive");
   require(trees_max >= 0 && trees_max <= 20, "queries", "trees_max", "must be in [0, 20]");
   require(gps_noise_m >= 0, "queries", "gps_noise_m", "must be >= 0");
 }
@@ -242,6 +246,26 @@ std::string database_image_name(int placemark, int heading_index, int elevation_
   return buf;
 }
 
+// Share of a 16 × 12 grid of rays through the image that hit a surface above
+// the ground (a facade, a tree) within `range` metres.
+double facade_fraction(const ViewRenderer& probe, const PinholeCamera& camera, const CameraPose& cam_from_world,
+                       double range) {
+  const Eigen::Vector3d origin = cam_from_world.center();
+  const Eigen::Matrix3d world_from_cam = cam_from_world.rotation.conjugate().toRotationMatrix();
+  constexpr int kCols = 16, kRows = 12;
+  int hits = 0;
+  for (int r = 0; r < kRows; ++r)
+    for (int c = 0; c < kCols; ++c) {
+      const double u = (c + 0.5) * camera.width / kCols, v = (r + 0.5) * camera.height / kRows;
+      const Eigen::Vector3d ray =
+          (world_from_cam * Eigen::Vector3d((u - camera.cx) / camera.focal, (v - camera.cy) / camera.focal, 1))
+              .normalized();
+      const std::optional<double> t = probe.cast_ray(origin, ray);
+      if (t && *t <= range && (origin + *t * ray).z() > 0.3) ++hits;
+    }
+  return static_cast<double>(hits) / (kCols * kRows);
+}
+
 QuerySpec make_query(const CityScene& scene, const CityOptions& options, int index) {
   const QueryOptions& q = options.queries;
   SplitMix64 rng(hash_keys(options.layout.seed, 0x9e7, static_cast<uint64_t>(index)));
@@ -251,31 +275,36 @@ QuerySpec make_query(const CityScene& scene, const CityOptions& options, int ind
   spec.name = name;
   spec.seed = rng.next();
   // Place: a road chosen by length, an arc position, a lateral offset on the
-  // carriageway or a sidewalk.
-  const double total = scene.total_road_length();
-  double s = rng.uniform(0.0, total);
-  size_t road = 0;
-  while (road + 1 < scene.roads.size() && s > scene.roads[road].length()) s -= scene.roads[road++].length();
-  Eigen::Vector2d p, d;
-  scene.roads[road].at(s, p, d);
-  const double reach = scene.road_half_width + scene.sidewalk_width - 0.5;
-  const Eigen::Vector2d n(-d.y(), d.x());
-  Eigen::Vector2d xy = p + n * rng.uniform(-reach, reach);
-  const double height = rng.uniform(q.height_min_m, q.height_max_m);
-  const Eigen::Vector3d center(xy.x(), xy.y(), height);
-  const double road_heading = std::atan2(d.x(), d.y()) / kDegToRad;
-  double heading;
-  if (rng.bernoulli(q.side_view_probability))
-    heading = road_heading + (rng.bernoulli(0.5) ? 90.0 : -90.0) + rng.uniform(-50.0, 50.0);
-  else
-    heading = road_heading + (rng.bernoulli(0.5) ? 0.0 : 180.0) + rng.uniform(-30.0, 30.0);
-  heading = std::fmod(heading + 720.0, 360.0);
-  const double pitch = rng.uniform(q.pitch_min_deg, q.pitch_max_deg);
-  const double roll = rng.uniform(-q.roll_max_deg, q.roll_max_deg);
-  spec.fov_deg = rng.uniform(q.fov_min_deg, q.fov_max_deg);
-  const auto& res = q.resolutions[static_cast<size_t>(rng.uniform_int(0, static_cast<int>(q.resolutions.size()) - 1))];
-  spec.camera = camera_from_fov(res[0], res[1], spec.fov_deg);
-  spec.cam_from_world = street_view_pose(center, heading, pitch, roll);
+  // carriageway or a sidewalk; redrawn until the view shows enough facades.
+  const ViewRenderer probe(scene, nullptr, options.render);
+  Eigen::Vector2d xy, p, d;
+  Eigen::Vector3d center;
+  double heading = 0;
+  for (int draw = 0; draw < 100; ++draw) {
+    const double total = scene.total_road_length();
+    double s = rng.uniform(0.0, total);
+    size_t road = 0;
+    while (road + 1 < scene.roads.size() && s > scene.roads[road].length()) s -= scene.roads[road++].length();
+    scene.roads[road].at(s, p, d);
+    const double reach = scene.road_half_width + scene.sidewalk_width - 0.5;
+    const Eigen::Vector2d n(-d.y(), d.x());
+    xy = p + n * rng.uniform(-reach, reach);
+    const double height = rng.uniform(q.height_min_m, q.height_max_m);
+    center = Eigen::Vector3d(xy.x(), xy.y(), height);
+    const double road_heading = std::atan2(d.x(), d.y()) / kDegToRad;
+    if (rng.bernoulli(q.side_view_probability))
+      heading = road_heading + (rng.bernoulli(0.5) ? 90.0 : -90.0) + rng.uniform(-50.0, 50.0);
+    else
+      heading = road_heading + (rng.bernoulli(0.5) ? 0.0 : 180.0) + rng.uniform(-30.0, 30.0);
+    heading = std::fmod(heading + 720.0, 360.0);
+    const double pitch = rng.uniform(q.pitch_min_deg, q.pitch_max_deg);
+    const double roll = rng.uniform(-q.roll_max_deg, q.roll_max_deg);
+    spec.fov_deg = rng.uniform(q.fov_min_deg, q.fov_max_deg);
+    const auto& res = q.resolutions[static_cast<size_t>(rng.uniform_int(0, static_cast<int>(q.resolutions.size()) - 1))];
+    spec.camera = camera_from_fov(res[0], res[1], spec.fov_deg);
+    spec.cam_from_world = street_view_pose(center, heading, pitch, roll);
+    if (facade_fraction(probe, spec.camera, spec.cam_from_world, q.facade_range_m) >= q.min_facade_fraction) break;
+  }
   spec.exposure = std::exp(rng.uniform(std::log(q.exposure_min), std::log(q.exposure_max)));
   spec.gamma = rng.uniform(q.gamma_min, q.gamma_max);
   spec.blur_px = rng.uniform(0.0, q.blur_max_px);

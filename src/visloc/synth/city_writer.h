@@ -75,6 +75,12 @@ struct QueryOptions {
   int cars_max = 3;            // occluders per query, uniform in [0, max]
   int trees_max = 2;
   double gps_noise_m = 5.0;    // horizontal sigma of the noisy GPS in queries/gps.csv
+  // A query must show the city: at least this share of a coarse grid of rays
+  // hits a building (not ground or sky) within facade_range_m, else its place
+  // and view are drawn again (up to 100 draws; the last one is kept). A photo
+  // of empty road or sky at a street's end cannot be localized by any method.
+  double min_facade_fraction = 0.3;
+  double facade_range_m = 60.0;
   void validate() const;
 };
 
