@@ -14,8 +14,4 @@ void add_bench_command(CLI::App& app) {
   add_bench_end_to_end(*bench);
 }
 
-void add_bench_end_to_end(CLI::App& bench) {
-  add_not_implemented(bench, "end-to-end", "Whole localizer on query sets", "issue #8");
-}
-
 }  // namespace visloc::cli

@@ -116,7 +116,9 @@ void add_eval_command(CLI::App& app) {
                               {"setting", args->setting},
                               {"query_features", args->query_features}};
     if (args->leave_one_out) {
-      const SourceFeatureStore store(args->map);  // checks the map was imported from COLMAP
+      const SourceFeatureStore store(args->map);
+      if (!store.is_colmap())
+        throw_error(ErrorCode::kInvalidArgument, args->map, ": --leave-one-out needs a map imported from COLMAP");
       LeaveOneOutOptions o;
       o.localizer = args->options;
       o.features = source;
@@ -153,7 +155,9 @@ void add_eval_command(CLI::App& app) {
       for (const auto& n : names)
         if (!truth.count(n)) throw_error(ErrorCode::kNotFound, args->truth, ": no reference for '", n, "'");
       std::unique_ptr<SourceFeatureStore> store;
-      if (source == QueryFeatureSource::kDatabase || compare) store = std::make_unique<SourceFeatureStore>(args->map);
+      if (source == QueryFeatureSource::kDatabase || compare) store = std::make_unique<SourceFeatureStore>(args->map, args->images);
+      if (compare && !store->is_colmap())
+        throw_error(ErrorCode::kInvalidArgument, args->map, ": --compare colmap needs a map imported from COLMAP");
       Localizer localizer(args->map, args->options);
       std::vector<PreparedQuery> prepared;
       for (size_t i = 0; i < names.size(); ++i) {

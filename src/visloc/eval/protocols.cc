@@ -2,6 +2,7 @@
 
 #include <fstream>
 
+#include "visloc/colmap/bundler.h"
 #include "visloc/colmap/colmap_database.h"
 #include "visloc/features/sift_extractor.h"
 #include "visloc/image/image_io.h"
@@ -28,25 +29,43 @@ std::string to_string(QueryFeatureSource source) {
 // SourceFeatureStore
 
 struct SourceFeatureStore::Impl {
-  std::unique_ptr<ColmapDatabase> db;
+  std::unique_ptr<ColmapDatabase> db;  // COLMAP import
   std::map<int64_t, ColmapDbCamera> cameras;
+  fs::path list_dir, keys_dir;         // Bundler import
+  bool root_sift = true;
 };
 
-SourceFeatureStore::SourceFeatureStore(const fs::path& map_dir) : impl_(std::make_unique<Impl>()) {
+SourceFeatureStore::SourceFeatureStore(const fs::path& map_dir, const fs::path& images_dir)
+    : images_dir_(images_dir), impl_(std::make_unique<Impl>()) {
   const MapManifest man = read_manifest(map_dir);
-  if (man.source.value("type", "") != "colmap" || !man.source.contains("database"))
+  const std::string type = man.source.value("type", "");
+  if (type == "colmap" && man.source.contains("database")) {
+    model_dir_ = man.source.value("model", "");
+    database_ = man.source.value("database", "");
+    impl_->db = std::make_unique<ColmapDatabase>(database_);
+    for (const auto& c : impl_->db->cameras()) impl_->cameras[c.camera_id] = c;
+  } else if (type == "bundler" && man.source.contains("list")) {
+    impl_->list_dir = fs::path(man.source.value("list", "")).parent_path();
+    const std::string keys = man.source.value("keys", "");
+    if (keys != "next to the images") impl_->keys_dir = keys;
+    impl_->root_sift = man.source.value("descriptors", "rootsift") == "rootsift";
+  } else {
     throw_error(ErrorCode::kInvalidArgument, map_dir.string(),
-                ": the map was not imported from a COLMAP model + database, so it has no feature store "
-                "(use --query-features images)");
-  model_dir_ = man.source.value("model", "");
-  database_ = man.source.value("database", "");
-  impl_->db = std::make_unique<ColmapDatabase>(database_);
-  for (const auto& c : impl_->db->cameras()) impl_->cameras[c.camera_id] = c;
+                ": the map was not imported from a COLMAP model + database or a Bundler model, so it has no "
+                "feature store (use --query-features images)");
+  }
 }
 
 SourceFeatureStore::~SourceFeatureStore() = default;
 
+bool SourceFeatureStore::is_colmap() const { return impl_->db != nullptr; }
+
 FeatureSet SourceFeatureStore::features(const std::string& image) const {
+  if (!impl_->db) {
+    FeatureSet f = read_lowe_key_file(find_lowe_key_file(impl_->list_dir, impl_->keys_dir, image), impl_->root_sift);
+    f.image = image;
+    return f;
+  }
   const auto im = impl_->db->image_by_name(image);
   if (!im) throw_error(ErrorCode::kNotFound, database_.string(), ": no image named '", image, "'");
   FeatureSet f = impl_->db->features(im->image_id);
@@ -55,6 +74,13 @@ FeatureSet SourceFeatureStore::features(const std::string& image) const {
 }
 
 PinholeCamera SourceFeatureStore::camera(const std::string& image) const {
+  if (!impl_->db) {
+    if (images_dir_.empty())
+      throw_error(ErrorCode::kInvalidArgument, "Bundler key files do not give the size of '", image,
+                  "': pass the image directory (--images) or --intrinsics");
+    const ImageMetadata meta = read_image_metadata(images_dir_ / image);
+    return PinholeCamera::centered(meta.width, meta.height, meta.focal_px());
+  }
   const auto im = impl_->db->image_by_name(image);
   if (!im) throw_error(ErrorCode::kNotFound, database_.string(), ": no image named '", image, "'");
   const auto it = impl_->cameras.find(im->camera_id);

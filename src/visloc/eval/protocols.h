@@ -32,21 +32,26 @@ enum class QueryFeatureSource { kImages, kDatabase };
 QueryFeatureSource parse_query_feature_source(const std::string& name);  // "images", "database"
 std::string to_string(QueryFeatureSource source);
 
-// The features a map's source model ships for its images: the COLMAP
-// database of an imported map (manifest "source"). Throws Error(kInvalidArgument)
+// The features a map's source model ships for its images (manifest
+// "source"): the COLMAP database of a COLMAP import (features and the
+// database's intrinsics), or the Lowe key files of a Bundler import (features
+// converted as the import did; the camera is the image's size from
+// `images_dir` with the focal length from EXIF when present, else unknown —
+// Bundler datasets ship no query intrinsics). Throws Error(kInvalidArgument)
 // naming the map when it has none (maps built from images: use our SIFT).
 class SourceFeatureStore {
  public:
-  explicit SourceFeatureStore(const std::filesystem::path& map_dir);
+  explicit SourceFeatureStore(const std::filesystem::path& map_dir, const std::filesystem::path& images_dir = {});
   ~SourceFeatureStore();
   FeatureSet features(const std::string& image) const;  // Error(kNotFound) naming the store and the image
   PinholeCamera camera(const std::string& image) const;  // the source's intrinsics for that image
+  bool is_colmap() const;  // model_dir() and database() are set only for COLMAP imports
   const std::filesystem::path& model_dir() const { return model_dir_; }
   const std::filesystem::path& database() const { return database_; }
 
  private:
   struct Impl;
-  std::filesystem::path model_dir_, database_;
+  std::filesystem::path model_dir_, database_, images_dir_;
   std::unique_ptr<Impl> impl_;
 };
 
