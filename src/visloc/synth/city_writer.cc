@@ -96,6 +96,7 @@ nlohmann::json options_to_json(const CityOptions& o) {
                   {"roll_max_deg", q.roll_max_deg},
                   {"side_view_probability", q.side_view_probability},
                   {"min_facade_fraction", q.min_facade_fraction},
+                  {"facade_min_distance_m", q.facade_min_distance_m},
                   {"facade_range_m", q.facade_range_m},
                   {"exposure_min", q.exposure_min},
                   {"exposure_max", q.exposure_max},
@@ -186,7 +187,8 @@ void QueryOptions::validate() const {
   require(noise_max >= 0 && noise_max <= 100, "queries", "noise_max", "must be in [0, 100]");
   require(cars_max >= 0 && cars_max <= 20, "queries", "cars_max", "must be in [0, 20]");
   require(min_facade_fraction >= 0 && min_facade_fraction <= 1, "queries", "min_facade_fraction", "must be in [0, 1]");
-  require(facade_range_m > 0, "queries", "facade_range_m", "must be positive");
+  require(facade_min_distance_m >= 0 && facade_range_m > facade_min_distance_m, "queries",
+          "facade_min_distance_m/facade_range_m", "need 0 <= min < range");
   require(trees_max >= 0 && trees_max <= 20, "queries", "trees_max", "must be in [0, 20]");
   require(gps_noise_m >= 0, "queries", "gps_noise_m", "must be >= 0");
 }
@@ -247,9 +249,9 @@ std::string database_image_name(int placemark, int heading_index, int elevation_
 }
 
 // Share of a 16 × 12 grid of rays through the image that hit a surface above
-// the ground (a facade, a tree) within `range` metres.
+// the ground (a facade, a tree) between `min_distance` and `range` metres.
 double facade_fraction(const ViewRenderer& probe, const PinholeCamera& camera, const CameraPose& cam_from_world,
-                       double range) {
+                       double min_distance, double range) {
   const Eigen::Vector3d origin = cam_from_world.center();
   const Eigen::Matrix3d world_from_cam = cam_from_world.rotation.conjugate().toRotationMatrix();
   constexpr int kCols = 16, kRows = 12;
@@ -261,7 +263,7 @@ double facade_fraction(const ViewRenderer& probe, const PinholeCamera& camera, c
           (world_from_cam * Eigen::Vector3d((u - camera.cx) / camera.focal, (v - camera.cy) / camera.focal, 1))
               .normalized();
       const std::optional<double> t = probe.cast_ray(origin, ray);
-      if (t && *t <= range && (origin + *t * ray).z() > 0.3) ++hits;
+      if (t && *t >= min_distance && *t <= range && (origin + *t * ray).z() > 0.3) ++hits;
     }
   return static_cast<double>(hits) / (kCols * kRows);
 }
@@ -303,7 +305,9 @@ QuerySpec make_query(const CityScene& scene, const CityOptions& options, int ind
     const auto& res = q.resolutions[static_cast<size_t>(rng.uniform_int(0, static_cast<int>(q.resolutions.size()) - 1))];
     spec.camera = camera_from_fov(res[0], res[1], spec.fov_deg);
     spec.cam_from_world = street_view_pose(center, heading, pitch, roll);
-    if (facade_fraction(probe, spec.camera, spec.cam_from_world, q.facade_range_m) >= q.min_facade_fraction) break;
+    if (facade_fraction(probe, spec.camera, spec.cam_from_world, q.facade_min_distance_m, q.facade_range_m) >=
+        q.min_facade_fraction)
+      break;
   }
   spec.exposure = std::exp(rng.uniform(std::log(q.exposure_min), std::log(q.exposure_max)));
   spec.gamma = rng.uniform(q.gamma_min, q.gamma_max);

@@ -75,11 +75,16 @@ struct QueryOptions {
   int cars_max = 3;            // occluders per query, uniform in [0, max]
   int trees_max = 2;
   double gps_noise_m = 5.0;    // horizontal sigma of the noisy GPS in queries/gps.csv
-  // A query must show the city: at least this share of a coarse grid of rays
-  // hits a building (not ground or sky) within facade_range_m, else its place
-  // and view are drawn again (up to 100 draws; the last one is kept). A photo
-  // of empty road or sky at a street's end cannot be localized by any method.
+  // A query must show the city as the map saw it: at least this share of a
+  // coarse grid of rays hits a building (not ground or sky) between
+  // facade_min_distance_m and facade_range_m, else its place and view are
+  // drawn again (up to 100 draws; the last one is kept). Rejected are photos
+  // of empty road or sky at a street's end and close-ups of a wall from the
+  // sidewalk (1-2 m away: 5× the scale at which the map's views, taken from
+  // the road's centre line, saw it, and often a plain wall): no method can
+  // localize the first, and the map does not hold the second.
   double min_facade_fraction = 0.3;
+  double facade_min_distance_m = 4.0;
   double facade_range_m = 60.0;
   void validate() const;
 };
