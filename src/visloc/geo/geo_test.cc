@@ -173,3 +173,30 @@ TEST(Similarity, UprightRecoversCollinearStreet) {
   Eigen::Vector3d off(1, 2, 3);  // a point off the street maps right too
   EXPECT_LT((e.transform.apply(off) - truth.apply(off)).norm(), 1e-9);
 }
+
+TEST(Similarity, StreetFitUsesFullSimilarityWhenCentresSpreadIn2D) {
+  // An L-shaped route (a turn); the cameras' up axis is off by 1° from the
+  // true vertical, so the upright fit leaves residuals, the full fit does not.
+  Similarity3d truth;
+  truth.scale = 1.3;
+  truth.rotation = Eigen::AngleAxisd(0.7, Eigen::Vector3d::UnitZ()).toRotationMatrix() *
+                   Eigen::AngleAxisd(0.2, Eigen::Vector3d::UnitX()).toRotationMatrix();
+  truth.translation = {1, 2, 3};
+  const Eigen::Vector3d true_up_src = truth.rotation.transpose() * Eigen::Vector3d::UnitZ();
+  const Eigen::Vector3d biased_up = Eigen::AngleAxisd(1.0 * M_PI / 180, Eigen::Vector3d::UnitY()) * true_up_src;
+  std::vector<Eigen::Vector3d> src, dst;
+  for (int i = 0; i < 10; ++i) src.push_back({4.0 * i, 0, 0});
+  for (int i = 1; i < 10; ++i) src.push_back({36, 4.0 * i, 0});
+  for (const auto& x : src) dst.push_back(truth.apply(x));
+  const SimilarityRansacOptions o{.inlier_threshold = 5.0};
+  const SimilarityEstimate upright = estimate_upright_similarity_ransac(src, dst, biased_up, o);
+  EXPECT_GT(upright.rms_residual, 0.1);
+  const SimilarityEstimate street = estimate_street_similarity_ransac(src, dst, biased_up, o);
+  EXPECT_LT(street.rms_residual, 1e-6);
+  // Collinear centres: the full fit is ill-posed, the upright one is kept.
+  src.resize(10);
+  dst.resize(10);
+  const SimilarityEstimate line = estimate_street_similarity_ransac(src, dst, true_up_src, o);
+  EXPECT_LT(line.rms_residual, 1e-6);
+  EXPECT_LT((line.transform.rotation - truth.rotation).norm(), 1e-6);
+}

@@ -1,5 +1,6 @@
 #include "visloc/geo/similarity_transform.h"
 
+#include <Eigen/Eigenvalues>
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
@@ -273,5 +274,28 @@ SimilarityEstimate estimate_upright_similarity_ransac(const std::vector<Eigen::V
   fill_residuals(src, dst, options.inlier_threshold, out);
   return out;
 }
+
+SimilarityEstimate estimate_street_similarity_ransac(const std::vector<Eigen::Vector3d>& src,
+                                                     const std::vector<Eigen::Vector3d>& dst,
+                                                     const Eigen::Vector3d& src_up,
+                                                     const SimilarityRansacOptions& options) {
+  SimilarityEstimate best = estimate_upright_similarity_ransac(src, dst, src_up, options);
+  if (src.size() < 4) return best;
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  for (const auto& p : src) mean += p;
+  mean /= static_cast<double>(src.size());
+  Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
+  for (const auto& p : src) cov += (p - mean) * (p - mean).transpose();
+  const Eigen::Vector3d ev = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(cov).eigenvalues();  // ascending
+  if (!(std::sqrt(ev[1]) >= 0.1 * std::sqrt(ev[2]))) return best;
+  try {
+    SimilarityEstimate full = estimate_similarity_ransac(src, dst, options);
+    if (full.inlier_count >= best.inlier_count && full.rms_residual < best.rms_residual) best = std::move(full);
+  } catch (const Error&) {
+    // degenerate for the full fit: keep the upright one
+  }
+  return best;
+}
+
 
 }  // namespace visloc

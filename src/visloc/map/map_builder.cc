@@ -331,7 +331,7 @@ SegmentBuildResult build_segment(const BuildContext& ctx, int id) {
     res.registration_median_m = r.empty() ? 0 : r[r.size() / 2];
     res.registration_max_m = r.empty() ? 0 : r.back();
   } else {
-    const SimilarityEstimate e = estimate_upright_similarity_ransac(src, dst, up, opt.registration);
+    const SimilarityEstimate e = estimate_street_similarity_ransac(src, dst, up, opt.registration);
     enu_from_segment = e.transform;
     res.registration_inliers = e.inlier_count;
     res.registration_rms_m = e.rms_residual;
@@ -445,7 +445,7 @@ MapBuildResult build_map(const fs::path& map_dir, const MapBuildOptions& opt,
       up += camera_up(pose);
       dst.push_back(ctx.enu[i]);
     }
-    ctx.enu_from_known = estimate_upright_similarity_ransac(src, dst, up, opt.registration).transform;
+    ctx.enu_from_known = estimate_street_similarity_ransac(src, dst, up, opt.registration).transform;
     ctx.known = &known;
   }
 
