@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <filesystem>
+#include <numeric>
 #include <random>
 
 #include "visloc/features/feature_set.h"
@@ -98,6 +99,47 @@ TEST(SiftExtractor, DownscaledKeypointsInOriginalPixels) {
       }
   }
   EXPECT_GT(found, 0.7 * fs_small.size()) << found << " of " << fs_small.size();
+}
+
+// Pixel convention: a symmetric blob centred at (cx, cy), where the centre of
+// the top-left pixel is (0.5, 0.5), yields a keypoint at (cx, cy). OpenCV's
+// SIFT reports positions 0.25 px too far right and down (its first octave is
+// upsampled with a half-pixel shift); the extractor must correct it.
+TEST(SiftExtractor, BlobCentreInColmapPixelConvention) {
+  const int w = 320, h = 240;
+  struct Blob { double x, y; };
+  std::vector<Blob> blobs;
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> frac(0, 1);
+  for (int gy = 0; gy < 4; ++gy)
+    for (int gx = 0; gx < 5; ++gx) blobs.push_back({40 + 60.0 * gx + frac(rng), 40 + 55.0 * gy + frac(rng)});
+  GrayImage img{w, h, std::vector<uint8_t>(size_t(w) * h)};
+  const double r = 3.0;
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      double v = 40;
+      for (const auto& b : blobs) {
+        const double dx = x + 0.5 - b.x, dy = y + 0.5 - b.y;
+        v += 180 * std::exp(-(dx * dx + dy * dy) / (2 * r * r));
+      }
+      img.pixels[size_t(y) * w + x] = static_cast<uint8_t>(std::clamp(std::round(v), 0.0, 255.0));
+    }
+  FeatureSet f = SiftExtractor().extract(img);
+  std::vector<double> ex, ey;
+  for (const auto& b : blobs) {
+    const Keypoint* best = nullptr;
+    for (const auto& k : f.keypoints)
+      if (std::hypot(k.x - b.x, k.y - b.y) < 2 && (!best || std::abs(k.scale - r) < std::abs(best->scale - r))) best = &k;
+    if (best) {
+      ex.push_back(best->x - b.x);
+      ey.push_back(best->y - b.y);
+    }
+  }
+  ASSERT_GE(ex.size(), 15u) << "blobs found: " << ex.size() << " of " << blobs.size();
+  const double mx = std::accumulate(ex.begin(), ex.end(), 0.0) / ex.size();
+  const double my = std::accumulate(ey.begin(), ey.end(), 0.0) / ey.size();
+  EXPECT_NEAR(mx, 0.0, 0.08);
+  EXPECT_NEAR(my, 0.0, 0.08);
 }
 
 TEST(SiftOptions, ValidateNamesField) {

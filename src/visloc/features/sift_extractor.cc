@@ -60,6 +60,14 @@ void sift_to_uint8(const float* in, bool root_sift, uint8_t* out) {
     out[i] = static_cast<uint8_t>(std::min(255.0f, std::round(512.0f * v[i])));
 }
 
+namespace {
+// Position bias of OpenCV's SIFT keypoints, in pixels of the image given to
+// it (see extract()). It comes from the default, imprecise upscaling of the
+// first octave; OpenCV >= 4.8 can avoid it (enable_precise_upscale), which we
+// do not request, so the bias holds for every OpenCV version we build with.
+constexpr double kOpenCvSiftUpsampleShift = 0.25;
+}  // namespace
+
 struct SiftExtractor::Impl {
   cv::Ptr<cv::SIFT> sift;
 };
@@ -110,11 +118,19 @@ FeatureSet SiftExtractor::extract(const GrayImage& image) const {
   f.extractor = options_.to_json();
   f.keypoints.resize(order.size());
   f.descriptors.resize(order.size());
+  // OpenCV puts the centre of the top-left pixel at (0, 0); ours is (0.5, 0.5).
+  // OpenCV's SIFT also starts from an image doubled with
+  // resize(INTER_LINEAR), whose pixel j samples the input at j/2 - 0.25, but
+  // it reports a keypoint found at j as j/2: every keypoint lies 0.25 input
+  // pixels right of and below its true position, whatever its octave (the
+  // octaves below are exact 2× decimations). Measured against COLMAP's SIFT
+  // on the Strecha photos: +0.25 px in x and y before this correction.
+  constexpr double kOpenCvToOurs = 0.5 - kOpenCvSiftUpsampleShift;
   for (size_t i = 0; i < order.size(); ++i) {
     const cv::KeyPoint& k = kps[order[i]];
     Keypoint& out = f.keypoints[i];
-    out.x = static_cast<float>((k.pt.x + 0.5) * sx);
-    out.y = static_cast<float>((k.pt.y + 0.5) * sy);
+    out.x = static_cast<float>((k.pt.x + kOpenCvToOurs) * sx);
+    out.y = static_cast<float>((k.pt.y + kOpenCvToOurs) * sy);
     out.scale = static_cast<float>(0.5 * k.size * std::sqrt(sx * sy));
     out.orientation = static_cast<float>(k.angle * std::numbers::pi / 180.0);
     sift_to_uint8(desc.ptr<float>(order[i]), options_.root_sift, f.descriptors.row(i));
