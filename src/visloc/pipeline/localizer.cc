@@ -236,7 +236,10 @@ LocalizationResult Localizer::localize_features(const FeatureSet& f, const Pinho
       res.times.matching += t.elapsed_ms();
       t.reset();
       PoseEstimate pose;
-      if (set.num_hypothesis_features() >= 6 || (camera.has_focal && set.num_hypothesis_features() >= 3))
+      // Inliers are counted per query feature, so a segment with no more
+      // matched features than the best pose's inliers cannot win: skip it.
+      const bool can_win = set.points2d.size() > best_inliers;
+      if (can_win && (set.num_hypothesis_features() >= 6 || (camera.has_focal && set.num_hypothesis_features() >= 3)))
         pose = estimate_pose(set, camera, impl_->ransac);
       res.times.ransac += t.elapsed_ms();
       if (pose.has_pose && pose.num_inliers > best_inliers) {
