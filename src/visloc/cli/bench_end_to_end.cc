@@ -23,15 +23,6 @@
 namespace visloc::cli {
 namespace fs = std::filesystem;
 
-namespace {
-double median(std::vector<double> v) {
-  if (v.empty()) return NAN;
-  std::sort(v.begin(), v.end());
-  const size_t n = v.size();
-  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
-}
-}  // namespace
-
 void add_bench_end_to_end(CLI::App& bench) {
   struct Args {
     std::string map, queries, images, truth, intrinsics, query_features = "images", json, setting = "3+";
@@ -40,9 +31,9 @@ void add_bench_end_to_end(CLI::App& bench) {
     LocalizerOptions options;
   };
   auto args = std::make_shared<Args>();
-  CLI::App* cmd = bench.add_subcommand(
-      "end-to-end",
-      "Whole localizer on a query set, once per paper setting on the same features (setting 1 is the baseline)");
+  CLI::App* cmd = bench.add_subcommand("end-to-end",
+                                       "Whole localizer on a query set, once per paper setting on "
+                                       "the same features (setting 1 is the baseline)");
   cmd->add_option("--map", args->map, "Map directory")->required();
   cmd->add_option("--queries", args->queries, "Query image names, one per line")->required();
   cmd->add_option("--images", args->images, "Directory of the query images (with --query-features images)");
@@ -77,8 +68,8 @@ void add_bench_end_to_end(CLI::App& bench) {
       if (!truth.count(n)) throw_error(ErrorCode::kNotFound, args->truth, ": no reference for '", n, "'");
       std::optional<PinholeCamera> cam;
       if (auto it = cameras.find(n); it != cameras.end()) cam = it->second;
-      queries.push_back(prepare_query(n, source, args->images, args->options.sift, store.get(), cam,
-                                      args->options.use_exif_focal));
+      queries.push_back(
+          prepare_query(n, source, args->images, args->options.sift, store.get(), cam, args->options.use_exif_focal));
       feature_ms.push_back(queries.back().features_ms);
       if (tty) std::cerr << "\rbench end-to-end: features " << queries.size() << "/" << names.size() << std::flush;
     }
@@ -87,7 +78,8 @@ void add_bench_end_to_end(CLI::App& bench) {
     nlohmann::json rows = nlohmann::json::array();
     double baseline_ms = NAN;
     std::ostringstream table;
-    table << "| setting | registered | median pos. error (m) | median rot. error (°) | ms/query (median, excl. "
+    table << "| setting | registered | median pos. error (m) | median rot. "
+             "error (°) | ms/query (median, excl. "
              "features) | matching ms | RANSAC ms | speed-up vs setting "
           << args->settings.front() << " |\n|---|---|---|---|---|---|---|---|\n";
     for (const std::string& setting : args->settings) {
@@ -112,9 +104,7 @@ void add_bench_end_to_end(CLI::App& bench) {
       const nlohmann::json j = rep.to_json(results, {});
       const double m = median(ms);
       if (std::isnan(baseline_ms)) baseline_ms = m;
-      auto med = [&](const char* key) {
-        return j[key].is_null() ? NAN : j[key]["median"].get<double>();
-      };
+      auto med = [&](const char* key) { return j[key].is_null() ? NAN : j[key]["median"].get<double>(); };
       rows.push_back({{"setting", setting},
                       {"queries", rep.queries},
                       {"registered", rep.registered},
@@ -125,9 +115,8 @@ void add_bench_end_to_end(CLI::App& bench) {
                       {"median_ms_ransac", median(ransac)},
                       {"speedup_vs_first", baseline_ms / m}});
       table << std::setprecision(4) << "| " << setting << " | " << rep.registered << "/" << rep.queries << " | "
-            << med("position_error_m") << " | " << med("rotation_error_deg") << " | " << m << " | "
-            << median(matching) << " | " << median(ransac) << " | " << std::setprecision(3) << baseline_ms / m
-            << "× |\n";
+            << med("position_error_m") << " | " << med("rotation_error_deg") << " | " << m << " | " << median(matching)
+            << " | " << median(ransac) << " | " << std::setprecision(3) << baseline_ms / m << "× |\n";
     }
     table << "\nFeatures (once per query, not in ms/query): median " << std::setprecision(4) << median(feature_ms)
           << " ms (" << args->query_features << "); peak memory " << peak_memory_bytes() / (1 << 20) << " MiB.\n";

@@ -42,18 +42,11 @@ std::string comparison_row(const std::string& method, const nlohmann::json& j, d
     return s.str();
   };
   std::ostringstream s;
-  s << "| " << method << " | " << j["queries"] << " | " << j["registered"] << " | "
-    << num(j["registration_rate"], 3) << " | " << num(j["position_error_m"].is_null() ? nlohmann::json() : j["position_error_m"]["median"], 3)
-    << " | " << num(j["rotation_error_deg"].is_null() ? nlohmann::json() : j["rotation_error_deg"]["median"], 3)
-    << " | " << std::fixed << std::setprecision(1) << ms_per_query << " |\n";
+  s << "| " << method << " | " << j["queries"] << " | " << j["registered"] << " | " << num(j["registration_rate"], 3)
+    << " | " << num(j["position_error_m"].is_null() ? nlohmann::json() : j["position_error_m"]["median"], 3) << " | "
+    << num(j["rotation_error_deg"].is_null() ? nlohmann::json() : j["rotation_error_deg"]["median"], 3) << " | "
+    << std::fixed << std::setprecision(1) << ms_per_query << " |\n";
   return s.str();
-}
-
-double median_of(std::vector<double> v) {
-  if (v.empty()) return NAN;
-  std::sort(v.begin(), v.end());
-  const size_t n = v.size();
-  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
 }
 
 }  // namespace
@@ -66,29 +59,36 @@ void add_eval_command(CLI::App& app) {
     ColmapRunnerOptions colmap;
   };
   auto args = std::make_shared<Args>();
-  CLI::App* cmd = app.add_subcommand(
-      "eval",
-      "Localize a query list against a map and write report.json, report.md and plots.\n"
-      "With --leave-one-out (a map imported from a COLMAP model): every image of the model in turn is removed,\n"
-      "the map rebuilt without it, and the image localized (truth: its pose in the model).\n"
-      "With --compare colmap: COLMAP's image_registrator registers the same queries into the same model\n"
-      "(report in OUT/colmap/, side by side in OUT/comparison.md).");
+  CLI::App* cmd = app.add_subcommand("eval",
+                                     "Localize a query list against a map and write report.json, "
+                                     "report.md and plots.\n"
+                                     "With --leave-one-out (a map imported from a COLMAP model): "
+                                     "every image of the model in turn is removed,\n"
+                                     "the map rebuilt without it, and the image localized (truth: its "
+                                     "pose in the model).\n"
+                                     "With --compare colmap: COLMAP's image_registrator registers the "
+                                     "same queries into the same model\n"
+                                     "(report in OUT/colmap/, side by side in OUT/comparison.md).");
   cmd->add_option("--map", args->map, "Map directory")->required();
   cmd->add_option("--queries", args->queries,
-                  "Query image names, one per line (required unless --leave-one-out; with it: the images to leave out)");
+                  "Query image names, one per line (required unless "
+                  "--leave-one-out; with it: the images to leave out)");
   cmd->add_option("--images", args->images, "Directory of the query images (needed with --query-features images)");
   cmd->add_option("--truth", args->truth,
-                  "Reference: poses 'name qw qx qy qz tx ty tz' (the map's frame) or a GPS CSV (.csv: positions); "
+                  "Reference: poses 'name qw qx qy qz tx ty tz' (the map's frame) or a GPS "
+                  "CSV (.csv: positions); "
                   "not used with --leave-one-out (the model's poses are the truth)");
   cmd->add_option("--out", args->out, "Report directory")->required();
   cmd->add_option("--intrinsics", args->intrinsics, "Per-image intrinsics 'name MODEL w h params...'");
   cmd->add_option("--query-features", args->query_features,
-                  "Query features: 'images' (our SIFT on the photos) or 'database' (the imported model's own "
+                  "Query features: 'images' (our SIFT on the photos) or "
+                  "'database' (the imported model's own "
                   "features and intrinsics)")
       ->check(CLI::IsMember({"images", "database"}))
       ->capture_default_str();
   cmd->add_flag("--leave-one-out", args->leave_one_out,
-                "Localize every image of the imported COLMAP model against the model without it");
+                "Localize every image of the imported COLMAP model against the "
+                "model without it");
   cmd->add_option("--compare", args->compare, "Also run a peer on the same queries: 'colmap' (image_registrator)")
       ->check(CLI::IsMember({"colmap"}));
   cmd->add_option("--colmap", args->colmap.binary, "COLMAP executable (with --compare colmap)")->capture_default_str();
@@ -105,8 +105,10 @@ void add_eval_command(CLI::App& app) {
       for (auto& c : read_intrinsics_list(args->intrinsics)) cameras[c.name] = c.camera;
     const bool tty = ::isatty(STDERR_FILENO);
     auto progress = [tty](size_t done, size_t total) {
-      if (tty) std::cerr << "\reval: " << done << "/" << total << std::flush;
-      else if (done == total || done % 10 == 0) std::cerr << "eval: " << done << "/" << total << "\n";
+      if (tty)
+        std::cerr << "\reval: " << done << "/" << total << std::flush;
+      else if (done == total || done % 10 == 0)
+        std::cerr << "eval: " << done << "/" << total << "\n";
     };
 
     std::vector<LocalizationResult> results;
@@ -155,7 +157,8 @@ void add_eval_command(CLI::App& app) {
       for (const auto& n : names)
         if (!truth.count(n)) throw_error(ErrorCode::kNotFound, args->truth, ": no reference for '", n, "'");
       std::unique_ptr<SourceFeatureStore> store;
-      if (source == QueryFeatureSource::kDatabase || compare) store = std::make_unique<SourceFeatureStore>(args->map, args->images);
+      if (source == QueryFeatureSource::kDatabase || compare)
+        store = std::make_unique<SourceFeatureStore>(args->map, args->images);
       if (compare && !store->is_colmap())
         throw_error(ErrorCode::kInvalidArgument, args->map, ": --compare colmap needs a map imported from COLMAP");
       Localizer localizer(args->map, args->options);
@@ -180,7 +183,8 @@ void add_eval_command(CLI::App& app) {
         for (const auto& n : in_model)
           if (std::find(man.holdout_images.begin(), man.holdout_images.end(), n) == man.holdout_images.end())
             throw_error(ErrorCode::kInvalidArgument, "eval --compare colmap: query '", n,
-                        "' is part of the map (import the map with --holdout, or use --leave-one-out)");
+                        "' is part of the map (import the map with --holdout, "
+                        "or use --leave-one-out)");
         remove_images(model, man.holdout_images);
         peer = register_with_colmap(model, store->database(), prepared, args->colmap, out / "work" / "colmap");
         fs::remove_all(out / "work");
@@ -194,25 +198,28 @@ void add_eval_command(CLI::App& app) {
     if (peer) {
       EvaluationReport peer_rep = evaluate(peer->results, truth);
       nlohmann::json peer_context = context;
-      peer_context["method"] = "COLMAP 3.8 image_registrator (matches_importer against every model image)";
+      peer_context["method"] =
+          "COLMAP 3.8 image_registrator (matches_importer "
+          "against every model image)";
       peer_context["seconds_matching"] = peer->seconds_matching;
       peer_context["seconds_registration"] = peer->seconds_registration;
       write_results(out / "colmap", peer->results, peer_rep, peer_context);
       std::vector<double> ours_ms, peer_ms;
       for (const auto& r : results) ours_ms.push_back(r.times.total - r.times.features);
       for (const auto& r : peer->results) peer_ms.push_back(r.times.total - r.times.features);
-      const double ours = median_of(ours_ms), theirs = median_of(peer_ms);
+      const double ours = median(ours_ms), theirs = median(peer_ms);
       std::ostringstream md;
       md << "# visloc against COLMAP on the same queries\n\n"
          << "Query features: " << args->query_features << "; setting " << args->setting
          << (args->leave_one_out ? "; leave-one-out" : "") << ".\n\n"
-         << "| method | queries | registered | rate | median pos. error (m) | median rot. error (°) | "
+         << "| method | queries | registered | rate | median pos. error (m) | "
+            "median rot. error (°) | "
             "median ms/query excl. features |\n|---|---|---|---|---|---|---|\n"
          << comparison_row("visloc", rep.to_json(results, context), ours)
          << comparison_row("COLMAP image_registrator", peer_rep.to_json(peer->results, peer_context), theirs)
          << "\nCOLMAP wall time: matching " << peer->seconds_matching << " s, registration "
-         << peer->seconds_registration << " s; speed-up of visloc (medians): " << std::setprecision(3)
-         << theirs / ours << "×.\n";
+         << peer->seconds_registration << " s; speed-up of visloc (medians): " << std::setprecision(3) << theirs / ours
+         << "×.\n";
       write_file_atomic(out / "comparison.md", md.str());
       std::cout << "\n" << md.str();
     }

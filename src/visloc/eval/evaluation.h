@@ -47,6 +47,9 @@ EvaluationReport evaluate(const std::vector<LocalizationResult>& results,
 void write_report(const std::filesystem::path& dir, const EvaluationReport& report,
                   const std::vector<LocalizationResult>& results, const nlohmann::json& context);
 
+// Median of a sample (NaN when empty); even sizes average the middle two.
+double median(std::vector<double> values);
+
 // Peak resident memory of this process (bytes), from getrusage.
 uint64_t peak_memory_bytes();
 
