@@ -25,9 +25,28 @@ namespace fs = std::filesystem;
 
 namespace {
 
+// Reference poses: a COLMAP model directory, a COLMAP images.txt, or a pose
+// list 'name qw qx qy qz tx ty tz'.
+std::vector<NamedPose> read_reference_poses(const fs::path& path) {
+  if (fs::is_directory(path)) {
+    std::vector<NamedPose> out;
+    for (const auto& im : read_colmap_model(path).images)
+      out.push_back({im.name, CameraPose::from_wxyz(im.cam_from_world_q_wxyz,
+                                                    Eigen::Vector3d(im.cam_from_world_t[0], im.cam_from_world_t[1],
+                                                                    im.cam_from_world_t[2]))});
+    return out;
+  }
+  if (path.filename() == "images.txt") return read_colmap_images_txt_poses(path);
+  return read_pose_list(path);
+}
+
 void write_results(const fs::path& dir, const std::vector<LocalizationResult>& results, const EvaluationReport& rep,
                    const nlohmann::json& context) {
   write_report(dir, rep, results, context);
+  std::vector<NamedPose> poses;  // registered queries, visuallocalization.net format
+  for (const auto& r : results)
+    if (r.registered) poses.push_back({r.image, r.cam_from_segment});
+  write_pose_list(dir / "poses.txt", poses);
   std::ostringstream lines;
   for (const auto& r : results) lines << to_json(r).dump() << '\n';
   write_file_atomic(dir / "results.jsonl", lines.str());
@@ -75,8 +94,8 @@ void add_eval_command(CLI::App& app) {
                   "--leave-one-out; with it: the images to leave out)");
   cmd->add_option("--images", args->images, "Directory of the query images (needed with --query-features images)");
   cmd->add_option("--truth", args->truth,
-                  "Reference: poses 'name qw qx qy qz tx ty tz' (the map's frame) or a GPS "
-                  "CSV (.csv: positions); "
+                  "Reference: poses 'name qw qx qy qz tx ty tz' (the map's frame), a COLMAP images.txt or "
+                  "model directory, or a GPS CSV (.csv: positions); "
                   "not used with --leave-one-out (the model's poses are the truth)");
   cmd->add_option("--out", args->out, "Report directory")->required();
   cmd->add_option("--intrinsics", args->intrinsics, "Per-image intrinsics 'name MODEL w h params...'");
@@ -152,7 +171,7 @@ void add_eval_command(CLI::App& app) {
         EnuFrame frame({o[0], o[1], o[2]});
         for (const auto& r : read_gps_csv(args->truth)) truth[r.image].center = frame.to_enu(r.position);
       } else {
-        for (const auto& p : read_pose_list(args->truth)) truth[p.name].cam_from_world = p.cam_from_world;
+        for (const auto& p : read_reference_poses(args->truth)) truth[p.name].cam_from_world = p.cam_from_world;
       }
       for (const auto& n : names)
         if (!truth.count(n)) throw_error(ErrorCode::kNotFound, args->truth, ": no reference for '", n, "'");

@@ -17,7 +17,7 @@ namespace visloc::cli {
 
 void add_localize_command(CLI::App& app) {
   struct Args {
-    std::string map, out, setting = "3+", intrinsics;
+    std::string map, out, setting = "3+", intrinsics, poses;
     std::vector<std::string> images;
     double focal = 0;
     double cache_mib = 512;
@@ -28,6 +28,9 @@ void add_localize_command(CLI::App& app) {
   cmd->add_option("--map", args->map, "Map directory")->required();
   cmd->add_option("images", args->images, "Query images")->required();
   cmd->add_option("--out", args->out, "Write the JSON lines to this file (default: standard output)");
+  cmd->add_option("--poses", args->poses,
+                  "Also write the registered images' poses as 'name qw qx qy qz tx ty tz' (world-to-camera in the "
+                  "segment's frame; the visuallocalization.net format)");
   cmd->add_option("--focal", args->focal, "Focal length in pixels for every image (default: EXIF, else estimated)");
   cmd->add_option("--intrinsics", args->intrinsics,
                   "Per-image intrinsics: 'name MODEL width height params...' (SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL)")
@@ -44,6 +47,7 @@ void add_localize_command(CLI::App& app) {
     std::ostringstream lines;
     const bool tty = ::isatty(STDERR_FILENO);
     size_t registered = 0, failed = 0;
+    std::vector<NamedPose> poses;
     for (size_t i = 0; i < args->images.size(); ++i) {
       std::optional<PinholeCamera> intrinsics;
       if (!cameras.empty()) {
@@ -57,6 +61,7 @@ void add_localize_command(CLI::App& app) {
       }
       LocalizationResult r = localizer.localize_file(args->images[i], intrinsics);
       registered += r.registered;
+      if (r.registered) poses.push_back({r.image, r.cam_from_segment});
       failed += !r.error.empty();
       const std::string line = to_json(r).dump();
       if (args->out.empty()) std::cout << line << std::endl;
@@ -66,6 +71,7 @@ void add_localize_command(CLI::App& app) {
                   << (i + 1 == args->images.size() ? "\n" : "") << std::flush;
     }
     if (!args->out.empty()) write_file_atomic(args->out, lines.str());
+    if (!args->poses.empty()) write_pose_list(args->poses, poses);
     if (failed == args->images.size())
       throw_error(ErrorCode::kIo, "no image could be read (see the error fields)");
   });

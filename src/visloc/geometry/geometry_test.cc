@@ -120,6 +120,29 @@ TEST(PoseList, RoundTripAndErrors) {
   EXPECT_EQ(read_name_list(p), (std::vector<std::string>{"0001.jpg", "0003.jpg"}));
 }
 
+TEST(PoseList, ReadsColmapImagesTxt) {
+  namespace fs = std::filesystem;
+  fs::path p = fs::temp_directory_path() / "visloc_geometry_test_images.txt";
+  // Second image has no 2D points: its POINTS2D line is empty.
+  write_file_atomic(p,
+                    "# Image list with two lines of data per image:\n"
+                    "1 0.5 0.5 -0.5 0.5 1 2 3 1 a.jpg\n"
+                    "10.5 20.5 -1 30 40 7\n"
+                    "2 1 0 0 0 0 0 0 1 b.jpg\n"
+                    "\n"
+                    "3 1 0 0 0 4 5 6 1 c.jpg\n"
+                    "1 1 -1\n");
+  const auto poses = read_colmap_images_txt_poses(p);
+  ASSERT_EQ(poses.size(), 3u);
+  EXPECT_EQ(poses[0].name, "a.jpg");
+  EXPECT_EQ(poses[2].name, "c.jpg");
+  EXPECT_NEAR(poses[2].cam_from_world.translation.z(), 6.0, 1e-12);
+  EXPECT_NEAR(rotation_error_deg(poses[0].cam_from_world, CameraPose::from_wxyz({0.5, 0.5, -0.5, 0.5}, {1, 2, 3})), 0,
+              1e-6);
+  write_file_atomic(p, "1 1 0 0 0 0 0 0 a.jpg\n\n");
+  EXPECT_THROW(read_colmap_images_txt_poses(p), Error);
+}
+
 TEST(PoseList, ReadsStrechaTruth) {
   namespace fs = std::filesystem;
   fs::path scene = fs::path(VISLOC_SHARED_DATA_DIR) / "strecha" / "fountain-P11";

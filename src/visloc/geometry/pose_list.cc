@@ -40,6 +40,39 @@ std::vector<NamedPose> read_pose_list(const std::filesystem::path& path) {
   return out;
 }
 
+std::vector<NamedPose> read_colmap_images_txt_poses(const std::filesystem::path& path) {
+  std::istringstream in(read_file(path));
+  std::vector<NamedPose> out;
+  std::string line;
+  int line_no = 0;
+  bool expect_pose = true;
+  while (std::getline(in, line)) {
+    ++line_no;
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    if (!line.empty() && line[0] == '#') continue;
+    if (!expect_pose) {  // the POINTS2D line (may be empty)
+      expect_pose = true;
+      continue;
+    }
+    if (line.find_first_not_of(" \t") == std::string::npos) continue;
+    std::istringstream s(line);
+    long long id = 0, camera_id = 0;
+    std::array<double, 4> q;
+    Eigen::Vector3d t;
+    NamedPose p;
+    if (!(s >> id >> q[0] >> q[1] >> q[2] >> q[3] >> t.x() >> t.y() >> t.z() >> camera_id >> p.name))
+      throw_error(ErrorCode::kFormat, path.string(), ":", line_no,
+                  ": expected 'IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME' (COLMAP images.txt)");
+    const double norm = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+    if (!(std::abs(norm - 1.0) < 1e-3))
+      throw_error(ErrorCode::kFormat, path.string(), ":", line_no, ": quaternion norm is ", norm, ", not 1");
+    p.cam_from_world = CameraPose::from_wxyz(q, t);
+    out.push_back(std::move(p));
+    expect_pose = false;
+  }
+  return out;
+}
+
 void write_pose_list(const std::filesystem::path& path, const std::vector<NamedPose>& poses) {
   std::ostringstream s;
   s << std::setprecision(12);

@@ -18,6 +18,10 @@ struct NamedPose {
 };
 
 std::vector<NamedPose> read_pose_list(const std::filesystem::path& path);
+// Poses from a COLMAP text model's images.txt (pairs of lines: 'IMAGE_ID QW
+// QX QY QZ TX TY TZ CAMERA_ID NAME', then the 2D points, possibly empty).
+std::vector<NamedPose> read_colmap_images_txt_poses(const std::filesystem::path& path);
+
 void write_pose_list(const std::filesystem::path& path, const std::vector<NamedPose>& poses);
 
 // Per-image intrinsics in hloc's query-list format, one image per line:
