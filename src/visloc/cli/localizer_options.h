@@ -16,6 +16,9 @@ inline void add_localizer_options(CLI::App* cmd, LocalizerOptions& o, std::strin
       ->capture_default_str();
   cmd->add_option("--top-images", o.top_images, "Retrieval: images N_t")->capture_default_str();
   cmd->add_option("--max-segments", o.max_segments, "Candidate segments searched")->capture_default_str();
+  cmd->add_option("--accept-inliers", o.accept_inliers,
+                  "Stop searching further candidate segments once a pose has this many inliers (0: search all)")
+      ->capture_default_str();
   cmd->add_option("--early-stop", o.search.early_stop,
                   "Settings 3, 3+: the prioritized search stops at this many 1-1 matches (N_early)")
       ->capture_default_str();

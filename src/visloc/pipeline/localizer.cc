@@ -37,6 +37,8 @@ void LocalizerOptions::validate() const {
   ransac.validate();
   if (top_images < 1) throw_error(ErrorCode::kInvalidArgument, "top_images must be >= 1, got ", top_images);
   if (max_segments < 1) throw_error(ErrorCode::kInvalidArgument, "max_segments must be >= 1, got ", max_segments);
+  if (accept_inliers < 0)
+    throw_error(ErrorCode::kInvalidArgument, "accept_inliers must be >= 0, got ", accept_inliers);
   if (cache_bytes < (1u << 20)) throw_error(ErrorCode::kInvalidArgument, "cache_bytes must be at least 1 MiB");
 }
 
@@ -219,6 +221,9 @@ LocalizationResult Localizer::localize_features(const FeatureSet& f, const Pinho
   // One pass over the candidates with the given search; the best pose wins.
   auto search_candidates = [&](const CascadeSearchOptions& search) {
     for (size_t index : candidates) {
+      // Candidates come best-voted first; a pose this well supported ends
+      // the search (RANSAC on a wrong segment runs to its iteration cap).
+      if (options_.accept_inliers > 0 && best_inliers >= static_cast<size_t>(options_.accept_inliers)) break;
       std::shared_ptr<const Segment> seg = impl_->cache->get(index);
       res.candidates.push_back(static_cast<int>(seg->id()));
       t.reset();
