@@ -15,11 +15,6 @@ inline constexpr int kExitUsage = 2;       // bad command line (CLI11)
 inline constexpr int kExitNotImplemented = 3;
 inline constexpr int kExitInternal = 4;
 
-// A subcommand that exists in the contract but is not built yet: it accepts
-// any arguments and fails with a message naming the issue that builds it.
-CLI::App* add_not_implemented(CLI::App& parent, const std::string& name, const std::string& description,
-                              const std::string& issue);
-
 void add_features_command(CLI::App& app);
 void add_map_command(CLI::App& app);
 void add_map_build_commands(CLI::App& map);  // map build, map update

@@ -3,21 +3,6 @@
 #include "visloc/cli/commands.h"
 #include "visloc/util/error.h"
 
-namespace visloc::cli {
-
-CLI::App* add_not_implemented(CLI::App& parent, const std::string& name, const std::string& description,
-                              const std::string& issue) {
-  CLI::App* cmd = parent.add_subcommand(name, description + " [not implemented yet: " + issue + "]");
-  cmd->allow_extras();
-  cmd->callback([cmd, issue] {
-    throw_error(ErrorCode::kNotImplemented, "'", cmd->get_parent()->get_name(), " ", cmd->get_name(),
-                "' is not implemented yet (", issue, ")");
-  });
-  return cmd;
-}
-
-}  // namespace visloc::cli
-
 int main(int argc, char** argv) {
   using namespace visloc;
   CLI::App app{
