@@ -49,6 +49,7 @@ void add_bench_end_to_end(CLI::App& bench) {
   add_localizer_options(cmd, args->options, args->setting);
   cmd->callback([args] {
     if (args->repeat < 1) throw_error(ErrorCode::kInvalidArgument, "--repeat must be >= 1");
+    if (args->settings.empty()) throw_error(ErrorCode::kInvalidArgument, "--settings lists no setting");
     const QueryFeatureSource source = parse_query_feature_source(args->query_features);
     if (source == QueryFeatureSource::kImages && args->images.empty())
       throw_error(ErrorCode::kInvalidArgument, "bench end-to-end: --images is needed with --query-features images");

@@ -144,9 +144,12 @@ void add_eval_command(CLI::App& app) {
       o.localizer = args->options;
       o.features = source;
       o.images_dir = args->images;
-      if (!args->queries.empty()) o.images = read_name_list(args->queries);
+      if (!args->queries.empty()) {
+        o.images = read_name_list(args->queries);
+        if (o.images.empty()) throw_error(ErrorCode::kInvalidArgument, args->queries, ": no query names");
+      }
       o.intrinsics = cameras;
-      o.work_dir = out / "work";
+      o.work_dir = out / ".visloc-eval-scratch";
       o.compare_colmap = compare;
       o.colmap = args->colmap;
       o.progress = progress;
@@ -205,8 +208,8 @@ void add_eval_command(CLI::App& app) {
                         "' is part of the map (import the map with --holdout, "
                         "or use --leave-one-out)");
         remove_images(model, man.holdout_images);
-        peer = register_with_colmap(model, store->database(), prepared, args->colmap, out / "work" / "colmap");
-        fs::remove_all(out / "work");
+        peer = register_with_colmap(model, store->database(), prepared, args->colmap, out / ".visloc-eval-scratch" / "colmap");
+        fs::remove_all(out / ".visloc-eval-scratch");
       }
       context["truth"] = fs::absolute(args->truth).string();
     }

@@ -1,5 +1,6 @@
 #include "visloc/eval/protocols.h"
 
+#include <algorithm>
 #include <fstream>
 
 #include "visloc/colmap/bundler.h"
@@ -114,11 +115,14 @@ PreparedQuery prepare_query(const std::string& name, QueryFeatureSource source, 
       q.features = SiftExtractor(sift).extract_file(image_dir / name, &meta);
       if (intrinsics) {
         q.camera = *intrinsics;
-        if (q.camera.width == 0) {  // only the focal was given
+        if (q.camera.width == 0 && q.camera.height == 0) {  // only the focal was given
           q.camera.width = meta.width;
           q.camera.height = meta.height;
           q.camera.cx = meta.width / 2.0;
           q.camera.cy = meta.height / 2.0;
+        } else if (q.camera.width != meta.width || q.camera.height != meta.height) {
+          throw_error(ErrorCode::kInvalidArgument, (image_dir / name).string(), ": intrinsics are for a ",
+                      q.camera.width, "x", q.camera.height, " image but the image is ", meta.width, "x", meta.height);
         }
       } else {
         std::optional<double> focal;
@@ -167,8 +171,20 @@ ColmapRegistrationResult register_with_colmap(const ColmapModel& model, const fs
   fs::create_directories(work_dir);
   const fs::path db_path = work_dir / "database.db";
   fs::copy_file(database, db_path, fs::copy_options::overwrite_existing);
+  // image_registrator tries every database image the model lacks: keep only
+  // the model's images and the queries, so its time is the queries' alone.
+  std::vector<std::string> others;
+  {
+    const ColmapDatabase copy(db_path);
+    for (const auto& im : copy.images()) {
+      const bool is_query = std::any_of(queries.begin(), queries.end(),
+                                        [&](const PreparedQuery& q) { return q.name == im.name; });
+      if (!is_query && model.image_index_by_name(im.name) < 0) others.push_back(im.name);
+    }
+  }
   {
     ColmapDatabaseWriter w(db_path, ColmapDatabaseWriter::Mode::kAppend);
+    for (const auto& name : others) w.remove_image(name);
     for (const PreparedQuery* q : usable) {
       w.remove_image(q->name);  // the source database may hold the query with its own features
       const int64_t cam = w.add_camera(q->camera, 1.2 * std::max(q->camera.width, q->camera.height));
@@ -202,8 +218,9 @@ ColmapRegistrationResult register_with_colmap(const ColmapModel& model, const fs
     r.error = q.error;
     r.features = q.features.size();
     r.times.features = q.features_ms;
-    r.times.matching = 1000 * out.seconds_matching / n;
-    r.times.ransac = 1000 * out.seconds_registration / n;
+    const bool usable_query = q.error.empty() && q.features.size() > 0;
+    r.times.matching = usable_query ? 1000 * out.seconds_matching / n : 0;
+    r.times.ransac = usable_query ? 1000 * out.seconds_registration / n : 0;
     r.times.total = r.times.features + r.times.matching + r.times.ransac;
     const int64_t k = q.error.empty() ? registered.image_index_by_name(q.name) : -1;
     if (k >= 0) {
@@ -214,7 +231,9 @@ ColmapRegistrationResult register_with_colmap(const ColmapModel& model, const fs
           im.cam_from_world_q_wxyz,
           Eigen::Vector3d(im.cam_from_world_t[0], im.cam_from_world_t[1], im.cam_from_world_t[2]));
       for (int64_t id : im.point3d_ids) r.inliers += id != kColmapInvalidPoint3DId;
-      r.focal_px = q.camera.focal;
+      const int64_t c = registered.camera_index(im.camera_id);
+      if (c >= 0 && !registered.cameras[static_cast<size_t>(c)].params.empty())
+        r.focal_px = registered.cameras[static_cast<size_t>(c)].params[0];  // COLMAP's (refined) focal
     }
     out.results.push_back(std::move(r));
   }
@@ -261,8 +280,13 @@ LeaveOneOutResult run_leave_one_out(const fs::path& model_dir, const fs::path& d
     if (auto it = options.intrinsics.find(name); it != options.intrinsics.end()) intrinsics = it->second;
     else {
       const ColmapCamera& c = model.cameras[static_cast<size_t>(model.camera_index(im.camera_id))];
-      intrinsics = PinholeCamera::from_colmap(colmap_camera_model_name(c.model_id), static_cast<int>(c.width),
-                                              static_cast<int>(c.height), c.params);
+      try {
+        intrinsics = PinholeCamera::from_colmap(colmap_camera_model_name(c.model_id), static_cast<int>(c.width),
+                                                static_cast<int>(c.height), c.params);
+      } catch (const Error& e) {
+        throw_error(ErrorCode::kInvalidArgument, model_dir.string(), ": camera ", c.camera_id, " of image '", name,
+                    "': ", e.what(), " (pass --intrinsics)");
+      }
     }
     PreparedQuery q;
     if (options.features == QueryFeatureSource::kDatabase) {

@@ -290,7 +290,9 @@ SimilarityEstimate estimate_street_similarity_ransac(const std::vector<Eigen::Ve
   if (!(std::sqrt(ev[1]) >= 0.1 * std::sqrt(ev[2]))) return best;
   try {
     SimilarityEstimate full = estimate_similarity_ransac(src, dst, options);
-    if (full.inlier_count >= best.inlier_count && full.rms_residual < best.rms_residual) best = std::move(full);
+    // The upright model is nested in the full one, so the full fit always
+    // has the lower RMS: require a clear gain, not a fit to GPS noise.
+    if (full.inlier_count >= best.inlier_count && full.rms_residual < 0.8 * best.rms_residual) best = std::move(full);
   } catch (const Error&) {
     // degenerate for the full fit: keep the upright one
   }

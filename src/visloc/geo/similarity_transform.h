@@ -63,7 +63,8 @@ SimilarityEstimate estimate_similarity_ransac(const std::vector<Eigen::Vector3d>
 // For camera centres along streets: the upright fit, and — when the centres
 // spread in two directions (a turn, a square: second principal extent ≥ 10 %
 // of the first) — also the full 7-DoF fit, kept if it has at least as many
-// inliers and a lower RMS. The cameras' mean up axis is only as vertical as
+// inliers and an RMS below 0.8× the upright one's (the upright model is
+// nested in it, so a lower RMS alone would always pick it). The cameras' mean up axis is only as vertical as
 // the capture (a car pitching on a slope tilted KITTI's by 0.5°: 0.8 m over
 // 90 m), and a reference frame may not be upright at all (Strecha's).
 SimilarityEstimate estimate_street_similarity_ransac(const std::vector<Eigen::Vector3d>& src,

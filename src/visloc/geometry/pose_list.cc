@@ -50,7 +50,14 @@ std::vector<NamedPose> read_colmap_images_txt_poses(const std::filesystem::path&
     ++line_no;
     if (!line.empty() && line.back() == '\r') line.pop_back();
     if (!line.empty() && line[0] == '#') continue;
-    if (!expect_pose) {  // the POINTS2D line (may be empty)
+    if (!expect_pose) {  // the POINTS2D line (may be empty): triples X Y POINT3D_ID
+      std::istringstream s(line);
+      std::vector<std::string> tokens;
+      for (std::string tok; s >> tok;) tokens.push_back(tok);
+      if (tokens.size() % 3 != 0)
+        throw_error(ErrorCode::kFormat, path.string(), ":", line_no,
+                    ": expected the POINTS2D line (X Y POINT3D_ID triples) after the image line; "
+                    "COLMAP's images.txt has two lines per image");
       expect_pose = true;
       continue;
     }

@@ -138,11 +138,14 @@ LocalizationResult Localizer::localize_file(const std::filesystem::path& image,
     PinholeCamera cam;
     if (intrinsics) {
       cam = *intrinsics;
-      if (cam.width == 0) {  // only the focal was given: the rest from the image
+      if (cam.width == 0 && cam.height == 0) {  // only the focal was given: the rest from the image
         cam.width = meta.width;
         cam.height = meta.height;
         cam.cx = meta.width / 2.0;
         cam.cy = meta.height / 2.0;
+      } else if (cam.width != meta.width || cam.height != meta.height) {
+        throw_error(ErrorCode::kInvalidArgument, image.string(), ": intrinsics are for a ", cam.width, "x",
+                    cam.height, " image but the image is ", meta.width, "x", meta.height);
       }
     } else {
       std::optional<double> focal;
@@ -223,7 +226,8 @@ LocalizationResult Localizer::localize_features(const FeatureSet& f, const Pinho
     for (size_t index : candidates) {
       // Candidates come best-voted first; a pose this well supported ends
       // the search (RANSAC on a wrong segment runs to its iteration cap).
-      if (options_.accept_inliers > 0 && best_inliers >= static_cast<size_t>(options_.accept_inliers)) break;
+      if (options_.accept_inliers > 0 && res.registered && best_inliers >= static_cast<size_t>(options_.accept_inliers))
+        break;
       std::shared_ptr<const Segment> seg = impl_->cache->get(index);
       res.candidates.push_back(static_cast<int>(seg->id()));
       t.reset();

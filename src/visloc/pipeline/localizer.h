@@ -42,8 +42,8 @@ struct LocalizerOptions {
   PaperSetting setting = PaperSetting::k3Plus;  // overrides search.prioritize and ransac.variant
   int top_images = 20;              // N_t
   int max_segments = 4;             // candidate segments searched
-  // Stop searching further candidate segments once a pose has this many
-  // inliers (0: search them all and keep the best, as the paper does).
+  // Stop searching further candidate segments once a registered pose has
+  // this many inliers (0: search them all and keep the best, as the paper does).
   // Measured on KITTI with 4 segments: RANSAC on the wrong segments cost
   // 70 ms of 135 ms per query.
   int accept_inliers = 50;
