@@ -31,9 +31,7 @@ std::vector<NamedPose> read_reference_poses(const fs::path& path) {
   if (fs::is_directory(path)) {
     std::vector<NamedPose> out;
     for (const auto& im : read_colmap_model(path).images)
-      out.push_back({im.name, CameraPose::from_wxyz(im.cam_from_world_q_wxyz,
-                                                    Eigen::Vector3d(im.cam_from_world_t[0], im.cam_from_world_t[1],
-                                                                    im.cam_from_world_t[2]))});
+      out.push_back({im.name, colmap_image_pose(im)});
     return out;
   }
   if (path.filename() == "images.txt") return read_colmap_images_txt_poses(path);

@@ -12,6 +12,11 @@
 #include "visloc/util/file_io.h"
 
 namespace visloc {
+
+CameraPose colmap_image_pose(const ColmapImage& image) {
+  const auto& t = image.cam_from_world_t;
+  return CameraPose::from_wxyz(image.cam_from_world_q_wxyz, Eigen::Vector3d(t[0], t[1], t[2]));
+}
 namespace fs = std::filesystem;
 
 namespace {

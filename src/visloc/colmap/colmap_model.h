@@ -17,6 +17,8 @@
 #include <unordered_map>
 #include <vector>
 
+#include "visloc/geometry/pose.h"
+
 namespace visloc {
 
 inline constexpr int64_t kColmapInvalidPoint3DId = -1;
@@ -37,6 +39,9 @@ struct ColmapImage {
   std::vector<std::array<double, 2>> points2d;  // pixels
   std::vector<int64_t> point3d_ids;             // per 2D point; kColmapInvalidPoint3DId if none
 };
+
+// The image's pose as our CameraPose (cam_from_world).
+CameraPose colmap_image_pose(const ColmapImage& image);
 
 struct ColmapTrackElement {
   uint32_t image_id = 0;

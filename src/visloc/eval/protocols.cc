@@ -227,9 +227,7 @@ ColmapRegistrationResult register_with_colmap(const ColmapModel& model, const fs
       const ColmapImage& im = registered.images[static_cast<size_t>(k)];
       r.registered = true;
       r.segment = 0;
-      r.cam_from_segment = CameraPose::from_wxyz(
-          im.cam_from_world_q_wxyz,
-          Eigen::Vector3d(im.cam_from_world_t[0], im.cam_from_world_t[1], im.cam_from_world_t[2]));
+      r.cam_from_segment = colmap_image_pose(im);
       for (int64_t id : im.point3d_ids) r.inliers += id != kColmapInvalidPoint3DId;
       const int64_t c = registered.camera_index(im.camera_id);
       if (c >= 0 && !registered.cameras[static_cast<size_t>(c)].params.empty())
@@ -270,8 +268,7 @@ LeaveOneOutResult run_leave_one_out(const fs::path& model_dir, const fs::path& d
   for (size_t i = 0; i < names.size(); ++i) {
     const std::string& name = names[i];
     const ColmapImage& im = model.images[static_cast<size_t>(model.image_index_by_name(name))];
-    const CameraPose truth_pose = CameraPose::from_wxyz(
-        im.cam_from_world_q_wxyz, Eigen::Vector3d(im.cam_from_world_t[0], im.cam_from_world_t[1], im.cam_from_world_t[2]));
+    const CameraPose truth_pose = colmap_image_pose(im);
     res.truth[name].cam_from_world = truth_pose;
     res.truth[name].center = truth_pose.center();
 

@@ -258,10 +258,7 @@ SegmentBuildResult build_segment(const BuildContext& ctx, int id) {
       db_id_of[name] = iid;
       if (ctx.known) {
         const auto& im = ctx.known->images[ctx.known->image_index_by_name(name)];
-        text_images.push_back({iid, it->second, name,
-                               CameraPose::from_wxyz(im.cam_from_world_q_wxyz,
-                                                     Eigen::Vector3d(im.cam_from_world_t[0], im.cam_from_world_t[1],
-                                                                     im.cam_from_world_t[2]))});
+        text_images.push_back({iid, it->second, name, colmap_image_pose(im)});
       }
     }
     db.commit();
@@ -311,8 +308,7 @@ SegmentBuildResult build_segment(const BuildContext& ctx, int id) {
   for (const auto& im : model.images) {
     auto it = record_of.find(im.name);
     if (it == record_of.end()) continue;
-    const CameraPose pose = CameraPose::from_wxyz(
-        im.cam_from_world_q_wxyz, Eigen::Vector3d(im.cam_from_world_t[0], im.cam_from_world_t[1], im.cam_from_world_t[2]));
+    const CameraPose pose = colmap_image_pose(im);
     src.push_back(pose.center());
     up += camera_up(pose);
     dst.push_back(ctx.enu[it->second]);
@@ -439,8 +435,7 @@ MapBuildResult build_map(const fs::path& map_dir, const MapBuildOptions& opt,
       if (k < 0)
         throw_error(ErrorCode::kNotFound, opt.known_poses.string(), ": no pose for image '", ctx.records[i].image, "'");
       const auto& im = known.images[k];
-      const CameraPose pose = CameraPose::from_wxyz(
-          im.cam_from_world_q_wxyz, Eigen::Vector3d(im.cam_from_world_t[0], im.cam_from_world_t[1], im.cam_from_world_t[2]));
+      const CameraPose pose = colmap_image_pose(im);
       src.push_back(pose.center());
       up += camera_up(pose);
       dst.push_back(ctx.enu[i]);
