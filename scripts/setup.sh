@@ -14,6 +14,7 @@ PACKAGES=(
   libgeographiclib-dev libexiv2-dev libsqlite3-dev sqlite3
   libcli11-dev nlohmann-json3-dev
   libgtest-dev libgmock-dev libbenchmark-dev
+  slurm-wlm munge
 )
 
 if [ "${SKIP_APT:-0}" != "1" ]; then

@@ -2,20 +2,29 @@
 // compressed and geo-registered (map/map_builder.h).
 #include <unistd.h>
 
+#include <filesystem>
 #include <iomanip>
 #include <iostream>
+#include <map>
 #include <memory>
+#include <nlohmann/json.hpp>
+#include <sstream>
 
 #include "visloc/cli/commands.h"
 #include "visloc/cli/sift_options.h"
 #include "visloc/map/map_builder.h"
 #include "visloc/util/error.h"
+#include "visloc/util/file_io.h"
+#include "visloc/util/timer.h"
 
 namespace visloc::cli {
 namespace {
 
+namespace fs = std::filesystem;
+
 struct MapBuildArgs {
   std::string images, gps, out, poses = "sfm", known_poses, colmap = "colmap";
+  std::string matcher = "auto", executor = "local";
   int jobs = 0;
   int segment = -1;
   MapBuildOptions options;
@@ -32,7 +41,23 @@ void bind_build_options(CLI::App* cmd, MapBuildArgs& a, bool update) {
                   "or a pose list 'name qw qx qy qz tx ty tz' (world-to-camera; needs --known-intrinsics)");
   cmd->add_option("--known-intrinsics", a.options.known_intrinsics,
                   "With a pose list: intrinsics 'name MODEL width height params...' per line ('*' for every image)");
-  cmd->add_option("--jobs", a.jobs, "Segments built in parallel (0: number of cores)")->capture_default_str();
+  cmd->add_option("--matcher", a.matcher,
+                  "Pair matching: 'guided' (known poses: features near the epipolar line, RootSIFT ratio test; "
+                  "fast), 'colmap' (COLMAP's matcher and verification), 'auto' (guided with known poses)")
+      ->check(CLI::IsMember({"auto", "guided", "colmap"}))
+      ->capture_default_str();
+  cmd->add_option("--sampson", a.options.guided.max_sampson_px, "Guided matching: epipolar band, Sampson distance (px)")
+      ->capture_default_str();
+  cmd->add_option("--executor", a.executor,
+                  "Where segments are built: 'local' (threads, see --jobs) or 'slurm' (one job array; every task "
+                  "runs 'visloc map build-segment MAP N' on a node that sees the map directory)")
+      ->check(CLI::IsMember({"local", "slurm"}))
+      ->capture_default_str();
+  cmd->add_option("--slurm-partition", a.options.slurm.partition, "Slurm partition (default: the cluster's)");
+  cmd->add_option("--slurm-args", a.options.slurm.extra_args,
+                  "More sbatch options for the array, e.g. \"--mem=8G --time=2:00:00\"");
+  cmd->add_option("--jobs", a.jobs, "Local executor: segments built in parallel (0: number of cores)")
+      ->capture_default_str();
   cmd->add_option("--colmap", a.colmap, "COLMAP executable")->capture_default_str();
   cmd->add_option("--colmap-threads", a.options.colmap.threads, "Threads per COLMAP call")->capture_default_str();
   cmd->add_option("--exhaustive-max", a.options.exhaustive_max_images,
@@ -63,7 +88,98 @@ void bind_build_options(CLI::App* cmd, MapBuildArgs& a, bool update) {
   if (update) cmd->add_option("--segment", a.segment, "The segment to rebuild")->required();
 }
 
-void run_build(const std::string& map_dir, MapBuildArgs& a) {
+// The options of `map build` as given, recorded in MAP/work/build.json so
+// that `map build-segment` (a Slurm task) builds with exactly the same.
+std::vector<std::string> given_arguments(const CLI::App* cmd) {
+  std::vector<std::string> args;
+  for (const CLI::Option* o : cmd->get_options()) {
+    if (o->count() == 0 || o->get_name() == "--help" || o->get_positional()) continue;
+    const std::string name = o->get_name();
+    if (o->get_expected_min() == 0) {  // a flag
+      for (size_t k = 0; k < o->count(); ++k) args.push_back(name);
+      continue;
+    }
+    for (const std::string& v : o->results()) {
+      args.push_back(name);
+      args.push_back(v);
+    }
+  }
+  return args;
+}
+
+void record_build_arguments(const fs::path& map_dir, const std::vector<std::string>& args) {
+  fs::create_directories(map_dir / "work");
+  nlohmann::json j = {{"version", 1}, {"cwd", fs::current_path().string()}, {"args", args}};
+  write_file_atomic(map_dir / "work" / "build.json", j.dump(2));
+}
+
+// Progress on stderr: on a terminal a live block (the map's line and one line
+// per running segment, redrawn in place); in a log, one line per stage change.
+class BuildProgressPrinter {
+ public:
+  BuildProgressPrinter() : tty_(::isatty(STDERR_FILENO)) {}
+  void operator()(const MapBuildProgress& p) {
+    if (tty_) draw(p);
+    else log(p);
+  }
+
+ private:
+  static std::string segment_line(const SegmentProgress& s) {
+    std::ostringstream l;
+    l << "  segment " << s.segment << ": " << s.stage;
+    if (s.total > 0) l << " " << s.done << "/" << s.total << (s.stage == "matching" ? " pairs" : "");
+    return l.str();
+  }
+  static std::string map_line(const MapBuildProgress& p) {
+    std::ostringstream l;
+    l << "map build: " << p.stage << " " << p.done << "/" << p.total << ", " << std::fixed << std::setprecision(0)
+      << p.elapsed_s << " s";
+    if (p.eta_s >= 0 && p.done < p.total) l << ", ETA " << p.eta_s << " s";
+    return l.str();
+  }
+  void draw(const MapBuildProgress& p) {
+    const bool final_update = p.done == p.total && p.running.empty();
+    if (!final_update && p.stage == last_stage_ && redraw_.elapsed_ms() < 200) return;
+    redraw_ = Timer();
+    std::string out;
+    if (lines_ > 0) out += "\033[" + std::to_string(lines_) + "F";  // back to the block's first line
+    out += map_line(p) + "\033[K\n";
+    for (const auto& s : p.running) out += segment_line(s) + "\033[K\n";
+    out += "\033[J";
+    lines_ = 1 + static_cast<int>(p.running.size());
+    if (p.stage != last_stage_ && !last_stage_.empty()) lines_ = 1 + static_cast<int>(p.running.size());
+    if (final_update) lines_ = 0;  // the next stage starts below
+    last_stage_ = p.stage;
+    std::cerr << out << std::flush;
+  }
+  void log(const MapBuildProgress& p) {
+    if (p.stage != "segments") {
+      // One line per 10% of a stage.
+      if (p.done != p.total && p.done != 0 && (p.done * 10 / p.total) == ((p.done - 1) * 10 / p.total)) return;
+      std::cerr << map_line(p) << "\n" << std::flush;
+      return;
+    }
+    std::map<int, std::string> now;
+    for (const auto& s : p.running) {
+      now[s.segment] = s.stage;
+      auto it = stages_.find(s.segment);
+      if (it == stages_.end() || it->second != s.stage) std::cerr << "map build:" << segment_line(s).substr(1) << "\n";
+    }
+    if (p.done != segments_done_) std::cerr << map_line(p) << "\n";
+    segments_done_ = p.done;
+    stages_ = std::move(now);
+    std::cerr << std::flush;
+  }
+
+  bool tty_;
+  int lines_ = 0;
+  std::string last_stage_;
+  Timer redraw_;
+  std::map<int, std::string> stages_;
+  size_t segments_done_ = 0;
+};
+
+void apply_arguments(MapBuildArgs& a) {
   MapBuildOptions& o = a.options;
   o.images_dir = a.images;
   if (a.gps != "exif") o.gps_csv = a.gps;
@@ -71,27 +187,35 @@ void run_build(const std::string& map_dir, MapBuildArgs& a) {
   o.known_poses = a.known_poses;
   o.jobs = a.jobs;
   o.colmap.binary = a.colmap;
+  o.matcher = a.matcher == "guided" ? PairMatcher::kGuided
+              : a.matcher == "colmap" ? PairMatcher::kColmap
+                                      : PairMatcher::kDefault;
+  o.executor = a.executor == "slurm" ? BuildExecutor::kSlurm : BuildExecutor::kLocal;
+}
+
+void run_build(const std::string& map_dir, MapBuildArgs& a, const CLI::App* cmd) {
+  MapBuildOptions& o = a.options;
+  apply_arguments(a);
+  if (a.segment < 0) record_build_arguments(map_dir, given_arguments(cmd));
+  if (o.executor == BuildExecutor::kSlurm) {
+    std::error_code ec;
+    const fs::path self = fs::read_symlink("/proc/self/exe", ec);
+    if (ec) throw_error(ErrorCode::kIo, "cannot find this program's path for the Slurm tasks: ", ec.message());
+    o.slurm_task_command = {self.string(), "map", "build-segment", fs::absolute(map_dir).string()};
+  }
   if (a.segment >= 0) o.only_segments = {a.segment};
-  const bool tty = ::isatty(STDERR_FILENO);
-  auto progress = [tty](const MapBuildProgress& p) {
-    // On a terminal the line is redrawn; in a log, one line per 10% of a stage.
-    if (!tty && p.done != p.total && p.done != 0 && (p.done * 10 / p.total) == ((p.done - 1) * 10 / p.total)) return;
-    const double rate = p.elapsed_s > 0 ? p.done / p.elapsed_s : 0;
-    std::cerr << (tty ? "\r" : "") << "map build: " << p.stage << " " << p.done << "/" << p.total << ", "
-              << std::fixed << std::setprecision(0) << p.elapsed_s << " s";
-    if (p.stage == "segments" && p.done < p.total && rate > 0)
-      std::cerr << ", ETA " << (p.total - p.done) / rate << " s";
-    std::cerr << (tty && p.done < p.total ? "   " : "\n") << std::flush;
-  };
-  MapBuildResult r = build_map(map_dir, o, progress);
+  BuildProgressPrinter printer;
+  MapBuildResult r = build_map(map_dir, o, [&printer](const MapBuildProgress& p) { printer(p); });
   std::cout << std::left << std::setw(8) << "segment" << std::right << std::setw(8) << "images" << std::setw(11)
             << "registered" << std::setw(9) << "points" << std::setw(10) << "B/point" << std::setw(12) << "GPS rms m"
-            << std::setw(12) << "GPS max m" << std::setw(10) << "seconds" << "  status\n";
+            << std::setw(12) << "GPS max m" << std::setw(10) << "seconds" << std::setw(9) << "match s" << std::setw(9)
+            << "triang s" << "  status\n";
   for (const auto& s : r.segments) {
     std::cout << std::left << std::setw(8) << s.id << std::right << std::setw(8) << s.images << std::setw(11)
               << s.registered_images << std::setw(9) << s.points << std::fixed << std::setprecision(1)
               << std::setw(10) << s.bytes_per_point << std::setprecision(2) << std::setw(12) << s.registration_rms_m
-              << std::setw(12) << s.registration_max_m << std::setprecision(1) << std::setw(10) << s.seconds << "  "
+              << std::setw(12) << s.registration_max_m << std::setprecision(1) << std::setw(10) << s.seconds
+              << std::setw(9) << s.seconds_matching << std::setw(9) << s.seconds_triangulation << "  "
               << (s.ok ? (s.reused ? "reused" : "ok") : "FAILED: " + s.error) << "\n";
   }
   std::cout << r.images << " images, " << r.placemarks << " placemarks, " << r.segments.size() << " segments ("
@@ -110,14 +234,61 @@ void add_map_build_commands(CLI::App& map) {
                                             "compressed, geo-registered (resumable)");
   b->add_option("--out", *build_out, "Map directory (created; an interrupted build there resumes)")->required();
   bind_build_options(b, *build, false);
-  b->callback([build, build_out] { run_build(*build_out, *build); });
+  b->callback([build, build_out, b] { run_build(*build_out, *build, b); });
 
   auto update = std::make_shared<MapBuildArgs>();
   auto update_map = std::make_shared<std::string>();
   CLI::App* u = map.add_subcommand("update", "Rebuild one segment of a map built by 'map build' (same inputs)");
   u->add_option("map", *update_map, "Map directory")->required();
   bind_build_options(u, *update, true);
-  u->callback([update, update_map] { run_build(*update_map, *update); });
+  u->callback([update, update_map, u] { run_build(*update_map, *update, u); });
+
+  auto task_map = std::make_shared<std::string>();
+  auto task_segment = std::make_shared<int>(-1);
+  CLI::App* t = map.add_subcommand(
+      "build-segment",
+      "Build one segment of a map started by 'map build' with the options recorded in MAP/work/build.json "
+      "(what each Slurm task runs; also for rebuilding one segment by hand)");
+  t->add_option("map", *task_map, "Map directory")->required();
+  t->add_option("segment", *task_segment, "Segment index")->required()->check(CLI::NonNegativeNumber);
+  t->callback([task_map, task_segment] {
+    const fs::path map_dir = fs::absolute(*task_map);
+    const fs::path record = map_dir / "work" / "build.json";
+    if (!fs::exists(record))
+      throw_error(ErrorCode::kNotFound, record.string(), ": no recorded build; start the map with 'visloc map build'");
+    std::vector<std::string> args;
+    std::string cwd;
+    try {
+      const auto j = nlohmann::json::parse(read_file(record));
+      if (j.at("version").get<int>() != 1) throw std::runtime_error("unknown version");
+      args = j.at("args").get<std::vector<std::string>>();
+      cwd = j.at("cwd").get<std::string>();
+    } catch (const std::exception& e) {
+      throw_error(ErrorCode::kFormat, record.string(), ": bad build record: ", e.what());
+    }
+    // Parse the recorded options exactly as 'map build' did.
+    MapBuildArgs a;
+    std::string out;
+    CLI::App parser;
+    parser.add_option("--out", out);
+    bind_build_options(&parser, a, false);
+    std::vector<std::string> reversed(args.rbegin(), args.rend());
+    try {
+      parser.parse(reversed);
+    } catch (const CLI::ParseError& e) {
+      throw_error(ErrorCode::kFormat, record.string(), ": recorded options do not parse: ", e.what());
+    }
+    std::error_code ec;
+    fs::current_path(cwd, ec);  // relative paths in the record are relative to where the build started
+    if (ec) throw_error(ErrorCode::kIo, record.string(), ": cannot change to the build's directory ", cwd, ": ", ec.message());
+    apply_arguments(a);
+    a.options.executor = BuildExecutor::kLocal;  // this task builds its segment here
+    const SegmentBuildResult r = build_planned_segment(map_dir, a.options, *task_segment);
+    if (!r.ok) throw_error(ErrorCode::kExternalTool, "segment ", r.id, ": ", r.error);
+    std::cout << "segment " << r.id << ": " << r.images << " images, " << r.points << " points, " << std::fixed
+              << std::setprecision(1) << r.seconds << " s (matching " << r.seconds_matching << " s, triangulation "
+              << r.seconds_triangulation << " s)\n";
+  });
 }
 
 }  // namespace visloc::cli

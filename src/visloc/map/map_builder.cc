@@ -2,7 +2,10 @@
 
 #include <algorithm>
 #include <atomic>
+#include <chrono>
 #include <exception>
+#include <fstream>
+#include <optional>
 #include <cmath>
 #include <iomanip>
 #include <map>
@@ -44,14 +47,25 @@ void MapBuildOptions::validate() const {
     throw_error(ErrorCode::kInvalidArgument, "map build: fallback_focal_factor must be positive");
   if (pq_training_descriptors < 256 * 4)
     throw_error(ErrorCode::kInvalidArgument, "map build: pq_training_descriptors must be >= 1024");
+  if (matcher == PairMatcher::kGuided && poses != PoseSource::kKnown)
+    throw_error(ErrorCode::kInvalidArgument, "map build: --matcher guided needs known poses (--poses known)");
+  if (executor == BuildExecutor::kSlurm && slurm_task_command.empty())
+    throw_error(ErrorCode::kInvalidArgument, "map build: the Slurm executor needs the task command");
   plan.validate();
   sift.validate();
   colmap.validate();
+  guided.validate();
+  slurm.validate();
   itq.validate();
   pq.validate();
   registration.validate();
   embedding.validate();
   image_index.validate();
+}
+
+bool MapBuildOptions::guided_matching() const {
+  if (matcher == PairMatcher::kDefault) return poses == PoseSource::kKnown;
+  return matcher == PairMatcher::kGuided;
 }
 
 size_t MapBuildResult::failed() const {
@@ -85,6 +99,17 @@ nlohmann::json to_json(const SegmentBuildResult& r) {
           {"registration_max_m", r.registration_max_m},
           {"registration_inliers", r.registration_inliers},
           {"seconds", r.seconds},
+          {"seconds_database", r.seconds_database},
+          {"seconds_matching", r.seconds_matching},
+          {"seconds_triangulation", r.seconds_triangulation},
+          {"seconds_compression", r.seconds_compression},
+          {"matcher", r.matcher},
+          {"pairs", r.pairs},
+          {"matched_pairs", r.matched_pairs},
+          {"matches", r.matches},
+          {"points_track3", r.points_track3},
+          {"mean_track_length", r.mean_track_length},
+          {"mean_reprojection_error", r.mean_reprojection_error},
           {"file_bytes", r.file_bytes},
           {"file_crc32c", r.file_crc32c}};
 }
@@ -103,6 +128,17 @@ SegmentBuildResult segment_result_from_json(const nlohmann::json& j) {
   r.registration_max_m = j.value("registration_max_m", 0.0);
   r.registration_inliers = j.value("registration_inliers", 0);
   r.seconds = j.value("seconds", 0.0);
+  r.seconds_database = j.value("seconds_database", 0.0);
+  r.seconds_matching = j.value("seconds_matching", 0.0);
+  r.seconds_triangulation = j.value("seconds_triangulation", 0.0);
+  r.seconds_compression = j.value("seconds_compression", 0.0);
+  r.matcher = j.value("matcher", "");
+  r.pairs = j.value("pairs", size_t{0});
+  r.matched_pairs = j.value("matched_pairs", size_t{0});
+  r.matches = j.value("matches", size_t{0});
+  r.points_track3 = j.value("points_track3", size_t{0});
+  r.mean_track_length = j.value("mean_track_length", 0.0);
+  r.mean_reprojection_error = j.value("mean_reprojection_error", 0.0);
   r.file_bytes = j.value("file_bytes", uint64_t{0});
   r.file_crc32c = j.value("file_crc32c", uint32_t{0});
   return r;
@@ -194,14 +230,16 @@ ColmapModel load_known_poses(const MapBuildOptions& opt) {
   return model;
 }
 
+// Everything a segment's build needs, the same in build_map and in a Slurm
+// task (build_planned_segment): inputs, ENU frame, plan, known poses, codebook.
 struct BuildContext {
   fs::path map_dir;
   const MapBuildOptions* options = nullptr;
   std::vector<GpsRecord> records;
   std::vector<Eigen::Vector3d> enu;  // per record
-  const EnuFrame* frame = nullptr;
+  GeoPosition origin;
   SegmentPlan plan;
-  const ColmapModel* known = nullptr;
+  std::optional<ColmapModel> known;
   Similarity3d enu_from_known;  // kKnown: the known frame → ENU (one transform for the map)
   PqCodebook codebook;
 };
@@ -209,17 +247,134 @@ struct BuildContext {
 fs::path feature_path(const BuildContext& ctx, const std::string& image) {
   return ctx.map_dir / "work" / "features" / (image + ".vlfeat");
 }
+fs::path segment_work_dir(const fs::path& map_dir, int id) { return map_dir / "work" / ("seg" + segment_stem(id)); }
+fs::path segment_progress_file(const fs::path& map_dir, int id) { return segment_work_dir(map_dir, id) / "progress.json"; }
+fs::path segment_result_file(const fs::path& map_dir, int id) { return segment_work_dir(map_dir, id) / "result.json"; }
+fs::path segment_file(const fs::path& map_dir, int id) { return map_dir / "segments" / (segment_stem(id) + ".vlseg"); }
 
-SegmentBuildResult build_segment(const BuildContext& ctx, int id) {
+// Inputs (GPS from the CSV or EXIF), the ENU origin (kept from an earlier run
+// of the same build, else the first image), the segment plan, known poses.
+BuildContext prepare_context(const fs::path& map_dir, const MapBuildOptions& opt) {
+  BuildContext ctx;
+  ctx.map_dir = map_dir;
+  ctx.options = &opt;
+  if (!opt.gps_csv.empty()) {
+    ctx.records = read_gps_csv(opt.gps_csv);
+    std::vector<std::string> missing;
+    for (const auto& r : ctx.records)
+      if (!fs::is_regular_file(opt.images_dir / r.image)) missing.push_back(r.image);
+    if (!missing.empty())
+      throw_error(ErrorCode::kNotFound, opt.gps_csv.string(), ": ", missing.size(), " listed images are not in ",
+                  opt.images_dir.string(), " (first: ", missing.front(), ")");
+  } else {
+    std::vector<fs::path> files;
+    for (const auto& e : fs::directory_iterator(opt.images_dir))
+      if (e.is_regular_file() && is_image_file(e.path())) files.push_back(e.path());
+    std::sort(files.begin(), files.end());
+    std::vector<std::string> no_gps;
+    for (const auto& f : files) {
+      ImageMetadata m = read_image_metadata(f, opt.sift.image);
+      if (!m.gps) {
+        no_gps.push_back(f.filename().string());
+        continue;
+      }
+      ctx.records.push_back({f.filename().string(), *m.gps, std::nullopt});
+    }
+    if (!no_gps.empty())
+      throw_error(ErrorCode::kInvalidArgument, no_gps.size(), " images in ", opt.images_dir.string(),
+                  " have no GPS in EXIF (first: ", no_gps.front(), "); give --gps FILE.csv");
+  }
+  if (ctx.records.size() < 2)
+    throw_error(ErrorCode::kInvalidArgument, "map build: need at least 2 geotagged images, got ", ctx.records.size());
+
+  ctx.origin = ctx.records.front().position;
+  if (fs::exists(map_dir / "manifest.json")) {
+    const MapManifest previous = read_manifest(map_dir);
+    if (previous.enu_origin_lat_lon_alt) {
+      const auto& o = *previous.enu_origin_lat_lon_alt;
+      ctx.origin = {o[0], o[1], o[2]};
+    }
+  }
+  const EnuFrame frame(ctx.origin);
+  for (const auto& r : ctx.records) ctx.enu.push_back(frame.to_enu(r.position));
+  ctx.plan = plan_segments(ctx.records, frame, opt.plan);
+
+  // Known poses: one similarity from the poses' frame to ENU for the whole map.
+  if (opt.poses == PoseSource::kKnown) {
+    ctx.known = load_known_poses(opt);
+    std::vector<Eigen::Vector3d> src, dst;
+    Eigen::Vector3d up = Eigen::Vector3d::Zero();
+    for (size_t i = 0; i < ctx.records.size(); ++i) {
+      const int64_t k = ctx.known->image_index_by_name(ctx.records[i].image);
+      if (k < 0)
+        throw_error(ErrorCode::kNotFound, opt.known_poses.string(), ": no pose for image '", ctx.records[i].image, "'");
+      const CameraPose pose = colmap_image_pose(ctx.known->images[k]);
+      src.push_back(pose.center());
+      up += camera_up(pose);
+      dst.push_back(ctx.enu[i]);
+    }
+    ctx.enu_from_known = estimate_street_similarity_ransac(src, dst, up, opt.registration).transform;
+  }
+  return ctx;
+}
+
+using SegmentProgressFn = std::function<void(const SegmentProgress&)>;
+
+// Watches a COLMAP log while point_triangulator runs and reports "bundle
+// adjustment" once COLMAP has started it (it prints a bundle adjustment header).
+class ColmapStageWatcher {
+ public:
+  ColmapStageWatcher(fs::path log, int segment, const SegmentProgressFn& report)
+      : log_(std::move(log)), segment_(segment), report_(report), start_(file_size(log_)) {
+    if (report_) thread_ = std::thread([this] { run(); });
+  }
+  ~ColmapStageWatcher() {
+    stop_ = true;
+    if (thread_.joinable()) thread_.join();
+  }
+
+ private:
+  static uintmax_t file_size(const fs::path& p) {
+    std::error_code ec;
+    const auto n = fs::file_size(p, ec);
+    return ec ? 0 : n;
+  }
+  void run() {
+    while (!stop_) {
+      for (int i = 0; i < 10 && !stop_; ++i) std::this_thread::sleep_for(std::chrono::milliseconds(50));
+      if (stop_) break;
+      std::ifstream in(log_);
+      in.seekg(static_cast<std::streamoff>(start_));
+      std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+      if (text.find("undle adjustment") != std::string::npos) {
+        report_({segment_, "bundle adjustment", 0, 0});
+        break;
+      }
+    }
+  }
+  fs::path log_;
+  int segment_;
+  SegmentProgressFn report_;
+  uintmax_t start_;
+  std::atomic<bool> stop_{false};
+  std::thread thread_;
+};
+
+SegmentBuildResult build_segment(const BuildContext& ctx, int id, const SegmentProgressFn& report) {
   const MapBuildOptions& opt = *ctx.options;
   Timer timer;
   SegmentBuildResult res;
   res.id = id;
-  const fs::path work = ctx.map_dir / "work" / ("seg" + segment_stem(id));
+  const bool guided = opt.guided_matching();
+  res.matcher = guided ? "guided" : "colmap";
+  const fs::path work = segment_work_dir(ctx.map_dir, id);
   fs::remove_all(work);
   fs::create_directories(work);
   const fs::path log = work / "log.txt";
   const fs::path db_path = work / "database.db";
+  auto stage = [&](const char* name, size_t done = 0, size_t total = 0) {
+    if (report) report({id, name, done, total});
+  };
 
   // Images of the segment's placemarks, in route order.
   std::vector<size_t> images;
@@ -227,13 +382,17 @@ SegmentBuildResult build_segment(const BuildContext& ctx, int id) {
     for (size_t i : ctx.plan.placemarks[pm].images) images.push_back(i);
   res.images = images.size();
 
-  // 1. Our features into a fresh COLMAP database.
-  std::map<std::string, int64_t> db_id_of;
+  // 1. Our features into a fresh COLMAP database; with guided matching, the
+  // matches and their two-view geometries too, in the same transaction.
+  stage("database");
+  Timer t_stage;
   std::vector<ColmapTextCamera> text_cameras;
   std::vector<ColmapTextImage> text_images;
   {
     ColmapDatabaseWriter db(db_path);
     std::map<std::tuple<int, int, double, bool>, int64_t> camera_ids;
+    std::vector<FeatureSet> features;        // kept for guided matching
+    std::vector<PinholeCamera> cameras;
     for (size_t i : images) {
       const std::string& name = ctx.records[i].image;
       FeatureSet f = read_feature_file(feature_path(ctx, name));
@@ -255,49 +414,102 @@ SegmentBuildResult build_segment(const BuildContext& ctx, int id) {
       }
       const int64_t iid = db.add_image(name, it->second, ctx.enu[i]);
       db.add_features(iid, f);
-      db_id_of[name] = iid;
       if (ctx.known) {
         const auto& im = ctx.known->images[ctx.known->image_index_by_name(name)];
         text_images.push_back({iid, it->second, name, colmap_image_pose(im)});
       }
+      if (guided) {
+        features.push_back(std::move(f));
+        cameras.push_back(cam);
+      }
+    }
+    res.seconds_database = t_stage.elapsed_ms() / 1000;
+
+    if (guided) {
+      t_stage = Timer();
+      std::vector<CameraPose> poses;
+      for (const auto& im : text_images) poses.push_back(im.cam_from_world);
+      const auto pairs = overlapping_pairs(poses, opt.pair_max_distance, opt.pair_max_angle_deg);
+      if (pairs.empty()) throw_error(ErrorCode::kInvalidArgument, "segment ", id, ": no overlapping image pairs");
+      res.pairs = pairs.size();
+      std::vector<CenteredKeypoints> centered(features.size());
+      for (size_t k = 0; k < features.size(); ++k) centered[k].assign(features[k], cameras[k]);
+      GuidedMatcher matcher(opt.guided);
+      const size_t report_every = std::max<size_t>(1, pairs.size() / 100);
+      for (size_t p = 0; p < pairs.size(); ++p) {
+        const auto [a, b] = pairs[p];
+        const TwoViewGeometry g = two_view_geometry(cameras[a], poses[a], cameras[b], poses[b]);
+        const auto& m = matcher.match(features[a], centered[a], features[b], centered[b], g);
+        if (!m.empty()) {
+          db.add_calibrated_pair(text_images[a].image_id, text_images[b].image_id, m, g.F, g.E, g.b_from_a_rotation,
+                                 g.b_from_a_direction);
+          ++res.matched_pairs;
+          res.matches += m.size();
+        }
+        if (p % report_every == 0) stage("matching", p, pairs.size());
+      }
+      stage("matching", pairs.size(), pairs.size());
+      std::ostringstream summary;
+      summary << "guided matching: " << pairs.size() << " pairs, " << res.matched_pairs << " with >= "
+              << opt.guided.min_matches << " matches, " << res.matches << " matches\n";
+      std::ofstream(log, std::ios::app) << summary.str();
     }
     db.commit();
+    if (guided) res.seconds_matching = t_stage.elapsed_ms() / 1000;
   }
 
-  // 2. COLMAP: matching, then mapper or triangulation from known poses.
+  // 2. COLMAP: its matching (unless guided), then mapper or triangulation from known poses.
   ColmapRunner colmap(opt.colmap);
-  if (ctx.known && images.size() > opt.exhaustive_max_images) {
-    // Known poses: match only views that can overlap (near, looking alike).
-    std::ostringstream pairs;
-    size_t n_pairs = 0;
-    for (size_t a = 0; a < text_images.size(); ++a)
-      for (size_t b = a + 1; b < text_images.size(); ++b) {
-        const CameraPose& pa = text_images[a].cam_from_world;
-        const CameraPose& pb = text_images[b].cam_from_world;
-        if ((pa.center() - pb.center()).norm() > opt.pair_max_distance) continue;
-        if (pa.viewing_direction().dot(pb.viewing_direction()) < std::cos(opt.pair_max_angle_deg * M_PI / 180)) continue;
-        pairs << text_images[a].name << ' ' << text_images[b].name << '\n';
-        ++n_pairs;
-      }
-    if (n_pairs == 0) throw_error(ErrorCode::kInvalidArgument, "segment ", id, ": no overlapping image pairs");
-    write_file_atomic(work / "pairs.txt", pairs.str());
-    colmap.match_pairs(db_path, work / "pairs.txt", log);
-  } else {
-    colmap.match(db_path, choose_match_strategy(images.size(), true, opt.exhaustive_max_images), log);
+  if (!guided) {
+    t_stage = Timer();
+    stage("matching");
+    if (ctx.known && images.size() > opt.exhaustive_max_images) {
+      // Known poses: match only views that can overlap (near, looking alike).
+      std::vector<CameraPose> poses;
+      for (const auto& im : text_images) poses.push_back(im.cam_from_world);
+      const auto pairs = overlapping_pairs(poses, opt.pair_max_distance, opt.pair_max_angle_deg);
+      if (pairs.empty()) throw_error(ErrorCode::kInvalidArgument, "segment ", id, ": no overlapping image pairs");
+      std::ostringstream list;
+      for (const auto& [a, b] : pairs) list << text_images[a].name << ' ' << text_images[b].name << '\n';
+      res.pairs = pairs.size();
+      write_file_atomic(work / "pairs.txt", list.str());
+      colmap.match_pairs(db_path, work / "pairs.txt", log);
+    } else {
+      colmap.match(db_path, choose_match_strategy(images.size(), true, opt.exhaustive_max_images), log);
+    }
+    res.seconds_matching = t_stage.elapsed_ms() / 1000;
   }
+  t_stage = Timer();
+  stage("triangulating");
   fs::path model_dir;
-  if (ctx.known) {
-    write_colmap_text_model(work / "known", text_cameras, text_images);
-    model_dir = work / "sparse" / "0";
-    colmap.triangulate(db_path, opt.images_dir, work / "known", model_dir, log);
-  } else {
-    model_dir = colmap.map(db_path, opt.images_dir, work / "sparse", log);
+  {
+    ColmapStageWatcher watcher(log, id, report);
+    if (ctx.known) {
+      write_colmap_text_model(work / "known", text_cameras, text_images);
+      model_dir = work / "sparse" / "0";
+      colmap.triangulate(db_path, opt.images_dir, work / "known", model_dir, log);
+    } else {
+      model_dir = colmap.map(db_path, opt.images_dir, work / "sparse", log);
+    }
   }
+  res.seconds_triangulation = t_stage.elapsed_ms() / 1000;
+  t_stage = Timer();
+  stage("compressing");
   ColmapModel model = read_colmap_model(model_dir);
   res.registered_images = model.images.size();
   if (model.points.size() < 20)
     throw_error(ErrorCode::kExternalTool, "segment ", id, ": COLMAP reconstructed only ", model.points.size(),
                 " points from ", images.size(), " images (log: ", log.string(), ")");
+  {
+    double track_sum = 0, error_sum = 0;
+    for (const auto& p : model.points) {
+      track_sum += static_cast<double>(p.track.size());
+      error_sum += p.error;
+      if (p.track.size() >= 3) ++res.points_track3;
+    }
+    res.mean_track_length = track_sum / static_cast<double>(model.points.size());
+    res.mean_reprojection_error = error_sum / static_cast<double>(model.points.size());
+  }
 
   // 3. Geo-registration: segment frame → ENU.
   Similarity3d enu_from_segment;
@@ -336,9 +548,13 @@ SegmentBuildResult build_segment(const BuildContext& ctx, int id) {
   }
 
   // 4. Compress: mean SIFT per point, ITQ, LUTs, PQ with the map's codebook.
+  Timer t_part;
   ColmapDatabase db(db_path);
   PointDescriptors desc = compute_point_descriptors(model, db);
-  SegmentData data = make_segment_data(model, desc, ctx.codebook, opt.itq, static_cast<uint32_t>(id));
+  const double ms_descriptors = t_part.elapsed_ms();
+  SegmentBuildStats compression_stats;
+  SegmentData data =
+      make_segment_data(model, desc, ctx.codebook, opt.itq, static_cast<uint32_t>(id), &compression_stats);
   std::vector<int> placemark_ids;
   for (int pm : ctx.plan.segments[id]) placemark_ids.push_back(ctx.plan.placemarks[pm].id);
   data.extra_meta["enu_from_segment"] = similarity_json(enu_from_segment);
@@ -350,7 +566,7 @@ SegmentBuildResult build_segment(const BuildContext& ctx, int id) {
                                      {"images", src.size()}};
   fs::create_directories(ctx.map_dir / "segments");
   fs::create_directories(ctx.map_dir / "descriptors");
-  const fs::path seg_path = ctx.map_dir / "segments" / (segment_stem(id) + ".vlseg");
+  const fs::path seg_path = segment_file(ctx.map_dir, id);
   write_segment_file(seg_path, data);
   write_point_descriptor_file(ctx.map_dir / "descriptors" / (segment_stem(id) + ".vldesc"),
                               round_descriptors(desc.mean), desc.track_size);
@@ -361,12 +577,110 @@ SegmentBuildResult build_segment(const BuildContext& ctx, int id) {
     res.file_crc32c = crc32c(contents.data(), contents.size());
   }
   res.bytes_per_point = double(res.file_bytes) / std::max<size_t>(1, res.points);
+  {
+    std::ostringstream line;
+    line << std::fixed << std::setprecision(2) << "compression: point descriptors " << ms_descriptors / 1000
+         << " s, ITQ " << compression_stats.ms_itq / 1000 << " s, encoding " << compression_stats.ms_encode / 1000
+         << " s, total with files " << t_stage.elapsed_ms() / 1000 << " s\n";
+    std::ofstream(log, std::ios::app) << line.str();
+  }
+  res.seconds_compression = t_stage.elapsed_ms() / 1000;
   res.ok = true;
   res.seconds = timer.elapsed_ms() / 1000.0;
   return res;
 }
 
+// build_segment with failures turned into a result (ok = false, error) and
+// the result recorded in the segment's result.json.
+SegmentBuildResult build_and_record_segment(const BuildContext& ctx, int id, const SegmentProgressFn& report) {
+  SegmentBuildResult r;
+  try {
+    r = build_segment(ctx, id, report);
+  } catch (const Error& e) {
+    if (e.code() == ErrorCode::kInternal) throw;
+    r = SegmentBuildResult{};
+    r.id = id;
+    r.error = e.what();
+  } catch (const std::filesystem::filesystem_error& e) {  // e.g. disk full, permissions
+    r = SegmentBuildResult{};
+    r.id = id;
+    r.error = e.what();
+  }
+  fs::create_directories(segment_work_dir(ctx.map_dir, id));
+  write_file_atomic(segment_result_file(ctx.map_dir, id), to_json(r).dump(2));
+  return r;
+}
+
+// A finished segment from an earlier run (or another process): its
+// result.json records success and its segment file exists.
+std::optional<SegmentBuildResult> finished_segment(const fs::path& map_dir, int id) {
+  const fs::path result_file = segment_result_file(map_dir, id);
+  if (!fs::exists(result_file) || !fs::exists(segment_file(map_dir, id))) return std::nullopt;
+  try {
+    SegmentBuildResult r = segment_result_from_json(nlohmann::json::parse(read_file(result_file)));
+    if (r.ok && r.id == id) return r;
+  } catch (const std::exception&) {
+  }
+  return std::nullopt;
+}
+
+// The result of a segment that a task ran, or why there is none.
+SegmentBuildResult recorded_segment(const fs::path& map_dir, int id) {
+  const fs::path result_file = segment_result_file(map_dir, id);
+  if (fs::exists(result_file)) {
+    try {
+      SegmentBuildResult r = segment_result_from_json(nlohmann::json::parse(read_file(result_file)));
+      if (r.id == id && (!r.ok || fs::exists(segment_file(map_dir, id)))) return r;
+    } catch (const std::exception&) {
+    }
+  }
+  SegmentBuildResult r;
+  r.id = id;
+  r.error = "the task left no result";
+  return r;
+}
+
+// Share of a segment's work done at a stage (for the map's ETA).
+double stage_fraction(const SegmentProgress& p) {
+  if (p.stage == "database") return 0.02;
+  if (p.stage == "matching") return p.total ? 0.05 + 0.45 * double(p.done) / double(p.total) : 0.05;
+  if (p.stage == "triangulating") return 0.5;
+  if (p.stage == "bundle adjustment") return 0.7;
+  if (p.stage == "compressing") return 0.9;
+  return 0;
+}
+
 }  // namespace
+
+SegmentBuildResult build_planned_segment(const fs::path& map_dir, const MapBuildOptions& opt, int segment) {
+  opt.validate();
+  const fs::path codebook_path = map_dir / "pq_codebook.vlpq";
+  if (!fs::exists(map_dir / "manifest.json") || !fs::exists(codebook_path))
+    throw_error(ErrorCode::kNotFound, map_dir.string(),
+                ": not a planned map (no manifest.json or pq_codebook.vlpq); start it with 'visloc map build'");
+  BuildContext ctx = prepare_context(map_dir, opt);
+  if (segment < 0 || segment >= static_cast<int>(ctx.plan.segments.size()))
+    throw_error(ErrorCode::kInvalidArgument, "segment ", segment, " does not exist (the map has ",
+                ctx.plan.segments.size(), ")");
+  ctx.codebook = PqCodebook::read(codebook_path);
+  // Progress for the coordinator, which polls it: a file rewritten on every stage change.
+  std::string last_stage;
+  Timer since_write;
+  auto report = [&](const SegmentProgress& p) {
+    if (p.stage == last_stage && since_write.elapsed_ms() < 1000 && p.done != p.total) return;
+    last_stage = p.stage;
+    since_write = Timer();
+    try {
+      write_file_atomic(segment_progress_file(map_dir, segment),
+                        nlohmann::json{{"stage", p.stage}, {"done", p.done}, {"total", p.total}}.dump());
+    } catch (const std::exception&) {  // progress is best effort
+    }
+  };
+  SegmentBuildResult r = build_and_record_segment(ctx, segment, report);
+  std::error_code ec;
+  fs::remove(segment_progress_file(map_dir, segment), ec);
+  return r;
+}
 
 MapBuildResult build_map(const fs::path& map_dir, const MapBuildOptions& opt,
                          const std::function<void(const MapBuildProgress&)>& progress) {
@@ -374,75 +688,11 @@ MapBuildResult build_map(const fs::path& map_dir, const MapBuildOptions& opt,
   Timer total;
   MapBuildResult result;
   const int jobs = opt.jobs > 0 ? opt.jobs : std::max(1u, std::thread::hardware_concurrency());
-  BuildContext ctx;
-  ctx.map_dir = map_dir;
-  ctx.options = &opt;
   fs::create_directories(map_dir / "work" / "features");
-
-  // Inputs: GPS per image, from the CSV or from EXIF.
-  if (!opt.gps_csv.empty()) {
-    ctx.records = read_gps_csv(opt.gps_csv);
-    std::vector<std::string> missing;
-    for (const auto& r : ctx.records)
-      if (!fs::is_regular_file(opt.images_dir / r.image)) missing.push_back(r.image);
-    if (!missing.empty())
-      throw_error(ErrorCode::kNotFound, opt.gps_csv.string(), ": ", missing.size(), " listed images are not in ",
-                  opt.images_dir.string(), " (first: ", missing.front(), ")");
-  } else {
-    std::vector<fs::path> files;
-    for (const auto& e : fs::directory_iterator(opt.images_dir))
-      if (e.is_regular_file() && is_image_file(e.path())) files.push_back(e.path());
-    std::sort(files.begin(), files.end());
-    std::vector<std::string> no_gps;
-    for (const auto& f : files) {
-      ImageMetadata m = read_image_metadata(f, opt.sift.image);
-      if (!m.gps) {
-        no_gps.push_back(f.filename().string());
-        continue;
-      }
-      ctx.records.push_back({f.filename().string(), *m.gps, std::nullopt});
-    }
-    if (!no_gps.empty())
-      throw_error(ErrorCode::kInvalidArgument, no_gps.size(), " images in ", opt.images_dir.string(),
-                  " have no GPS in EXIF (first: ", no_gps.front(), "); give --gps FILE.csv");
-  }
-  if (ctx.records.size() < 2)
-    throw_error(ErrorCode::kInvalidArgument, "map build: need at least 2 geotagged images, got ", ctx.records.size());
-
-  // The ENU origin: kept from an earlier run of the same build, else the first image.
-  std::optional<MapManifest> previous;
-  if (fs::exists(map_dir / "manifest.json")) previous = read_manifest(map_dir);
-  GeoPosition origin = ctx.records.front().position;
-  if (previous && previous->enu_origin_lat_lon_alt) {
-    const auto& o = *previous->enu_origin_lat_lon_alt;
-    origin = {o[0], o[1], o[2]};
-  }
-  EnuFrame frame(origin);
-  ctx.frame = &frame;
-  for (const auto& r : ctx.records) ctx.enu.push_back(frame.to_enu(r.position));
-  ctx.plan = plan_segments(ctx.records, frame, opt.plan);
+  BuildContext ctx = prepare_context(map_dir, opt);
+  const GeoPosition origin = ctx.origin;
   result.images = ctx.records.size();
   result.placemarks = ctx.plan.placemarks.size();
-
-  // Known poses: one similarity from the poses' frame to ENU for the whole map.
-  ColmapModel known;
-  if (opt.poses == PoseSource::kKnown) {
-    known = load_known_poses(opt);
-    std::vector<Eigen::Vector3d> src, dst;
-    Eigen::Vector3d up = Eigen::Vector3d::Zero();
-    for (size_t i = 0; i < ctx.records.size(); ++i) {
-      const int64_t k = known.image_index_by_name(ctx.records[i].image);
-      if (k < 0)
-        throw_error(ErrorCode::kNotFound, opt.known_poses.string(), ": no pose for image '", ctx.records[i].image, "'");
-      const auto& im = known.images[k];
-      const CameraPose pose = colmap_image_pose(im);
-      src.push_back(pose.center());
-      up += camera_up(pose);
-      dst.push_back(ctx.enu[i]);
-    }
-    ctx.enu_from_known = estimate_street_similarity_ransac(src, dst, up, opt.registration).transform;
-    ctx.known = &known;
-  }
 
   // Features, once per image (segments overlap), in parallel; cached.
   Timer t_features;
@@ -472,7 +722,7 @@ MapBuildResult build_map(const fs::path& map_dir, const MapBuildOptions& opt,
       const size_t d = ++done;
       if (progress) {
         std::lock_guard lock(m);
-        progress({"features", d, ctx.records.size(), total.elapsed_ms() / 1000});
+        progress({"features", d, ctx.records.size(), total.elapsed_ms() / 1000, {}, -1});
       }
     });
     if (!errors.empty())
@@ -482,7 +732,6 @@ MapBuildResult build_map(const fs::path& map_dir, const MapBuildOptions& opt,
 
   // The PQ codebook: trained once per map on descriptors sampled across all images.
   const fs::path codebook_path = map_dir / "pq_codebook.vlpq";
-  size_t pq_training = 0;
   if (fs::exists(codebook_path)) {
     ctx.codebook = PqCodebook::read(codebook_path);
   } else {
@@ -498,7 +747,7 @@ MapBuildResult build_map(const fs::path& map_dir, const MapBuildOptions& opt,
       for (size_t k : rows)
         for (int d = 0; d < kDescriptorDim; ++d) sample.push_back(f.descriptors.row(k)[d]);
     }
-    pq_training = sample.size() / kDescriptorDim;
+    const size_t pq_training = sample.size() / kDescriptorDim;
     ctx.codebook = PqCodebook::train(sample.data(), pq_training, opt.pq);
     nlohmann::json pq_meta = {{"dimension", kDescriptorDim}, {"subvectors", kPqSubvectors}, {"bits", 8},
                               {"training_descriptors", pq_training},
@@ -507,12 +756,15 @@ MapBuildResult build_map(const fs::path& map_dir, const MapBuildOptions& opt,
     ctx.codebook.write(codebook_path, pq_meta.dump());
   }
 
-  // Segments, in parallel; each one's outcome is recorded as soon as it ends.
+  // Segments; each one's outcome is recorded as soon as it ends.
   Timer t_segments;
   const size_t n_segments = ctx.plan.segments.size();
   result.segments.resize(n_segments);
-  std::mutex manifest_mutex;
-  std::atomic<size_t> segments_done{0};
+  for (size_t s = 0; s < n_segments; ++s) {
+    result.segments[s].id = static_cast<int>(s);
+    result.segments[s].error = "not built";
+  }
+  std::mutex state_mutex;
   std::set<int> only(opt.only_segments.begin(), opt.only_segments.end());
   for (int s : only)
     if (s < 0 || s >= static_cast<int>(n_segments))
@@ -529,7 +781,7 @@ MapBuildResult build_map(const fs::path& map_dir, const MapBuildOptions& opt,
     }
     nlohmann::json failed = nlohmann::json::array();
     for (const auto& r : result.segments)
-      if (!r.ok && !r.error.empty()) failed.push_back({{"id", r.id}, {"error", r.error}});
+      if (!r.ok && !r.error.empty() && r.error != "not built") failed.push_back({{"id", r.id}, {"error", r.error}});
     man.parameters = {{"hash", {{"method", "itq"}, {"bits", kHashBits}, {"tables", kHashTables},
                                 {"table_bits", kHashTableBits}, {"itq_iterations", opt.itq.iterations},
                                 {"seed", opt.itq.seed}}},
@@ -538,7 +790,8 @@ MapBuildResult build_map(const fs::path& map_dir, const MapBuildOptions& opt,
                       {"sift", nlohmann::json::parse(opt.sift.to_json())},
                       {"segments", {{"min_placemarks", opt.plan.min_placemarks},
                                     {"max_placemarks", opt.plan.max_placemarks},
-                                    {"overlap", opt.plan.overlap}}}};
+                                    {"overlap", opt.plan.overlap}}},
+                      {"matcher", opt.guided_matching() ? "guided" : "colmap"}};
     man.source = {{"type", "build"},
                   {"images", fs::absolute(opt.images_dir).string()},
                   {"gps", opt.gps_csv.empty() ? std::string("exif") : fs::absolute(opt.gps_csv).string()},
@@ -554,53 +807,118 @@ MapBuildResult build_map(const fs::path& map_dir, const MapBuildOptions& opt,
     write_manifest(map_dir, man);
   };
 
-  parallel_for(n_segments, jobs, [&](size_t s) {
+  // Which segments to build: not finished earlier (or asked for by update).
+  std::vector<int> to_build;
+  size_t segments_done = 0;
+  for (size_t s = 0; s < n_segments; ++s) {
     const int id = static_cast<int>(s);
-    const fs::path result_file = map_dir / "work" / ("seg" + segment_stem(id)) / "result.json";
-    const fs::path seg_file = map_dir / "segments" / (segment_stem(id) + ".vlseg");
-    SegmentBuildResult r;
-    bool reuse = false;
-    if (!only.count(id) && fs::exists(result_file) && fs::exists(seg_file)) {
-      try {
-        r = segment_result_from_json(nlohmann::json::parse(read_file(result_file)));
-        reuse = r.ok;
-      } catch (const std::exception&) {
+    if (!only.count(id))
+      if (auto r = finished_segment(map_dir, id)) {
+        result.segments[s] = *r;
+        result.segments[s].reused = true;
+        ++segments_done;
+        continue;
       }
+    if (only.empty() || only.count(id)) to_build.push_back(id);
+  }
+  write_current_manifest();  // the ENU origin and plan, before any task reads them
+
+  // Live state of the running segments, for progress and the ETA.
+  std::map<int, SegmentProgress> running;
+  const size_t to_build_total = to_build.size();
+  size_t built = 0;
+  auto report_segments = [&] {  // with state_mutex held
+    if (!progress) return;
+    MapBuildProgress p{"segments", segments_done, n_segments, total.elapsed_ms() / 1000, {}, -1};
+    double partial = 0;
+    for (const auto& [id, sp] : running) {
+      p.running.push_back(sp);
+      partial += stage_fraction(sp);
     }
-    if (!only.empty() && !only.count(id) && !reuse) {
-      // Not asked for and not finished: leave it as it is.
-      r = SegmentBuildResult{};
-      r.id = id;
-      r.error = "not built";
-    } else if (reuse) {
-      r.reused = true;
-    } else {
-      try {
-        r = build_segment(ctx, id);
-      } catch (const Error& e) {
-        if (e.code() == ErrorCode::kInternal) throw;
-        r = SegmentBuildResult{};
-        r.id = id;
-        r.error = e.what();
-      } catch (const std::filesystem::filesystem_error& e) {  // e.g. disk full, permissions
-        r = SegmentBuildResult{};
-        r.id = id;
-        r.error = e.what();
-      }
-      write_file_atomic(result_file, to_json(r).dump(2));
-    }
-    std::lock_guard lock(manifest_mutex);
-    result.segments[s] = r;
+    const double work_done = static_cast<double>(built) + partial;
+    const double elapsed = t_segments.elapsed_ms() / 1000;
+    if (work_done > 0.25 && elapsed > 1) p.eta_s = elapsed / work_done * (static_cast<double>(to_build_total) - work_done);
+    progress(p);
+  };
+  auto segment_finished = [&](const SegmentBuildResult& r) {  // with state_mutex held
+    result.segments[r.id] = r;
+    running.erase(r.id);
+    ++built;
+    ++segments_done;
     write_current_manifest();
-    const size_t d = ++segments_done;
-    if (progress) progress({"segments", d, n_segments, total.elapsed_ms() / 1000});
-  });
+    report_segments();
+  };
+
+  if (opt.executor == BuildExecutor::kLocal) {
+    parallel_for(to_build.size(), jobs, [&](size_t k) {
+      const int id = to_build[k];
+      auto report = [&](const SegmentProgress& p) {
+        std::lock_guard lock(state_mutex);
+        running[id] = p;
+        report_segments();
+      };
+      SegmentBuildResult r = build_and_record_segment(ctx, id, report);
+      std::lock_guard lock(state_mutex);
+      segment_finished(r);
+    });
+  } else if (!to_build.empty()) {
+    // One Slurm array; its tasks write result.json (and progress.json while they run).
+    for (int id : to_build) {
+      std::error_code ec;
+      fs::remove(segment_result_file(map_dir, id), ec);
+      fs::remove(segment_progress_file(map_dir, id), ec);
+    }
+    const SlurmArray array = SlurmArray::submit(opt.slurm, to_build, opt.slurm_task_command, map_dir / "work" / "slurm");
+    std::set<int> pending(to_build.begin(), to_build.end());
+    bool still_running = true;
+    while (!pending.empty()) {
+      if (!still_running) {
+        // The array is gone: whatever has no result failed (killed, node lost, ...).
+        const auto states = array.task_states();
+        for (int id : pending) {
+          SegmentBuildResult r = recorded_segment(map_dir, id);
+          if (!r.ok && r.error == "the task left no result") {
+            std::ostringstream why;
+            why << "Slurm task " << array.job_id() << "_" << id << " left no result";
+            auto st = states.find(id);
+            if (st != states.end())
+              why << " (" << st->second.state << ", exit " << st->second.exit_code << ":" << st->second.signal << ")";
+            why << "; log: " << array.task_log(id).string();
+            r.error = why.str();
+          }
+          std::lock_guard lock(state_mutex);
+          segment_finished(r);
+        }
+        break;
+      }
+      std::this_thread::sleep_for(std::chrono::milliseconds(static_cast<int>(opt.slurm.poll_seconds * 1000)));
+      still_running = array.running();
+      std::vector<int> ended;
+      std::lock_guard lock(state_mutex);
+      for (int id : pending) {
+        if (fs::exists(segment_result_file(map_dir, id))) {
+          SegmentBuildResult r = recorded_segment(map_dir, id);
+          if (!r.ok) r.error += " (Slurm log: " + array.task_log(id).string() + ")";
+          segment_finished(r);
+          ended.push_back(id);
+          continue;
+        }
+        try {
+          const auto j = nlohmann::json::parse(read_file(segment_progress_file(map_dir, id)));
+          running[id] = {id, j.at("stage").get<std::string>(), j.at("done").get<size_t>(), j.at("total").get<size_t>()};
+        } catch (const std::exception&) {  // not started yet, or mid-rename
+        }
+      }
+      for (int id : ended) pending.erase(id);
+      report_segments();
+    }
+  }
   result.seconds_segments = t_segments.elapsed_ms() / 1000;
 
   // Retrieval over the images of the segments that were built.
   if (opt.build_retrieval && result.failed() < n_segments) {
     Timer t_retrieval;
-    if (progress) progress({"retrieval", 0, 1, total.elapsed_ms() / 1000});
+    if (progress) progress({"retrieval", 0, 1, total.elapsed_ms() / 1000, {}, -1});
     std::vector<std::vector<int32_t>> segments_of_record(ctx.records.size());
     for (const auto& r : result.segments) {
       if (!r.ok) continue;
@@ -621,7 +939,7 @@ MapBuildResult build_map(const fs::path& map_dir, const MapBuildOptions& opt,
     RetrievalMap::build(pointers, names, SegmentTable(segments_of_image), opt.embedding, opt.image_index)
         .save(map_dir / "retrieval");
     result.seconds_retrieval = t_retrieval.elapsed_ms() / 1000;
-    if (progress) progress({"retrieval", 1, 1, total.elapsed_ms() / 1000});
+    if (progress) progress({"retrieval", 1, 1, total.elapsed_ms() / 1000, {}, -1});
   }
   result.seconds_total = total.elapsed_ms() / 1000;
   return result;

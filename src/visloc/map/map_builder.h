@@ -30,9 +30,22 @@
 #include "visloc/matching/binary_hasher.h"
 #include "visloc/matching/pq_codebook.h"
 #include "visloc/sfm/colmap_runner.h"
+#include "visloc/sfm/guided_matcher.h"
 #include "visloc/sfm/segment_plan.h"
+#include "visloc/sfm/slurm.h"
 
 namespace visloc {
+
+// How a segment's image pairs are matched.
+enum class PairMatcher {
+  kDefault,  // guided with known poses, COLMAP's with SfM
+  kGuided,   // known poses only: epipolar-guided RootSIFT matching (sfm/guided_matcher.h)
+  kColmap,   // COLMAP's matcher (matches_importer / exhaustive / spatial) and its geometric verification
+};
+
+// Where segments are built: threads of this process, or one Slurm job array
+// whose tasks run `visloc map build-segment MAP N` on a shared map directory.
+enum class BuildExecutor { kLocal, kSlurm };
 
 enum class PoseSource {
   kSfm,    // COLMAP's mapper estimates the poses
@@ -53,6 +66,13 @@ struct MapBuildOptions {
   SegmentPlanOptions plan;
   SiftOptions sift;
   ColmapRunnerOptions colmap;
+  PairMatcher matcher = PairMatcher::kDefault;
+  GuidedMatchOptions guided;
+  BuildExecutor executor = BuildExecutor::kLocal;
+  SlurmOptions slurm;
+  // kSlurm: the command each task runs, without the segment index that Slurm
+  // appends (e.g. {"/usr/bin/visloc", "map", "build-segment", "/abs/MAP"}).
+  std::vector<std::string> slurm_task_command;
   size_t exhaustive_max_images = 20;        // COLMAP exhaustive matching up to this many images, else:
   double pair_max_distance = 30;            //   known poses: pairs of views at most this far apart (m)
   double pair_max_angle_deg = 60;           //   and looking within this angle of each other;
@@ -62,7 +82,7 @@ struct MapBuildOptions {
   size_t pq_training_descriptors = 100000;  // sampled across all map images
   SimilarityRansacOptions registration;     // GPS → ENU registration (threshold in metres)
   double fallback_focal_factor = 1.2;       // focal = factor × max(w, h) when EXIF has none
-  int jobs = 0;                             // segments built in parallel (0: number of cores)
+  int jobs = 0;                             // local: segments built in parallel (0: number of cores)
   std::vector<int> only_segments;           // rebuild just these (map update); empty: all
   bool build_retrieval = true;              // train and write MAP/retrieval (T-embedding + IVF-PQ)
   // Retrieval: global descriptor, PCA-whitened to 512-D by default (8.4 MB of
@@ -76,6 +96,7 @@ struct MapBuildOptions {
   ImageIndexOptions image_index;            // retrieval: IVF-PQ index
   bool keep_work = true;                    // keep MAP/work (databases, logs) after success
   void validate() const;
+  bool guided_matching() const;  // the matcher in effect
 };
 
 struct SegmentBuildResult {
@@ -92,6 +113,17 @@ struct SegmentBuildResult {
   double registration_max_m = 0;
   int registration_inliers = 0;
   double seconds = 0;
+  // Seconds per stage: COLMAP database with our features, matching (guided
+  // or COLMAP's, with verification), triangulation + bundle adjustment
+  // (COLMAP), compression + geo-registration + files.
+  double seconds_database = 0, seconds_matching = 0, seconds_triangulation = 0, seconds_compression = 0;
+  std::string matcher;              // "guided" or "colmap"
+  size_t pairs = 0;                 // candidate pairs given to the matcher (0: COLMAP chose)
+  size_t matched_pairs = 0;         // guided: pairs with at least min_matches matches
+  size_t matches = 0;               // guided: matches written
+  size_t points_track3 = 0;         // points seen in at least 3 images
+  double mean_track_length = 0;
+  double mean_reprojection_error = 0;  // pixels, COLMAP's per-point error averaged
   uint64_t file_bytes = 0;          // segment file size and checksum (for the manifest)
   uint32_t file_crc32c = 0;
 };
@@ -103,11 +135,29 @@ struct MapBuildResult {
   size_t failed() const;
 };
 
+// What a running segment is doing: stage "queued", "database", "matching"
+// (done/total pairs), "triangulating", "bundle adjustment", "compressing".
+struct SegmentProgress {
+  int segment = 0;
+  std::string stage;
+  size_t done = 0, total = 0;
+};
+
 struct MapBuildProgress {
   std::string stage;  // "features", "segments", "retrieval"
   size_t done = 0, total = 0;
   double elapsed_s = 0;
+  std::vector<SegmentProgress> running;  // stage "segments": the segments in progress
+  double eta_s = -1;                     // stage "segments": whole map, once it can be estimated
 };
+
+// Builds one segment of a map whose build was started by build_map (its
+// features and PQ codebook exist and its manifest records the ENU origin),
+// with the same options: what a Slurm task runs. Writes the segment's files
+// and MAP/work/segNNNN/result.json and returns the result (ok = false with
+// the error when it failed; throws only for bad arguments or internal errors).
+SegmentBuildResult build_planned_segment(const std::filesystem::path& map_dir, const MapBuildOptions& options,
+                                         int segment);
 
 MapBuildResult build_map(const std::filesystem::path& map_dir, const MapBuildOptions& options,
                          const std::function<void(const MapBuildProgress&)>& progress = {});

@@ -127,8 +127,9 @@ ItqResult train_itq(const float* x, size_t n, const ItqOptions& options) {
   Eigen::MatrixXd r = random_orthogonal(kHashBits, options.seed);
   ItqResult out;
   Eigen::MatrixXf vr(v.rows(), kHashBits), b(v.rows(), kHashBits);
+  vr.noalias() = v * r.cast<float>();
   for (int it = 0; it < options.iterations; ++it) {
-    vr.noalias() = v * r.cast<float>();
+    // vr = V R for the current R (computed at the end of the previous iteration).
     b = vr.array().sign().matrix();
     // Orthogonal Procrustes: R = argmin ||B − V R|| = S Ŝᵀ with Vᵀ B = S Ω Ŝᵀ.
     const Eigen::MatrixXd vtb = (v.transpose() * b).cast<double>();

@@ -137,6 +137,60 @@ void ColmapDatabaseWriter::add_features(int64_t image_id, const FeatureSet& f) {
   s.run();
 }
 
+void ColmapDatabaseWriter::add_calibrated_pair(int64_t id1, int64_t id2,
+                                               const std::vector<std::pair<uint32_t, uint32_t>>& matches,
+                                               const Eigen::Matrix3d& F_in, const Eigen::Matrix3d& E_in,
+                                               const Eigen::Quaterniond& rotation_in, const Eigen::Vector3d& direction_in) {
+  if (id1 == id2) throw_error(ErrorCode::kInvalidArgument, "COLMAP pair of image ", id1, " with itself");
+  Eigen::Matrix3d F = F_in, E = E_in;
+  Eigen::Quaterniond q = rotation_in;
+  Eigen::Vector3d t = direction_in;
+  std::vector<uint32_t> data(matches.size() * 2);
+  const bool swap = id1 > id2;
+  for (size_t i = 0; i < matches.size(); ++i) {
+    data[2 * i] = swap ? matches[i].second : matches[i].first;
+    data[2 * i + 1] = swap ? matches[i].first : matches[i].second;
+  }
+  if (swap) {
+    std::swap(id1, id2);
+    F.transposeInPlace();
+    E.transposeInPlace();
+    q = q.conjugate();
+    t = -(q * t);
+  }
+  constexpr int64_t kMax = 2147483647;
+  const int64_t pair_id = id1 * kMax + id2;
+  const int bytes = static_cast<int>(data.size() * sizeof(uint32_t));
+  {
+    Stmt s(db_, path_, "INSERT OR REPLACE INTO matches(pair_id, rows, cols, data) VALUES(?,?,2,?)");
+    sqlite3_bind_int64(s.get(), 1, pair_id);
+    sqlite3_bind_int64(s.get(), 2, static_cast<int64_t>(matches.size()));
+    sqlite3_bind_blob(s.get(), 3, data.data(), bytes, SQLITE_TRANSIENT);
+    s.run();
+  }
+  // Row-major 3x3 blobs.
+  double f[9], e[9], h[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) {
+      f[3 * r + c] = F(r, c);
+      e[3 * r + c] = E(r, c);
+    }
+  const double qvec[4] = {q.w(), q.x(), q.y(), q.z()};
+  const double tvec[3] = {t.x(), t.y(), t.z()};
+  Stmt s(db_, path_,
+         "INSERT OR REPLACE INTO two_view_geometries(pair_id, rows, cols, data, config, F, E, H, qvec, tvec) "
+         "VALUES(?,?,2,?,2,?,?,?,?,?)");
+  sqlite3_bind_int64(s.get(), 1, pair_id);
+  sqlite3_bind_int64(s.get(), 2, static_cast<int64_t>(matches.size()));
+  sqlite3_bind_blob(s.get(), 3, data.data(), bytes, SQLITE_TRANSIENT);
+  sqlite3_bind_blob(s.get(), 4, f, sizeof f, SQLITE_TRANSIENT);
+  sqlite3_bind_blob(s.get(), 5, e, sizeof e, SQLITE_TRANSIENT);
+  sqlite3_bind_blob(s.get(), 6, h, sizeof h, SQLITE_TRANSIENT);
+  sqlite3_bind_blob(s.get(), 7, qvec, sizeof qvec, SQLITE_TRANSIENT);
+  sqlite3_bind_blob(s.get(), 8, tvec, sizeof tvec, SQLITE_TRANSIENT);
+  s.run();
+}
+
 bool ColmapDatabaseWriter::remove_image(const std::string& name) {
   int64_t id = -1;
   {

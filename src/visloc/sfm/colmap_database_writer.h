@@ -10,6 +10,10 @@
 
 #include <filesystem>
 #include <optional>
+#include <utility>
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
 #include <string>
 #include <vector>
 
@@ -45,6 +49,15 @@ class ColmapDatabaseWriter {
   int64_t add_image(const std::string& name, int64_t camera_id,
                     const std::optional<Eigen::Vector3d>& position_prior = std::nullopt);
   void add_features(int64_t image_id, const FeatureSet& features);
+  // Matches of a pair (N × 2 uint32, indices into each image's keypoints)
+  // into `matches`, and the same matches as the inliers of a CALIBRATED
+  // two-view geometry (config 2) with F, E (row-major, as COLMAP stores
+  // them) and the relative pose image2_from_image1 (unit translation). The
+  // pair is stored under COLMAP's pair id; when image_id1 > image_id2 the
+  // columns are swapped and the geometry inverted, as COLMAP expects.
+  void add_calibrated_pair(int64_t image_id1, int64_t image_id2, const std::vector<std::pair<uint32_t, uint32_t>>& matches,
+                           const Eigen::Matrix3d& F, const Eigen::Matrix3d& E, const Eigen::Quaterniond& rotation_2_from_1,
+                           const Eigen::Vector3d& direction_2_from_1);
   // Removes an image with its features, matches and two-view geometries;
   // false when there is no image of that name.
   bool remove_image(const std::string& name);
