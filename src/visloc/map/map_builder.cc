@@ -1,5 +1,12 @@
 #include "visloc/map/map_builder.h"
 
+#include <fcntl.h>
+#include <sys/file.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstring>
+
 #include <algorithm>
 #include <atomic>
 #include <chrono>
@@ -229,6 +236,27 @@ ColmapModel load_known_poses(const MapBuildOptions& opt) {
   }
   return model;
 }
+
+// One build of a map directory at a time: an exclusive lock (flock) on
+// MAP/work/build.lock, released when the process ends, however it ends.
+class BuildLock {
+ public:
+  explicit BuildLock(const fs::path& path) {
+    fd_ = ::open(path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+    if (fd_ < 0) throw_error(ErrorCode::kIo, path.string(), ": cannot open the build lock: ", std::strerror(errno));
+    if (::flock(fd_, LOCK_EX | LOCK_NB) != 0) {
+      ::close(fd_);
+      throw_error(ErrorCode::kInvalidArgument, "map build: another build of ", path.parent_path().parent_path().string(),
+                  " is running (", path.string(), " is locked)");
+    }
+  }
+  ~BuildLock() { ::close(fd_); }
+  BuildLock(const BuildLock&) = delete;
+  BuildLock& operator=(const BuildLock&) = delete;
+
+ private:
+  int fd_ = -1;
+};
 
 // Everything a segment's build needs, the same in build_map and in a Slurm
 // task (build_planned_segment): inputs, ENU frame, plan, known poses, codebook.
@@ -689,6 +717,7 @@ MapBuildResult build_map(const fs::path& map_dir, const MapBuildOptions& opt,
   MapBuildResult result;
   const int jobs = opt.jobs > 0 ? opt.jobs : std::max(1u, std::thread::hardware_concurrency());
   fs::create_directories(map_dir / "work" / "features");
+  const BuildLock lock(map_dir / "work" / "build.lock");
   BuildContext ctx = prepare_context(map_dir, opt);
   const GeoPosition origin = ctx.origin;
   result.images = ctx.records.size();
@@ -827,6 +856,9 @@ MapBuildResult build_map(const fs::path& map_dir, const MapBuildOptions& opt,
   std::map<int, SegmentProgress> running;
   const size_t to_build_total = to_build.size();
   size_t built = 0;
+  double seconds_built = 0;
+  // Segments built at once: the local threads, or on Slurm as many as run (at least 1).
+  size_t concurrency = static_cast<size_t>(jobs);
   auto report_segments = [&] {  // with state_mutex held
     if (!progress) return;
     MapBuildProgress p{"segments", segments_done, n_segments, total.elapsed_ms() / 1000, {}, -1};
@@ -836,14 +868,24 @@ MapBuildResult build_map(const fs::path& map_dir, const MapBuildOptions& opt,
       partial += stage_fraction(sp);
     }
     const double work_done = static_cast<double>(built) + partial;
+    const double remaining = static_cast<double>(to_build_total) - work_done;
     const double elapsed = t_segments.elapsed_ms() / 1000;
-    if (work_done > 0.25 && elapsed > 1) p.eta_s = elapsed / work_done * (static_cast<double>(to_build_total) - work_done);
+    if (built > 0) {
+      // Measured: seconds per segment of those finished in this run, spread
+      // over the segments built at once.
+      const double parallel = std::max<double>(1.0, std::min<double>(static_cast<double>(concurrency),
+                                                                     static_cast<double>(to_build_total)));
+      p.eta_s = seconds_built / static_cast<double>(built) * remaining / parallel;
+    } else if (work_done > 0.25 && elapsed > 1) {
+      p.eta_s = elapsed / work_done * remaining;  // from the stages of the running segments
+    }
     progress(p);
   };
   auto segment_finished = [&](const SegmentBuildResult& r) {  // with state_mutex held
     result.segments[r.id] = r;
     running.erase(r.id);
     ++built;
+    seconds_built += r.seconds;
     ++segments_done;
     write_current_manifest();
     report_segments();
@@ -863,14 +905,28 @@ MapBuildResult build_map(const fs::path& map_dir, const MapBuildOptions& opt,
     });
   } else if (!to_build.empty()) {
     // One Slurm array; its tasks write result.json (and progress.json while they run).
+    // An array of an interrupted run may still be building segments of this map.
+    const fs::path slurm_dir = map_dir / "work" / "slurm";
+    const fs::path active_file = slurm_dir / "active_job";
+    if (fs::exists(active_file)) {
+      std::string earlier = read_file(active_file);
+      while (!earlier.empty() && std::isspace(static_cast<unsigned char>(earlier.back()))) earlier.pop_back();
+      if (!earlier.empty() && SlurmArray::attach(opt.slurm, earlier, slurm_dir).running())
+        throw_error(ErrorCode::kInvalidArgument, "map build: Slurm array ", earlier, " of an earlier run is still ",
+                    "building segments of ", map_dir.string(), "; wait for it to end or cancel it (scancel ", earlier,
+                    "), then run this again");
+    }
     for (int id : to_build) {
       std::error_code ec;
       fs::remove(segment_result_file(map_dir, id), ec);
       fs::remove(segment_progress_file(map_dir, id), ec);
     }
-    const SlurmArray array = SlurmArray::submit(opt.slurm, to_build, opt.slurm_task_command, map_dir / "work" / "slurm");
+    const SlurmArray array = SlurmArray::submit(opt.slurm, to_build, opt.slurm_task_command, slurm_dir);
+    write_file_atomic(active_file, array.job_id() + "\n");
     std::set<int> pending(to_build.begin(), to_build.end());
     bool still_running = true;
+    size_t concurrency_seen = 1;
+    concurrency = 1;
     while (!pending.empty()) {
       if (!still_running) {
         // The array is gone: whatever has no result failed (killed, node lost, ...).
@@ -910,8 +966,12 @@ MapBuildResult build_map(const fs::path& map_dir, const MapBuildOptions& opt,
         }
       }
       for (int id : ended) pending.erase(id);
+      concurrency = std::max<size_t>(concurrency_seen, std::max<size_t>(1, running.size()));
+      concurrency_seen = concurrency;
       report_segments();
     }
+    std::error_code ec;
+    fs::remove(active_file, ec);
   }
   result.seconds_segments = t_segments.elapsed_ms() / 1000;
 

@@ -210,3 +210,46 @@ TEST(ColmapRunner, StrategyChoiceAndOptions) {
   o.threads = 0;
   EXPECT_THROW(ColmapRunner{o}, Error);
 }
+
+TEST(ColmapDatabaseWriter, CalibratedPairsAreStoredUnderColmapsPairId) {
+  fs::path dir = temp_dir("dbpairs");
+  int64_t a = 0, b = 0;
+  {
+    ColmapDatabaseWriter w(dir / "database.db");
+    const int64_t cid = w.add_camera(PinholeCamera::centered(640, 480, 500.0));
+    a = w.add_image("a.jpg", cid);
+    b = w.add_image("b.jpg", cid);
+    const Eigen::Matrix3d F = Eigen::Matrix3d::Identity(), E = Eigen::Matrix3d::Identity();
+    // Given as (b, a): stored as (a, b) with the columns swapped.
+    w.add_calibrated_pair(b, a, {{7, 1}, {9, 2}}, F, E, Eigen::Quaterniond::Identity(), Eigen::Vector3d(1, 0, 0));
+    EXPECT_THROW(w.add_calibrated_pair(a, a, {}, F, E, Eigen::Quaterniond::Identity(), Eigen::Vector3d(1, 0, 0)),
+                 Error);
+    w.commit();
+  }
+  ColmapDatabase db(dir / "database.db");
+  const auto m = db.verified_matches(a, b);
+  ASSERT_EQ(m.size(), 2u);
+  EXPECT_EQ(m[0], std::make_pair(uint32_t{1}, uint32_t{7}));
+  EXPECT_EQ(m[1], std::make_pair(uint32_t{2}, uint32_t{9}));
+}
+
+#include "visloc/sfm/slurm.h"
+
+TEST(Slurm, ShellQuotingSurvivesTheShell) {
+  const std::string tricky = "it's a \"map\" $HOME `x` \\ dir";
+  const fs::path dir = temp_dir("quote");
+  run_process({"/bin/sh", "-c", "printf %s " + shell_quote(tricky)}, dir / "out.txt");
+  const std::string out = read_file(dir / "out.txt");
+  EXPECT_EQ(out.substr(out.size() - tricky.size()), tricky);
+}
+
+TEST(Slurm, OptionsAreValidated) {
+  SlurmOptions o;
+  o.poll_seconds = 0;
+  EXPECT_THROW(o.validate(), Error);
+  o = {};
+  o.cpus_per_task = 0;
+  EXPECT_THROW(o.validate(), Error);
+  o = {};
+  EXPECT_THROW(SlurmArray::submit(o, {}, {"true"}, temp_dir("slurm_empty")), Error);
+}

@@ -112,6 +112,14 @@ SlurmArray SlurmArray::submit(const SlurmOptions& options, const std::vector<int
   return a;
 }
 
+SlurmArray SlurmArray::attach(const SlurmOptions& options, const std::string& job_id, const fs::path& log_dir) {
+  SlurmArray a;
+  a.options_ = options;
+  a.job_id_ = job_id;
+  a.log_dir_ = fs::absolute(log_dir);
+  return a;
+}
+
 bool SlurmArray::running() const {
   // squeue fails ("Invalid job id") once Slurm has forgotten the job: done.
   const std::string out = run_capture({"squeue", "-h", "-j", job_id_, "-o", "%i"}, false);

@@ -35,6 +35,10 @@ class SlurmArray {
   static SlurmArray submit(const SlurmOptions& options, const std::vector<int>& indices,
                            const std::vector<std::string>& command, const std::filesystem::path& log_dir);
 
+  // An array submitted earlier (e.g. by an interrupted run), by its job id.
+  static SlurmArray attach(const SlurmOptions& options, const std::string& job_id,
+                           const std::filesystem::path& log_dir);
+
   const std::string& job_id() const { return job_id_; }
   // True while squeue still lists a task of the array.
   bool running() const;
