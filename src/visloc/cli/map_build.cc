@@ -84,6 +84,10 @@ void bind_build_options(CLI::App* cmd, MapBuildArgs& a, bool update) {
                   "Retrieval embedding dimensions after PCA-whitening (0: full 4096)")
       ->capture_default_str();
   cmd->add_flag("!--no-retrieval", a.options.build_retrieval, "Do not build the retrieval index");
+  cmd->add_option("--pq-training-images", a.options.pq_training_images,
+                  "The PQ codebook trains on at most this many images, spread over the map (with --executor slurm "
+                  "only their features are extracted before the array; each task extracts its segment's)")
+      ->capture_default_str();
   add_sift_options(cmd, a.options.sift);
   if (update) cmd->add_option("--segment", a.segment, "The segment to rebuild")->required();
 }

@@ -20,8 +20,8 @@ export SLURM_CONF="$W/slurm/etc/slurm.conf"
 
 "$V" synth city --out "$W/city" --road-length 60 --headings 8 --elevations 10 --size 400x400 --queries 1 --jobs 2 --quiet
 common=(--images "$W/city/images" --gps "$W/city/gps.csv" --poses known --known-poses "$W/city/sparse"
-        --min-placemarks 3 --max-placemarks 4 --overlap 1 --no-retrieval)
-"$V" map build "${common[@]}" --out "$W/local" --jobs 2 > "$W/local.txt"
+        --min-placemarks 3 --max-placemarks 4 --overlap 1 --pq-training-images 8)
+"$V" map build "${common[@]}" --out "$W/local" --jobs 2 --no-retrieval > "$W/local.txt"
 "$V" map build "${common[@]}" --out "$W/slurm" --executor slurm > "$W/slurm.txt"
 cat "$W/slurm.txt"
 
@@ -37,10 +37,12 @@ echo "local:"; cat "$W/local.sum"; echo "slurm:"; cat "$W/slurm.sum"
 [ "$(wc -l < "$W/local.sum")" -ge 2 ] || { echo "FAIL: expected at least 2 segments"; exit 1; }
 diff "$W/local.sum" "$W/slurm.sum" || { echo "FAIL: the Slurm map differs from the local one"; exit 1; }
 ls "$W/slurm/work/slurm/"*.log >/dev/null || { echo "FAIL: no Slurm task logs"; exit 1; }
+cmp "$W/local/pq_codebook.vlpq" "$W/slurm/pq_codebook.vlpq" || { echo "FAIL: the PQ codebooks differ"; exit 1; }
+[ -f "$W/slurm/retrieval/index.vlidx" ] || { echo "FAIL: no retrieval index after the Slurm build"; exit 1; }
 
 # Resume: a segment whose result is gone is the only one resubmitted.
 rm -f "$W/slurm/work/seg0001/result.json"
-"$V" map build "${common[@]}" --out "$W/slurm" --executor slurm > "$W/slurm2.txt"
+"$V" map build "${common[@]}" --out "$W/slurm" --executor slurm --no-retrieval > "$W/slurm2.txt"
 cat "$W/slurm2.txt"
 [ "$(grep -c ' reused$' "$W/slurm2.txt")" -eq "$(( $(wc -l < "$W/local.sum") - 1 ))" ] \
   || { echo "FAIL: expected every segment but one reused"; exit 1; }
@@ -52,7 +54,7 @@ summary "$W/slurm" > "$W/slurm2.sum"
 diff "$W/local.sum" "$W/slurm2.sum" || { echo "FAIL: the resumed Slurm map differs"; exit 1; }
 
 # Failing tasks are reported with their Slurm logs; with no segment built the command fails.
-if "$V" map build "${common[@]}" --out "$W/failing" --executor slurm --colmap false > "$W/failing.txt" 2>&1; then
+if "$V" map build "${common[@]}" --out "$W/failing" --executor slurm --no-retrieval --colmap false > "$W/failing.txt" 2>&1; then
   echo "FAIL: a build whose every task failed exited 0"; cat "$W/failing.txt"; exit 1
 fi
 grep -q "Slurm log: .*/work/slurm/.*\.log" "$W/failing.txt" || { echo "FAIL: no Slurm log named"; cat "$W/failing.txt"; exit 1; }

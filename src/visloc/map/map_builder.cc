@@ -16,6 +16,7 @@
 #include <cmath>
 #include <iomanip>
 #include <map>
+#include <numeric>
 #include <mutex>
 #include <nlohmann/json.hpp>
 #include <random>
@@ -52,6 +53,8 @@ void MapBuildOptions::validate() const {
   if (jobs < 0) throw_error(ErrorCode::kInvalidArgument, "map build: jobs must be >= 0, got ", jobs);
   if (!(fallback_focal_factor > 0))
     throw_error(ErrorCode::kInvalidArgument, "map build: fallback_focal_factor must be positive");
+  if (pq_training_images < 1)
+    throw_error(ErrorCode::kInvalidArgument, "map build: pq_training_images must be >= 1");
   if (pq_training_descriptors < 256 * 4)
     throw_error(ErrorCode::kInvalidArgument, "map build: pq_training_descriptors must be >= 1024");
   if (matcher == PairMatcher::kGuided && poses != PoseSource::kKnown)
@@ -106,6 +109,7 @@ nlohmann::json to_json(const SegmentBuildResult& r) {
           {"registration_max_m", r.registration_max_m},
           {"registration_inliers", r.registration_inliers},
           {"seconds", r.seconds},
+          {"seconds_features", r.seconds_features},
           {"seconds_database", r.seconds_database},
           {"seconds_matching", r.seconds_matching},
           {"seconds_triangulation", r.seconds_triangulation},
@@ -135,6 +139,7 @@ SegmentBuildResult segment_result_from_json(const nlohmann::json& j) {
   r.registration_max_m = j.value("registration_max_m", 0.0);
   r.registration_inliers = j.value("registration_inliers", 0);
   r.seconds = j.value("seconds", 0.0);
+  r.seconds_features = j.value("seconds_features", 0.0);
   r.seconds_database = j.value("seconds_database", 0.0);
   r.seconds_matching = j.value("seconds_matching", 0.0);
   r.seconds_triangulation = j.value("seconds_triangulation", 0.0);
@@ -348,6 +353,55 @@ BuildContext prepare_context(const fs::path& map_dir, const MapBuildOptions& opt
 
 using SegmentProgressFn = std::function<void(const SegmentProgress&)>;
 
+// Our SIFT features of the given records, extracted where the feature file
+// is missing or unreadable (written atomically, so segments that share images
+// and run at once at worst extract one twice). `done(k)` reports progress;
+// errors are collected and thrown together.
+void ensure_features(const BuildContext& ctx, const std::vector<size_t>& records, int jobs,
+                     const std::function<void(size_t)>& done) {
+  const MapBuildOptions& opt = *ctx.options;
+  std::atomic<size_t> count{0};
+  std::mutex m;
+  std::vector<std::string> errors;
+  SiftExtractor sift(opt.sift);
+  parallel_for(records.size(), jobs, [&](size_t k) {
+    const size_t i = records[k];
+    const fs::path out = feature_path(ctx, ctx.records[i].image);
+    bool have = false;
+    if (fs::exists(out)) {
+      try {
+        read_feature_file(out);
+        have = true;
+      } catch (const Error&) {
+      }
+    }
+    if (!have) {
+      try {
+        fs::create_directories(out.parent_path());
+        write_feature_file(out, sift.extract_file(opt.images_dir / ctx.records[i].image));
+      } catch (const Error& e) {
+        std::lock_guard lock(m);
+        errors.push_back(e.what());
+      }
+    }
+    const size_t d = ++count;
+    if (done) {
+      std::lock_guard lock(m);
+      done(d);
+    }
+  });
+  if (!errors.empty()) throw_error(ErrorCode::kIo, errors.size(), " images could not be read: ", errors.front());
+}
+
+// The images whose descriptors train the PQ codebook: all of them, or at
+// most pq_training_images spread evenly along the map's order.
+std::vector<size_t> pq_training_records(const BuildContext& ctx) {
+  const size_t n = ctx.records.size(), k = std::min(n, ctx.options->pq_training_images);
+  std::vector<size_t> out;
+  for (size_t j = 0; j < k; ++j) out.push_back(j * n / k);
+  return out;
+}
+
 // Watches a COLMAP log while point_triangulator runs and reports "bundle
 // adjustment" once COLMAP has started it (it prints a bundle adjustment header).
 class ColmapStageWatcher {
@@ -409,6 +463,16 @@ SegmentBuildResult build_segment(const BuildContext& ctx, int id, const SegmentP
   for (int pm : ctx.plan.segments[id])
     for (size_t i : ctx.plan.placemarks[pm].images) images.push_back(i);
   res.images = images.size();
+
+  // 0. Features of the segment's images that are not there yet (a Slurm
+  // task extracts its own; locally they were extracted for the whole map).
+  {
+    Timer t_features;
+    ensure_features(ctx, images, 1, [&](size_t k) {
+      if (k % 8 == 0 || k == images.size()) stage("features", k, images.size());
+    });
+    res.seconds_features = t_features.elapsed_ms() / 1000;
+  }
 
   // 1. Our features into a fresh COLMAP database; with guided matching, the
   // matches and their two-view geometries too, in the same transaction.
@@ -670,6 +734,7 @@ SegmentBuildResult recorded_segment(const fs::path& map_dir, int id) {
 
 // Share of a segment's work done at a stage (for the map's ETA).
 double stage_fraction(const SegmentProgress& p) {
+  if (p.stage == "features") return p.total ? 0.02 * double(p.done) / double(p.total) : 0;
   if (p.stage == "database") return 0.02;
   if (p.stage == "matching") return p.total ? 0.05 + 0.45 * double(p.done) / double(p.total) : 0.05;
   if (p.stage == "triangulating") return 0.5;
@@ -723,39 +788,20 @@ MapBuildResult build_map(const fs::path& map_dir, const MapBuildOptions& opt,
   result.images = ctx.records.size();
   result.placemarks = ctx.plan.placemarks.size();
 
-  // Features, once per image (segments overlap), in parallel; cached.
+  // Features, once per image (segments overlap), in parallel; cached. On
+  // Slurm only those that train the PQ codebook: the tasks extract the rest.
   Timer t_features;
   {
-    std::atomic<size_t> done{0};
-    std::mutex m;
-    std::vector<std::string> errors;
-    SiftExtractor sift(opt.sift);
-    parallel_for(ctx.records.size(), jobs, [&](size_t i) {
-      const fs::path out = feature_path(ctx, ctx.records[i].image);
-      bool have = false;
-      if (fs::exists(out)) {
-        try {
-          read_feature_file(out);
-          have = true;
-        } catch (const Error&) {
-        }
-      }
-      if (!have) {
-        try {
-          write_feature_file(out, sift.extract_file(opt.images_dir / ctx.records[i].image));
-        } catch (const Error& e) {
-          std::lock_guard lock(m);
-          errors.push_back(e.what());
-        }
-      }
-      const size_t d = ++done;
-      if (progress) {
-        std::lock_guard lock(m);
-        progress({"features", d, ctx.records.size(), total.elapsed_ms() / 1000, {}, -1});
-      }
+    std::vector<size_t> records;
+    if (opt.executor == BuildExecutor::kSlurm) {
+      records = pq_training_records(ctx);
+    } else {
+      records.resize(ctx.records.size());
+      std::iota(records.begin(), records.end(), size_t{0});
+    }
+    ensure_features(ctx, records, jobs, [&](size_t d) {
+      if (progress) progress({"features", d, records.size(), total.elapsed_ms() / 1000, {}, -1});
     });
-    if (!errors.empty())
-      throw_error(ErrorCode::kIo, errors.size(), " images could not be read: ", errors.front());
   }
   result.seconds_features = t_features.elapsed_ms() / 1000;
 
@@ -764,11 +810,12 @@ MapBuildResult build_map(const fs::path& map_dir, const MapBuildOptions& opt,
   if (fs::exists(codebook_path)) {
     ctx.codebook = PqCodebook::read(codebook_path);
   } else {
-    const size_t per_image = (opt.pq_training_descriptors + ctx.records.size() - 1) / ctx.records.size();
+    const std::vector<size_t> training = pq_training_records(ctx);
+    const size_t per_image = (opt.pq_training_descriptors + training.size() - 1) / training.size();
     std::vector<float> sample;
     std::mt19937_64 rng(opt.pq.seed);
-    for (const auto& r : ctx.records) {
-      FeatureSet f = read_feature_file(feature_path(ctx, r.image));
+    for (size_t i : training) {
+      FeatureSet f = read_feature_file(feature_path(ctx, ctx.records[i].image));
       std::vector<size_t> rows(f.size());
       for (size_t k = 0; k < rows.size(); ++k) rows[k] = k;
       std::shuffle(rows.begin(), rows.end(), rng);

@@ -79,7 +79,10 @@ struct MapBuildOptions {
                                             //   SfM: COLMAP's spatial matcher on the GPS priors
   ItqOptions itq;
   PqTrainingOptions pq;
-  size_t pq_training_descriptors = 100000;  // sampled across all map images
+  size_t pq_training_descriptors = 100000;  // sampled across the training images:
+  size_t pq_training_images = 1000;         // at most this many images, spread evenly over the map
+                                            // (their features are extracted before any segment;
+                                            // on Slurm, each task extracts the rest of its own)
   SimilarityRansacOptions registration;     // GPS → ENU registration (threshold in metres)
   double fallback_focal_factor = 1.2;       // focal = factor × max(w, h) when EXIF has none
   int jobs = 0;                             // local: segments built in parallel (0: number of cores)
@@ -116,6 +119,7 @@ struct SegmentBuildResult {
   // Seconds per stage: COLMAP database with our features, matching (guided
   // or COLMAP's, with verification), triangulation + bundle adjustment
   // (COLMAP), compression + geo-registration + files.
+  double seconds_features = 0;  // features this segment had to extract (a Slurm task; 0 when all were there)
   double seconds_database = 0, seconds_matching = 0, seconds_triangulation = 0, seconds_compression = 0;
   std::string matcher;              // "guided" or "colmap"
   size_t pairs = 0;                 // candidate pairs given to the matcher (0: COLMAP chose)
