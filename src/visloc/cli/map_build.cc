@@ -97,7 +97,7 @@ void bind_build_options(CLI::App* cmd, MapBuildArgs& a, bool update) {
 std::vector<std::string> given_arguments(const CLI::App* cmd) {
   std::vector<std::string> args;
   for (const CLI::Option* o : cmd->get_options()) {
-    if (o->count() == 0 || o->get_name() == "--help" || o->get_positional()) continue;
+    if (o->count() == 0 || o->get_name() == "--help" || o->get_name() == "--segment" || o->get_positional()) continue;
     const std::string name = o->get_name();
     if (o->get_expected_min() == 0) {  // a flag
       for (size_t k = 0; k < o->count(); ++k) args.push_back(name);
@@ -111,10 +111,8 @@ std::vector<std::string> given_arguments(const CLI::App* cmd) {
   return args;
 }
 
-void record_build_arguments(const fs::path& map_dir, const std::vector<std::string>& args) {
-  fs::create_directories(map_dir / "work");
-  nlohmann::json j = {{"version", 1}, {"cwd", fs::current_path().string()}, {"args", args}};
-  write_file_atomic(map_dir / "work" / "build.json", j.dump(2));
+std::string build_record(const std::vector<std::string>& args) {
+  return nlohmann::json{{"version", 1}, {"cwd", fs::current_path().string()}, {"args", args}}.dump(2);
 }
 
 // Progress on stderr: on a terminal a live block (the map's line and one line
@@ -200,7 +198,7 @@ void apply_arguments(MapBuildArgs& a) {
 void run_build(const std::string& map_dir, MapBuildArgs& a, const CLI::App* cmd) {
   MapBuildOptions& o = a.options;
   apply_arguments(a);
-  if (a.segment < 0) record_build_arguments(map_dir, given_arguments(cmd));
+  o.build_record = build_record(given_arguments(cmd));
   if (o.executor == BuildExecutor::kSlurm) {
     std::error_code ec;
     const fs::path self = fs::read_symlink("/proc/self/exe", ec);
@@ -254,8 +252,25 @@ void add_map_build_commands(CLI::App& map) {
       "Build one segment of a map started by 'map build' with the options recorded in MAP/work/build.json "
       "(what each Slurm task runs; also for rebuilding one segment by hand)");
   t->add_option("map", *task_map, "Map directory")->required();
-  t->add_option("segment", *task_segment, "Segment index")->required()->check(CLI::NonNegativeNumber);
-  t->callback([task_map, task_segment] {
+  t->add_option("segment", *task_segment, "Segment index (with --task-list: the line of the list)")
+      ->required()
+      ->check(CLI::NonNegativeNumber);
+  auto task_list = std::make_shared<std::string>();
+  t->add_option("--task-list", *task_list, "File of segment ids, one per line (a Slurm array's task list)");
+  t->callback([task_map, task_segment, task_list] {
+    if (!task_list->empty()) {
+      std::istringstream list(read_file(*task_list));
+      std::vector<int> ids;
+      try {
+        for (std::string line; std::getline(list, line);)
+          if (!line.empty()) ids.push_back(std::stoi(line));
+      } catch (const std::exception&) {
+        throw_error(ErrorCode::kFormat, *task_list, ": not a list of segment ids");
+      }
+      if (*task_segment >= static_cast<int>(ids.size()))
+        throw_error(ErrorCode::kInvalidArgument, *task_list, ": no line ", *task_segment, " (", ids.size(), " segments)");
+      *task_segment = ids[static_cast<size_t>(*task_segment)];
+    }
     const fs::path map_dir = fs::absolute(*task_map);
     const fs::path record = map_dir / "work" / "build.json";
     if (!fs::exists(record))

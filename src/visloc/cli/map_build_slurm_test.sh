@@ -8,14 +8,14 @@
 #   map_build_slurm_test.sh VISLOC REPO_ROOT
 set -euo pipefail
 V="$(realpath "$1")"; ROOT="$(realpath "$2")"
-for p in slurmctld slurmd munged sbatch colmap; do
+for p in slurmctld slurmd munged mungekey sbatch squeue scontrol sinfo colmap; do
   command -v "$p" >/dev/null 2>&1 || { echo "SKIP: $p is not installed (slurm-wlm, munge, colmap)"; exit 77; }
 done
 W="$(mktemp -d /tmp/visloc-slurm-test.XXXXXX)"
 export SLURM_LOCAL_BASE="$W/slurm" SLURM_LOCAL_PORT="${VISLOC_TEST_SLURM_PORT:-6917}"
 cleanup() { "$ROOT/scripts/slurm-local.sh" stop >/dev/null 2>&1 || true; rm -rf "$W"; }
 trap cleanup EXIT
-"$ROOT/scripts/slurm-local.sh" start
+"$ROOT/scripts/slurm-local.sh" start || { echo "SKIP: the one-node Slurm cluster did not start here (see above)"; exit 77; }
 export SLURM_CONF="$W/slurm/etc/slurm.conf"
 
 "$V" synth city --out "$W/city" --road-length 60 --headings 8 --elevations 10 --size 400x400 --queries 1 --jobs 2 --quiet
@@ -46,10 +46,12 @@ rm -f "$W/slurm/work/seg0001/result.json"
 cat "$W/slurm2.txt"
 [ "$(grep -c ' reused$' "$W/slurm2.txt")" -eq "$(( $(wc -l < "$W/local.sum") - 1 ))" ] \
   || { echo "FAIL: expected every segment but one reused"; exit 1; }
-jobs=$(ls "$W/slurm/work/slurm/" | sed 's/_.*//' | sort -u | wc -l)
+logs() { ls "$W/slurm/work/slurm/" | grep '\.log$'; }
+jobs=$(logs | sed 's/_.*//' | sort -u | wc -l)
 [ "$jobs" -eq 2 ] || { echo "FAIL: expected 2 arrays, found $jobs"; exit 1; }
-last=$(ls "$W/slurm/work/slurm/" | sed 's/_.*//' | sort -n | tail -1)
-[ "$(ls "$W/slurm/work/slurm/" | grep -c "^${last}_")" -eq 1 ] || { echo "FAIL: the second array ran more than one task"; exit 1; }
+last=$(logs | sed 's/_.*//' | sort -n | tail -1)
+[ "$(logs | grep -c "^${last}_")" -eq 1 ] || { echo "FAIL: the second array ran more than one task"; exit 1; }
+[ ! -e "$W/slurm/work/slurm/active_job" ] || { echo "FAIL: active_job left after the arrays ended"; exit 1; }
 summary "$W/slurm" > "$W/slurm2.sum"
 diff "$W/local.sum" "$W/slurm2.sum" || { echo "FAIL: the resumed Slurm map differs"; exit 1; }
 

@@ -15,7 +15,9 @@
 #include <optional>
 #include <cmath>
 #include <iomanip>
+#include <limits>
 #include <map>
+#include <string_view>
 #include <numeric>
 #include <mutex>
 #include <nlohmann/json.hpp>
@@ -53,6 +55,8 @@ void MapBuildOptions::validate() const {
   if (jobs < 0) throw_error(ErrorCode::kInvalidArgument, "map build: jobs must be >= 0, got ", jobs);
   if (!(fallback_focal_factor > 0))
     throw_error(ErrorCode::kInvalidArgument, "map build: fallback_focal_factor must be positive");
+  if (!(pair_max_distance > 0) || !(pair_max_angle_deg > 0 && pair_max_angle_deg <= 180))
+    throw_error(ErrorCode::kInvalidArgument, "map build: pair_max_distance must be > 0 and pair_max_angle_deg in (0, 180]");
   if (pq_training_images < 1)
     throw_error(ErrorCode::kInvalidArgument, "map build: pq_training_images must be >= 1");
   if (pq_training_descriptors < 256 * 4)
@@ -353,35 +357,56 @@ BuildContext prepare_context(const fs::path& map_dir, const MapBuildOptions& opt
 
 using SegmentProgressFn = std::function<void(const SegmentProgress&)>;
 
+// The images of every segment, in order: what the coordinator planned, which
+// a Slurm task checks against its own plan before building.
+std::vector<std::string> segment_images(const BuildContext& ctx, int id) {
+  std::vector<std::string> names;
+  for (int pm : ctx.plan.segments[id])
+    for (size_t i : ctx.plan.placemarks[pm].images) names.push_back(ctx.records[i].image);
+  return names;
+}
+nlohmann::json plan_json(const BuildContext& ctx) {
+  nlohmann::json segments = nlohmann::json::array();
+  for (size_t s = 0; s < ctx.plan.segments.size(); ++s) segments.push_back(segment_images(ctx, static_cast<int>(s)));
+  return {{"version", 1}, {"segments", segments}};
+}
+
 // Our SIFT features of the given records, extracted where the feature file
 // is missing or unreadable (written atomically, so segments that share images
 // and run at once at worst extract one twice). `done(k)` reports progress;
 // errors are collected and thrown together.
-void ensure_features(const BuildContext& ctx, const std::vector<size_t>& records, int jobs,
+void ensure_features(const BuildContext& ctx, const std::vector<size_t>& records, int jobs, bool validate,
                      const std::function<void(size_t)>& done) {
   const MapBuildOptions& opt = *ctx.options;
   std::atomic<size_t> count{0};
   std::mutex m;
   std::vector<std::string> errors;
-  SiftExtractor sift(opt.sift);
+  std::optional<SiftExtractor> sift;  // made when a feature file is missing
   parallel_for(records.size(), jobs, [&](size_t k) {
     const size_t i = records[k];
     const fs::path out = feature_path(ctx, ctx.records[i].image);
     bool have = false;
     if (fs::exists(out)) {
-      try {
-        read_feature_file(out);
-        have = true;
-      } catch (const Error&) {
+      have = true;
+      if (validate) {
+        try {
+          read_feature_file(out);
+        } catch (const Error&) {
+          have = false;
+        }
       }
     }
     if (!have) {
       try {
+        {
+          std::lock_guard lock(m);
+          if (!sift) sift.emplace(opt.sift);
+        }
         fs::create_directories(out.parent_path());
-        write_feature_file(out, sift.extract_file(opt.images_dir / ctx.records[i].image));
-      } catch (const Error& e) {
+        write_feature_file(out, sift->extract_file(opt.images_dir / ctx.records[i].image));
+      } catch (const std::exception& e) {
         std::lock_guard lock(m);
-        errors.push_back(e.what());
+        errors.push_back(opt.images_dir.string() + "/" + ctx.records[i].image + ": " + e.what());
       }
     }
     const size_t d = ++count;
@@ -422,16 +447,26 @@ class ColmapStageWatcher {
     return ec ? 0 : n;
   }
   void run() {
-    while (!stop_) {
-      for (int i = 0; i < 10 && !stop_; ++i) std::this_thread::sleep_for(std::chrono::milliseconds(50));
-      if (stop_) break;
-      std::ifstream in(log_);
-      in.seekg(static_cast<std::streamoff>(start_));
-      std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-      if (text.find("undle adjustment") != std::string::npos) {
-        report_({segment_, "bundle adjustment", 0, 0});
-        break;
+    // Reads only what COLMAP appended since the last look (keeping a tail as
+    // long as the pattern, which may straddle two reads).
+    static constexpr std::string_view kPattern = "Bundle adjustment";
+    uintmax_t offset = start_;
+    std::string carry;
+    try {
+      while (!stop_) {
+        for (int i = 0; i < 10 && !stop_; ++i) std::this_thread::sleep_for(std::chrono::milliseconds(50));
+        if (stop_) break;
+        std::ifstream in(log_);
+        in.seekg(static_cast<std::streamoff>(offset));
+        std::string text = carry + std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+        offset += text.size() - carry.size();
+        if (text.find(kPattern) != std::string::npos) {
+          report_({segment_, "bundle adjustment", 0, 0});
+          break;
+        }
+        carry = text.size() > kPattern.size() ? text.substr(text.size() - kPattern.size()) : text;
       }
+    } catch (const std::exception&) {  // progress is best effort; never end the process for it
     }
   }
   fs::path log_;
@@ -468,7 +503,7 @@ SegmentBuildResult build_segment(const BuildContext& ctx, int id, const SegmentP
   // task extracts its own; locally they were extracted for the whole map).
   {
     Timer t_features;
-    ensure_features(ctx, images, 1, [&](size_t k) {
+    ensure_features(ctx, images, 1, false, [&](size_t k) {
       if (k % 8 == 0 || k == images.size()) stage("features", k, images.size());
     });
     res.seconds_features = t_features.elapsed_ms() / 1000;
@@ -521,7 +556,12 @@ SegmentBuildResult build_segment(const BuildContext& ctx, int id, const SegmentP
       t_stage = Timer();
       std::vector<CameraPose> poses;
       for (const auto& im : text_images) poses.push_back(im.cam_from_world);
-      const auto pairs = overlapping_pairs(poses, opt.pair_max_distance, opt.pair_max_angle_deg);
+      // Small segments: every pair (as COLMAP's exhaustive matching); else
+      // pairs that can overlap, distances in metres (the known frame's scale).
+      const auto pairs = images.size() <= opt.exhaustive_max_images
+                             ? overlapping_pairs(poses, std::numeric_limits<double>::infinity(), 180)
+                             : overlapping_pairs(poses, opt.pair_max_distance / ctx.enu_from_known.scale,
+                                                 opt.pair_max_angle_deg);
       if (pairs.empty()) throw_error(ErrorCode::kInvalidArgument, "segment ", id, ": no overlapping image pairs");
       res.pairs = pairs.size();
       std::vector<CenteredKeypoints> centered(features.size());
@@ -559,7 +599,8 @@ SegmentBuildResult build_segment(const BuildContext& ctx, int id, const SegmentP
       // Known poses: match only views that can overlap (near, looking alike).
       std::vector<CameraPose> poses;
       for (const auto& im : text_images) poses.push_back(im.cam_from_world);
-      const auto pairs = overlapping_pairs(poses, opt.pair_max_distance, opt.pair_max_angle_deg);
+      const auto pairs =
+          overlapping_pairs(poses, opt.pair_max_distance / ctx.enu_from_known.scale, opt.pair_max_angle_deg);
       if (pairs.empty()) throw_error(ErrorCode::kInvalidArgument, "segment ", id, ": no overlapping image pairs");
       std::ostringstream list;
       for (const auto& [a, b] : pairs) list << text_images[a].name << ' ' << text_images[b].name << '\n';
@@ -572,10 +613,11 @@ SegmentBuildResult build_segment(const BuildContext& ctx, int id, const SegmentP
     res.seconds_matching = t_stage.elapsed_ms() / 1000;
   }
   t_stage = Timer();
-  stage("triangulating");
+  stage(ctx.known ? "triangulating" : "reconstructing (COLMAP mapper)");
   fs::path model_dir;
   {
-    ColmapStageWatcher watcher(log, id, report);
+    // Known poses: point_triangulator triangulates, then bundle-adjusts.
+    ColmapStageWatcher watcher(log, id, ctx.known ? report : SegmentProgressFn{});
     if (ctx.known) {
       write_colmap_text_model(work / "known", text_cameras, text_images);
       model_dir = work / "sparse" / "0";
@@ -755,6 +797,21 @@ SegmentBuildResult build_planned_segment(const fs::path& map_dir, const MapBuild
   if (segment < 0 || segment >= static_cast<int>(ctx.plan.segments.size()))
     throw_error(ErrorCode::kInvalidArgument, "segment ", segment, " does not exist (the map has ",
                 ctx.plan.segments.size(), ")");
+  {
+    // The inputs must still give the plan the build started from.
+    const fs::path plan_file = map_dir / "work" / "plan.json";
+    std::vector<std::string> planned;
+    try {
+      planned = nlohmann::json::parse(read_file(plan_file)).at("segments").at(segment).get<std::vector<std::string>>();
+    } catch (const Error&) {
+      throw;
+    } catch (const std::exception& e) {
+      throw_error(ErrorCode::kFormat, plan_file.string(), ": no plan for segment ", segment, ": ", e.what());
+    }
+    if (planned != segment_images(ctx, segment))
+      throw_error(ErrorCode::kInvalidArgument, "segment ", segment, ": the images and GPS now give another plan than ",
+                  plan_file.string(), " (inputs changed since 'map build' started?); run 'map build' again");
+  }
   ctx.codebook = PqCodebook::read(codebook_path);
   // Progress for the coordinator, which polls it: a file rewritten on every stage change.
   std::string last_stage;
@@ -783,8 +840,23 @@ MapBuildResult build_map(const fs::path& map_dir, const MapBuildOptions& opt,
   const int jobs = opt.jobs > 0 ? opt.jobs : std::max(1u, std::thread::hardware_concurrency());
   fs::create_directories(map_dir / "work" / "features");
   const BuildLock lock(map_dir / "work" / "build.lock");
+  // An array of an interrupted Slurm run may still be building segments of this map.
+  const fs::path slurm_dir = map_dir / "work" / "slurm";
+  const fs::path active_file = slurm_dir / "active_job";
+  if (fs::exists(active_file)) {
+    std::istringstream jobs_listed(read_file(active_file));
+    for (std::string earlier; jobs_listed >> earlier;)
+      if (SlurmArray::attach(opt.slurm, earlier, slurm_dir).poll() != SlurmArray::State::kDone)
+        throw_error(ErrorCode::kInvalidArgument, "map build: Slurm array ", earlier, " of an earlier run may still be ",
+                    "building segments of ", map_dir.string(), "; wait for it to end or cancel it (scancel ", earlier,
+                    "), then run this again (or, if no task can run any more, delete ", active_file.string(), ")");
+    std::error_code ec;
+    fs::remove(active_file, ec);
+  }
+  if (!opt.build_record.empty()) write_file_atomic(map_dir / "work" / "build.json", opt.build_record);
   BuildContext ctx = prepare_context(map_dir, opt);
   const GeoPosition origin = ctx.origin;
+  write_file_atomic(map_dir / "work" / "plan.json", plan_json(ctx).dump());
   result.images = ctx.records.size();
   result.placemarks = ctx.plan.placemarks.size();
 
@@ -799,7 +871,7 @@ MapBuildResult build_map(const fs::path& map_dir, const MapBuildOptions& opt,
       records.resize(ctx.records.size());
       std::iota(records.begin(), records.end(), size_t{0});
     }
-    ensure_features(ctx, records, jobs, [&](size_t d) {
+    ensure_features(ctx, records, jobs, true, [&](size_t d) {
       if (progress) progress({"features", d, records.size(), total.elapsed_ms() / 1000, {}, -1});
     });
   }
@@ -951,57 +1023,67 @@ MapBuildResult build_map(const fs::path& map_dir, const MapBuildOptions& opt,
       segment_finished(r);
     });
   } else if (!to_build.empty()) {
-    // One Slurm array; its tasks write result.json (and progress.json while they run).
-    // An array of an interrupted run may still be building segments of this map.
-    const fs::path slurm_dir = map_dir / "work" / "slurm";
-    const fs::path active_file = slurm_dir / "active_job";
-    if (fs::exists(active_file)) {
-      std::string earlier = read_file(active_file);
-      while (!earlier.empty() && std::isspace(static_cast<unsigned char>(earlier.back()))) earlier.pop_back();
-      if (!earlier.empty() && SlurmArray::attach(opt.slurm, earlier, slurm_dir).running())
-        throw_error(ErrorCode::kInvalidArgument, "map build: Slurm array ", earlier, " of an earlier run is still ",
-                    "building segments of ", map_dir.string(), "; wait for it to end or cancel it (scancel ", earlier,
-                    "), then run this again");
-    }
+    // Slurm: arrays of at most max_array_size tasks; task k of an array builds
+    // the k-th segment of its task list. Tasks write result.json (and
+    // progress.json while they run).
     for (int id : to_build) {
       std::error_code ec;
       fs::remove(segment_result_file(map_dir, id), ec);
       fs::remove(segment_progress_file(map_dir, id), ec);
     }
-    const SlurmArray array = SlurmArray::submit(opt.slurm, to_build, opt.slurm_task_command, slurm_dir);
-    write_file_atomic(active_file, array.job_id() + "\n");
+    struct Submitted {
+      SlurmArray array;
+      std::vector<int> segments;
+      SlurmArray::State state = SlurmArray::State::kRunning;
+    };
+    std::vector<Submitted> arrays;
+    std::map<int, std::pair<size_t, int>> task_of;  // segment → (array, task index)
+    const std::string stamp = std::to_string(std::chrono::duration_cast<std::chrono::milliseconds>(
+                                                 std::chrono::system_clock::now().time_since_epoch())
+                                                 .count());
+    std::string active;
+    for (size_t first = 0; first < to_build.size(); first += opt.slurm.max_array_size) {
+      const std::vector<int> chunk(
+          to_build.begin() + static_cast<std::ptrdiff_t>(first),
+          to_build.begin() + static_cast<std::ptrdiff_t>(std::min(to_build.size(), first + opt.slurm.max_array_size)));
+      const fs::path list = slurm_dir / ("tasks-" + stamp + "-" + std::to_string(arrays.size()) + ".txt");
+      std::string text;
+      for (int id : chunk) text += std::to_string(id) + "\n";
+      fs::create_directories(slurm_dir);
+      write_file_atomic(list, text);
+      std::vector<int> indices(chunk.size());
+      std::iota(indices.begin(), indices.end(), 0);
+      std::vector<std::string> command = opt.slurm_task_command;
+      command.insert(command.end(), {"--task-list", fs::absolute(list).string()});
+      arrays.push_back({SlurmArray::submit(opt.slurm, indices, command, slurm_dir), chunk});
+      for (size_t k = 0; k < chunk.size(); ++k) task_of[chunk[k]] = {arrays.size() - 1, static_cast<int>(k)};
+      active += arrays.back().array.job_id() + "\n";
+      write_file_atomic(active_file, active);
+    }
+    auto task_name = [&](int id) {
+      const auto [a, k] = task_of.at(id);
+      return arrays[a].array.job_id() + "_" + std::to_string(k);
+    };
+    auto task_log = [&](int id) {
+      const auto [a, k] = task_of.at(id);
+      return arrays[a].array.task_log(k).string();
+    };
+    // A result is looked for by listing its directory, which makes a shared
+    // filesystem revalidate what it cached about that directory.
+    auto has_result = [&](int id) {
+      std::error_code ec;
+      for (fs::directory_iterator it(segment_work_dir(map_dir, id), ec), end; !ec && it != end; it.increment(ec))
+        if (it->path().filename() == "result.json") return true;
+      return false;
+    };
     std::set<int> pending(to_build.begin(), to_build.end());
-    bool still_running = true;
-    size_t concurrency_seen = 1;
-    concurrency = 1;
-    while (!pending.empty()) {
-      if (!still_running) {
-        // The array is gone: whatever has no result failed (killed, node lost, ...).
-        const auto states = array.task_states();
-        for (int id : pending) {
-          SegmentBuildResult r = recorded_segment(map_dir, id);
-          if (!r.ok && r.error == "the task left no result") {
-            std::ostringstream why;
-            why << "Slurm task " << array.job_id() << "_" << id << " left no result";
-            auto st = states.find(id);
-            if (st != states.end())
-              why << " (" << st->second.state << ", exit " << st->second.exit_code << ":" << st->second.signal << ")";
-            why << "; log: " << array.task_log(id).string();
-            r.error = why.str();
-          }
-          std::lock_guard lock(state_mutex);
-          segment_finished(r);
-        }
-        break;
-      }
-      std::this_thread::sleep_for(std::chrono::milliseconds(static_cast<int>(opt.slurm.poll_seconds * 1000)));
-      still_running = array.running();
+    auto collect = [&] {  // results that appeared, and progress of the rest
       std::vector<int> ended;
       std::lock_guard lock(state_mutex);
       for (int id : pending) {
-        if (fs::exists(segment_result_file(map_dir, id))) {
+        if (has_result(id)) {
           SegmentBuildResult r = recorded_segment(map_dir, id);
-          if (!r.ok) r.error += " (Slurm log: " + array.task_log(id).string() + ")";
+          if (!r.ok) r.error += " (Slurm task " + task_name(id) + ", log: " + task_log(id) + ")";
           segment_finished(r);
           ended.push_back(id);
           continue;
@@ -1013,9 +1095,65 @@ MapBuildResult build_map(const fs::path& map_dir, const MapBuildOptions& opt,
         }
       }
       for (int id : ended) pending.erase(id);
-      concurrency = std::max<size_t>(concurrency_seen, std::max<size_t>(1, running.size()));
-      concurrency_seen = concurrency;
+      concurrency = std::max<size_t>(concurrency, std::max<size_t>(1, running.size()));
       report_segments();
+    };
+    concurrency = 1;
+    Timer since_poll, unreachable;
+    bool any_running = true;
+    while (!pending.empty() && any_running) {
+      std::this_thread::sleep_for(std::chrono::seconds(1));
+      collect();
+      if (since_poll.elapsed_ms() < opt.slurm.poll_seconds * 1000) continue;
+      since_poll = Timer();
+      any_running = false;
+      bool any_unknown = false;
+      for (auto& a : arrays) {
+        if (a.state != SlurmArray::State::kDone) a.state = a.array.poll();
+        any_running |= a.state != SlurmArray::State::kDone;
+        any_unknown |= a.state == SlurmArray::State::kUnknown;
+      }
+      if (!any_unknown) unreachable = Timer();
+      if (unreachable.elapsed_ms() > opt.slurm.unreachable_seconds * 1000)
+        throw_error(ErrorCode::kExternalTool, "map build: squeue has failed for ", opt.slurm.unreachable_seconds,
+                    " s; the arrays (", active.substr(0, active.size() - 1),
+                    ") are left running; run the same command again once Slurm answers");
+    }
+    // The arrays are gone: results may still be on their way through a
+    // shared filesystem. Tasks that Slurm reports as failed are not waited for.
+    Timer grace;
+    while (!pending.empty()) {
+      collect();
+      if (pending.empty()) break;
+      std::map<size_t, std::map<int, SlurmTaskState>> states;
+      for (size_t a = 0; a < arrays.size(); ++a) states[a] = arrays[a].array.task_states();
+      bool wait = false;
+      for (int id : pending) {
+        const auto [a, k] = task_of.at(id);
+        const auto st = states[a].find(k);
+        const bool known_failure =
+            st != states[a].end() && !st->second.state.empty() && st->second.state != "COMPLETED";
+        if (!known_failure && grace.elapsed_ms() < opt.slurm.result_grace_seconds * 1000) wait = true;
+      }
+      if (wait) {
+        std::this_thread::sleep_for(std::chrono::seconds(2));
+        continue;
+      }
+      std::lock_guard lock(state_mutex);
+      for (int id : pending) {
+        const auto [a, k] = task_of.at(id);
+        std::ostringstream why;
+        why << "Slurm task " << task_name(id) << " left no result";
+        const auto st = states[a].find(k);
+        if (st != states[a].end())
+          why << " (" << st->second.state << ", exit " << st->second.exit_code << ":" << st->second.signal << ")";
+        why << "; log: " << task_log(id);
+        SegmentBuildResult r;
+        r.id = id;
+        r.error = why.str();
+        segment_finished(r);
+      }
+      pending.clear();
     }
     std::error_code ec;
     fs::remove(active_file, ec);

@@ -73,6 +73,9 @@ struct MapBuildOptions {
   // kSlurm: the command each task runs, without the segment index that Slurm
   // appends (e.g. {"/usr/bin/visloc", "map", "build-segment", "/abs/MAP"}).
   std::vector<std::string> slurm_task_command;
+  // Written to MAP/work/build.json once the build holds the map (the CLI
+  // records its options there for `map build-segment`); empty: not written.
+  std::string build_record;
   size_t exhaustive_max_images = 20;        // COLMAP exhaustive matching up to this many images, else:
   double pair_max_distance = 30;            //   known poses: pairs of views at most this far apart (m)
   double pair_max_angle_deg = 60;           //   and looking within this angle of each other;

@@ -18,13 +18,26 @@ void SlurmOptions::validate() const {
   if (cpus_per_task < 1)
     throw_error(ErrorCode::kInvalidArgument, "slurm: cpus_per_task must be >= 1, got ", cpus_per_task);
   if (job_name.empty()) throw_error(ErrorCode::kInvalidArgument, "slurm: job_name is empty");
+  if (!(poll_seconds <= 3600) || !(result_grace_seconds >= 0 && result_grace_seconds <= 3600) ||
+      !(unreachable_seconds > 0 && unreachable_seconds <= 86400))
+    throw_error(ErrorCode::kInvalidArgument, "slurm: poll, grace and unreachable times must be within bounds");
+  if (max_array_size < 1) throw_error(ErrorCode::kInvalidArgument, "slurm: max_array_size must be >= 1");
+  // Options that visloc sets itself and that would break how it follows the array.
+  std::istringstream extra(extra_args);
+  for (std::string a; extra >> a;)
+    for (const char* own : {"--array", "-a", "--wrap", "--output", "-o", "--error", "-e", "--parsable", "--job-name",
+                            "-J", "--wait", "-W", "--test-only"})
+      if (a == own || a.rfind(std::string(own) + "=", 0) == 0)
+        throw_error(ErrorCode::kInvalidArgument, "slurm: --slurm-args must not contain ", own,
+                    " (visloc sets it to follow the array)");
 }
 
 namespace {
 
 // Runs a Slurm client and returns its standard output (and error); throws
 // with that text when it fails.
-std::string run_capture(const std::vector<std::string>& argv, bool throw_on_failure = true) {
+std::string run_capture(const std::vector<std::string>& argv, bool throw_on_failure = true, bool* ok = nullptr,
+                        std::string* error_text = nullptr) {
   char tmpl[] = "/tmp/visloc-slurm-XXXXXX";
   const int fd = ::mkstemp(tmpl);
   if (fd < 0) throw_error(ErrorCode::kIo, "slurm: cannot create a temporary file");
@@ -38,8 +51,11 @@ std::string run_capture(const std::vector<std::string>& argv, bool throw_on_fail
     std::error_code ec;
     fs::remove(out, ec);
     if (throw_on_failure) throw;
+    if (ok) *ok = false;
+    if (error_text) *error_text = e.what();
     return "";
   }
+  if (ok) *ok = true;
   std::error_code ec;
   fs::remove(out, ec);
   // run_process heads its log with "\n$ command\n": keep only the program's output.
@@ -82,6 +98,10 @@ SlurmArray SlurmArray::submit(const SlurmOptions& options, const std::vector<int
   if (!program_exists("sbatch"))
     throw_error(ErrorCode::kNotFound, "slurm: sbatch is not on the PATH (install slurm-wlm, or use --executor local)");
   fs::create_directories(log_dir);
+  // Slurm expands % in -o; a literal % is %%.
+  std::string log_pattern;
+  for (char c : fs::absolute(log_dir).string()) log_pattern += c == '%' ? std::string("%%") : std::string(1, c);
+  log_pattern += "/%A_%a.log";
   std::string array;
   for (int i : indices) array += (array.empty() ? "" : ",") + std::to_string(i);
   std::string wrap = "exec";
@@ -89,7 +109,7 @@ SlurmArray SlurmArray::submit(const SlurmOptions& options, const std::vector<int
   wrap += " \"$SLURM_ARRAY_TASK_ID\"";
   std::vector<std::string> argv = {"sbatch", "--parsable", "--array=" + array, "-J", options.job_name,
                                    "--cpus-per-task=" + std::to_string(options.cpus_per_task),
-                                   "-o", (fs::absolute(log_dir) / "%A_%a.log").string()};
+                                   "-o", log_pattern};
   if (!options.partition.empty()) argv.push_back("--partition=" + options.partition);
   std::istringstream extra(options.extra_args);
   for (std::string a; extra >> a;) argv.push_back(a);
@@ -120,10 +140,13 @@ SlurmArray SlurmArray::attach(const SlurmOptions& options, const std::string& jo
   return a;
 }
 
-bool SlurmArray::running() const {
-  // squeue fails ("Invalid job id") once Slurm has forgotten the job: done.
-  const std::string out = run_capture({"squeue", "-h", "-j", job_id_, "-o", "%i"}, false);
-  return out.find_first_not_of(" \n") != std::string::npos;
+SlurmArray::State SlurmArray::poll() const {
+  bool ok = false;
+  std::string error;
+  const std::string out = run_capture({"squeue", "-h", "-j", job_id_, "-o", "%i"}, false, &ok, &error);
+  // squeue fails with "Invalid job id" once Slurm has forgotten the job: done.
+  if (!ok) return error.find("Invalid job id") != std::string::npos ? State::kDone : State::kUnknown;
+  return out.find_first_not_of(" \n") != std::string::npos ? State::kRunning : State::kDone;
 }
 
 std::map<int, SlurmTaskState> SlurmArray::task_states() const {

@@ -16,7 +16,11 @@ struct SlurmOptions {
   std::string extra_args;       // more sbatch options, split at whitespace (e.g. "--mem=8G --time=2:00:00")
   std::string job_name = "visloc-map";
   int cpus_per_task = 1;
-  double poll_seconds = 1.0;    // squeue polling while waiting for the array
+  double poll_seconds = 5.0;    // squeue polling while waiting for the array (progress files: every second)
+  double result_grace_seconds = 60;  // after the array ends, how long to wait for results to appear
+                                     // (a shared filesystem may show another node's files late)
+  double unreachable_seconds = 600;  // squeue failing this long: stop waiting (the array is left alone)
+  size_t max_array_size = 1000;      // tasks per array (Slurm's MaxArraySize − 1 by default); more: several arrays
   void validate() const;
 };
 
@@ -40,8 +44,10 @@ class SlurmArray {
                            const std::filesystem::path& log_dir);
 
   const std::string& job_id() const { return job_id_; }
-  // True while squeue still lists a task of the array.
-  bool running() const;
+  // kRunning while squeue lists a task of the array, kDone once it lists
+  // none (or no longer knows the job), kUnknown when squeue itself failed.
+  enum class State { kRunning, kDone, kUnknown };
+  State poll() const;
   // State of every task Slurm still remembers (scontrol; MinJobAge).
   std::map<int, SlurmTaskState> task_states() const;
   std::filesystem::path task_log(int index) const;

@@ -1,6 +1,7 @@
 #include "visloc/util/file_io.h"
 
 #include <fcntl.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <cerrno>
@@ -13,11 +14,14 @@
 namespace visloc {
 
 AtomicFileWriter::AtomicFileWriter(std::filesystem::path target) : target_(std::move(target)) {
-  temp_ = target_;
-  temp_ += ".tmp." + std::to_string(::getpid());
-  fd_ = ::open(temp_.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  // A unique temporary name beside the target (mkstemp: O_EXCL), so that
+  // threads, processes and other hosts writing the same target never share it.
+  std::string name = target_.string() + ".tmp.XXXXXX";
+  fd_ = ::mkostemp(name.data(), O_CLOEXEC);
+  temp_ = name;
   if (fd_ < 0)
-    throw_error(ErrorCode::kIo, "cannot create ", temp_.string(), ": ", std::strerror(errno));
+    throw_error(ErrorCode::kIo, "cannot create a temporary file beside ", target_.string(), ": ", std::strerror(errno));
+  ::fchmod(fd_, 0644);
 }
 
 AtomicFileWriter::~AtomicFileWriter() {
