@@ -58,7 +58,7 @@ MpiDefault=none
 MailProg=/bin/true
 ReturnToService=2
 MinJobAge=300
-NodeName=localhost NodeAddr=127.0.0.1 CPUs=$(nproc) RealMemory=$mem State=UNKNOWN
+NodeName=localhost NodeAddr=127.0.0.1 CPUs=$(nproc --all) RealMemory=$mem State=UNKNOWN
 PartitionName=debug Nodes=localhost Default=YES MaxTime=INFINITE State=UP
 CONF
 }
@@ -80,7 +80,7 @@ start() {
   alive "$BASE/run/slurmd.pid" || slurmd -f "$CONF" || die "slurmd did not start (log: $BASE/log/slurmd.log)"
   for _ in $(seq 1 100); do
     if sinfo -h -N -o %t 2>/dev/null | grep -qx idle; then
-      echo "slurm-local: up ($(nproc) CPUs, state in $BASE)"
+      echo "slurm-local: up ($(nproc --all) CPUs, state in $BASE)"
       echo "export SLURM_CONF=$CONF"
       return 0
     fi

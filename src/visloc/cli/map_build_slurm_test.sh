@@ -59,5 +59,5 @@ diff "$W/local.sum" "$W/slurm2.sum" || { echo "FAIL: the resumed Slurm map diffe
 if "$V" map build "${common[@]}" --out "$W/failing" --executor slurm --no-retrieval --colmap false > "$W/failing.txt" 2>&1; then
   echo "FAIL: a build whose every task failed exited 0"; cat "$W/failing.txt"; exit 1
 fi
-grep -q "Slurm log: .*/work/slurm/.*\.log" "$W/failing.txt" || { echo "FAIL: no Slurm log named"; cat "$W/failing.txt"; exit 1; }
+grep -q "log: .*/failing/work/slurm/[0-9]*_[0-9]*\.log" "$W/failing.txt" || { echo "FAIL: no Slurm log named"; cat "$W/failing.txt"; exit 1; }
 echo "PASS"
