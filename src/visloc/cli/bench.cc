@@ -12,6 +12,7 @@ void add_bench_command(CLI::App& app) {
   add_bench_pose(*bench);
   add_bench_retrieval(*bench);
   add_bench_end_to_end(*bench);
+  add_bench_city(*bench);
 }
 
 }  // namespace visloc::cli

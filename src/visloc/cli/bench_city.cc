@@ -1,0 +1,120 @@
+// visloc bench city: the city benchmark (eval/city_benchmark.h).
+#include <unistd.h>
+
+#include <cstdio>
+#include <filesystem>
+#include <iostream>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <sstream>
+#include <thread>
+
+#include "visloc/cli/commands.h"
+#include "visloc/cli/localizer_options.h"
+#include "visloc/eval/city_benchmark.h"
+#include "visloc/util/error.h"
+#include "visloc/util/file_io.h"
+
+namespace visloc::cli {
+namespace fs = std::filesystem;
+
+void add_bench_city(CLI::App& bench) {
+  struct Args {
+    CityBenchmarkOptions options;
+    std::string out, layout = "grid", elevations = "10", size = "640x640", executor = "local", setting = "3+";
+    std::string shared_data = VISLOC_DEFAULT_SHARED_DATA;
+    int jobs = 0;
+  };
+  auto a = std::make_shared<Args>();
+  CityBenchmarkOptions& o = a->options;
+  o.city.views.headings = 8;
+  o.city.layout.grid_blocks_x = o.city.layout.grid_blocks_y = 2;
+  o.city.queries.count = 540;  // about 350 positives and 60 negatives on the default grid
+  CLI::App* cmd = bench.add_subcommand(
+      "city",
+      "The city benchmark: render a synthetic city, map all its streets but a few, localize queries near mapped "
+      "streets (positives), on the unmapped streets and foreign photos (negatives); count wrong poses apart from "
+      "misses, score retrieval. Resumes at every stage; writes report.json and report.md in --out");
+  cmd->add_option("--out", a->out, "Benchmark directory (city/, map/, report.json, report.md)")->required();
+  cmd->add_option("--layout", a->layout, "Street network: line, grid or random")->capture_default_str();
+  cmd->add_option("--road-length", o.city.layout.road_length_m, "line: street length; random: each road's (m)")
+      ->capture_default_str();
+  cmd->add_option("--grid-blocks-x", o.city.layout.grid_blocks_x, "grid: blocks east-west")->capture_default_str();
+  cmd->add_option("--grid-blocks-y", o.city.layout.grid_blocks_y, "grid: blocks north-south")->capture_default_str();
+  cmd->add_option("--block-size", o.city.layout.block_size_m, "grid: distance between parallel streets (m)")
+      ->capture_default_str();
+  cmd->add_option("--random-roads", o.city.layout.random_roads, "random: number of roads")->capture_default_str();
+  cmd->add_option("--headings", o.city.views.headings, "Views around each placemark")->capture_default_str();
+  cmd->add_option("--elevations", a->elevations, "View elevations in degrees, comma-separated")->capture_default_str();
+  cmd->add_option("--size", a->size, "Map image size WIDTHxHEIGHT")->capture_default_str();
+  cmd->add_option("--queries", o.city.queries.count, "Query views rendered (positives and negatives)")
+      ->capture_default_str();
+  cmd->add_option("--leave-out-roads", o.leave_out_roads, "The last roads of the layout are left out of the map")
+      ->capture_default_str();
+  cmd->add_option("--positive-distance", o.positive_max_distance_m,
+                  "A query within this distance (m, in plan) of a mapped placemark is a positive")
+      ->capture_default_str();
+  cmd->add_option("--negative-distance", o.negative_min_distance_m,
+                  "A query farther than this (m) from every mapped placemark is a negative")
+      ->capture_default_str();
+  cmd->add_option("--negatives", o.foreign_photos, "Foreign photos from --shared-data (negatives)")
+      ->capture_default_str();
+  cmd->add_option("--shared-data", a->shared_data, "Real photos for foreign negatives ('' for none)")
+      ->capture_default_str();
+  cmd->add_option("--jobs", a->jobs, "Render threads and segments built at once (0: cores)")->capture_default_str();
+  cmd->add_option("--executor", a->executor, "Map build: local or slurm (see 'map build --help')")
+      ->check(CLI::IsMember({"local", "slurm"}))
+      ->capture_default_str();
+  cmd->add_option("--seed", o.city.layout.seed, "Seed of the city")->capture_default_str();
+  add_localizer_options(cmd, o.localizer, a->setting);
+  cmd->callback([a] {
+    CityBenchmarkOptions& o = a->options;
+    o.localizer.setting = parse_paper_setting(a->setting);
+    o.city.layout.layout = synth::road_layout_from_string(a->layout);
+    o.city.views.elevations_deg.clear();
+    std::stringstream es(a->elevations);
+    for (std::string item; std::getline(es, item, ',');) {
+      try {
+        o.city.views.elevations_deg.push_back(std::stod(item));
+      } catch (const std::exception&) {
+        throw_error(ErrorCode::kInvalidArgument, "--elevations: '", item, "' is not a number");
+      }
+    }
+    if (std::sscanf(a->size.c_str(), "%dx%d", &o.city.views.width, &o.city.views.height) != 2)
+      throw_error(ErrorCode::kInvalidArgument, "--size: '", a->size, "' is not WIDTHxHEIGHT");
+    const int jobs = a->jobs > 0 ? a->jobs : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+    o.city.jobs = jobs;
+    o.map.jobs = jobs;
+    if (!a->shared_data.empty() && fs::is_directory(a->shared_data)) o.shared_data = a->shared_data;
+    else if (!a->shared_data.empty())
+      std::cerr << "bench city: " << a->shared_data << " is absent: no foreign photos\n";
+    if (a->executor == "slurm") {
+      // Tasks run `map build-segment`, which reads the options of an equivalent `map build`.
+      const fs::path out = fs::absolute(a->out);
+      const std::vector<std::string> args = {"--images", (out / "city" / "images").string(), "--gps",
+                                             (out / "map_gps.csv").string(), "--poses", "known", "--known-poses",
+                                             (out / "city" / "sparse").string(), "--out", (out / "map").string()};
+      o.map.build_record = nlohmann::json{{"version", 1}, {"cwd", fs::current_path().string()}, {"args", args}}.dump(2);
+      o.map.executor = BuildExecutor::kSlurm;
+      o.map.slurm_task_command = {fs::read_symlink("/proc/self/exe").string(), "map", "build-segment",
+                                  (out / "map").string()};
+    }
+    const bool tty = ::isatty(STDERR_FILENO);
+    std::string last_stage;
+    auto progress = [&](const CityBenchmarkProgress& p) {
+      if (!tty && p.stage == last_stage && p.done != p.total && p.done % 20 != 0) return;
+      last_stage = p.stage;
+      std::cerr << (tty ? "\r" : "") << "bench city: " << p.stage << " " << p.done << "/" << p.total
+                << (tty && p.done != p.total ? "   " : "\n") << std::flush;
+    };
+    auto map_progress = [&](const MapBuildProgress& p) {
+      if (p.stage != "segments" || (p.done != p.total && !tty)) return;
+      std::cerr << (tty ? "\r" : "") << "bench city: map segments " << p.done << "/" << p.total
+                << (tty && p.done != p.total ? "   " : "\n") << std::flush;
+    };
+    run_city_benchmark(a->out, o, progress, map_progress);
+    std::cout << read_file(fs::path(a->out) / "report.md");
+  });
+}
+
+}  // namespace visloc::cli

@@ -1,0 +1,78 @@
+#include "visloc/eval/city_benchmark.h"
+
+#include <gtest/gtest.h>
+
+#include <filesystem>
+
+#include "visloc/sfm/process.h"
+#include "visloc/util/error.h"
+#include "visloc/util/file_io.h"
+
+namespace fs = std::filesystem;
+using namespace visloc;
+
+TEST(CityBenchmark, OptionsAreValidated) {
+  CityBenchmarkOptions o;
+  o.leave_out_roads = -1;
+  EXPECT_THROW(o.validate(), Error);
+  o = {};
+  o.negative_min_distance_m = 5;  // below the positive distance
+  EXPECT_THROW(o.validate(), Error);
+  o = {};
+  o.shared_data = "/nonexistent/shared";
+  EXPECT_THROW(o.validate(), Error);
+}
+
+// The benchmark's small configuration: one grid block (4 roads, one left
+// out), two segments, a few queries and foreign photos. Checks that every
+// stage runs, that the queries are classified and scored, and that a second
+// run resumes (the city is not rendered again, the map is reused).
+TEST(CityBenchmark, SmallCityRunsAndResumes) {
+  if (!program_exists("colmap")) GTEST_SKIP() << "colmap is not installed";
+  const fs::path dir = fs::temp_directory_path() / "visloc_city_benchmark_test";
+  fs::remove_all(dir);
+  CityBenchmarkOptions o;
+  o.city.layout.layout = synth::RoadLayout::kGrid;
+  o.city.layout.grid_blocks_x = o.city.layout.grid_blocks_y = 1;
+  o.city.layout.block_size_m = 50;
+  o.city.views.headings = 8;
+  o.city.views.elevations_deg = {10};
+  o.city.views.width = o.city.views.height = 400;
+  o.city.queries.count = 16;
+  o.city.queries.resolutions = {{640, 480}};
+  o.city.jobs = 2;
+  o.leave_out_roads = 1;
+  o.map.jobs = 2;
+  o.map.itq.iterations = 10;
+  o.map.pq.iterations = 10;
+  o.map.pq_training_descriptors = 20000;
+  o.map.build_retrieval = false;
+  o.foreign_photos = 4;
+  if (fs::is_directory(VISLOC_SHARED_DATA_DIR)) o.shared_data = VISLOC_SHARED_DATA_DIR;
+  const nlohmann::json r = run_city_benchmark(dir, o);
+  ASSERT_TRUE(fs::exists(dir / "report.json"));
+  ASSERT_TRUE(fs::exists(dir / "report.md"));
+  EXPECT_EQ(r["city"]["roads"].get<int>(), 4);
+  EXPECT_EQ(r["city"]["roads_left_out"].size(), 1u);
+  EXPECT_GE(r["map"]["segments"].get<int>(), 1);
+  const size_t positives = r["positives"]["queries"].get<size_t>();
+  const size_t scored = positives + r["negatives_unmapped_streets"]["queries"].get<size_t>() +
+                        r["between_not_scored"]["queries"].get<size_t>();
+  EXPECT_EQ(scored, 16u);
+  ASSERT_GE(positives, 8u);
+  EXPECT_GE(r["positives"]["registered"].get<size_t>(), positives / 2);
+  EXPECT_EQ(r["per_query"].size(), 16u + r["foreign_photos"]["queries"].get<size_t>());
+  if (!o.shared_data.empty()) EXPECT_EQ(r["foreign_photos"]["queries"].get<size_t>(), 4u);
+  // Wrong poses are the sum of their kinds.
+  EXPECT_EQ(r["wrong_poses"].get<size_t>(), r["positives"]["wrong_poses"].get<size_t>() +
+                                                r["negatives_unmapped_streets"]["wrong_poses"].get<size_t>() +
+                                                r["foreign_photos"]["registered"].get<size_t>());
+
+  // Resume: nothing is rendered or built again.
+  const auto city_time = fs::last_write_time(dir / "city" / "city.json");
+  const nlohmann::json again = run_city_benchmark(dir, o);
+  EXPECT_EQ(fs::last_write_time(dir / "city" / "city.json"), city_time);
+  EXPECT_EQ(again["map"]["points"], r["map"]["points"]);
+  EXPECT_EQ(again["positives"]["registered"], r["positives"]["registered"]);
+  fs::remove_all(dir);
+}
