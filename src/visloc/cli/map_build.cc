@@ -54,6 +54,9 @@ void bind_build_options(CLI::App* cmd, MapBuildArgs& a, bool update) {
       ->check(CLI::IsMember({"local", "slurm"}))
       ->capture_default_str();
   cmd->add_option("--slurm-partition", a.options.slurm.partition, "Slurm partition (default: the cluster's)");
+  cmd->add_option("--slurm-cpus", a.options.slurm.cpus_per_task,
+                  "CPUs per Slurm task (give --colmap-threads the same to use them in COLMAP)")
+      ->capture_default_str();
   cmd->add_option("--slurm-args", a.options.slurm.extra_args,
                   "More sbatch options for the array, e.g. \"--mem=8G --time=2:00:00\"");
   cmd->add_option("--jobs", a.jobs, "Local executor: segments built in parallel (0: number of cores)")

@@ -503,9 +503,13 @@ SegmentBuildResult build_segment(const BuildContext& ctx, int id, const SegmentP
   // task extracts its own; locally they were extracted for the whole map).
   {
     Timer t_features;
-    ensure_features(ctx, images, 1, false, [&](size_t k) {
-      if (k % 8 == 0 || k == images.size()) stage("features", k, images.size());
-    });
+    std::vector<size_t> missing;
+    for (size_t i : images)
+      if (!fs::exists(feature_path(ctx, ctx.records[i].image))) missing.push_back(i);
+    if (!missing.empty())
+      ensure_features(ctx, missing, 1, false, [&](size_t k) {
+        if (k % 8 == 0 || k == missing.size()) stage("features", k, missing.size());
+      });
     res.seconds_features = t_features.elapsed_ms() / 1000;
   }
 
