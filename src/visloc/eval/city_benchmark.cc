@@ -310,7 +310,8 @@ nlohmann::json run_city_benchmark(const fs::path& out, const CityBenchmarkOption
      << "Wrong poses in all: " << wrong_total << " (a wrong pose: registered more than " << opt.wrong_position_m
      << " m or " << opt.wrong_rotation_deg << "° from the truth, or any registered foreign photo). "
      << between.count << " queries between " << opt.positive_max_distance_m << " and " << opt.negative_min_distance_m
-     << " m from the map are not scored.\n\n"
+     << " m from the map are not scored. A negative registered within the thresholds of its true pose (it sees "
+     << "mapped facades) is not a wrong pose: " << (negatives.registered - negatives.wrong) << " here.\n\n"
      << "Retrieval: the true segment is among the candidates for " << retrieval_hits << "/" << positives.count
      << " positives";
   if (!true_ranks.empty()) md << " (median rank " << median(true_ranks) << ")";
