@@ -62,7 +62,9 @@ TEST(CityBenchmark, SmallCityRunsAndResumes) {
   ASSERT_GE(positives, 8u);
   EXPECT_GE(r["positives"]["registered"].get<size_t>(), positives / 2);
   EXPECT_EQ(r["per_query"].size(), 16u + r["foreign_photos"]["queries"].get<size_t>());
-  if (!o.shared_data.empty()) EXPECT_EQ(r["foreign_photos"]["queries"].get<size_t>(), 4u);
+  if (!o.shared_data.empty()) {
+    EXPECT_EQ(r["foreign_photos"]["queries"].get<size_t>(), 4u);
+  }
   // Wrong poses are the sum of their kinds.
   EXPECT_EQ(r["wrong_poses"].get<size_t>(), r["positives"]["wrong_poses"].get<size_t>() +
                                                 r["negatives_unmapped_streets"]["wrong_poses"].get<size_t>() +
