@@ -94,10 +94,8 @@ void add_bench_city(CLI::App& bench) {
       const std::vector<std::string> args = {"--images", (out / "city" / "images").string(), "--gps",
                                              (out / "map_gps.csv").string(), "--poses", "known", "--known-poses",
                                              (out / "city" / "sparse").string(), "--out", (out / "map").string()};
-      o.map.build_record = nlohmann::json{{"version", 1}, {"cwd", fs::current_path().string()}, {"args", args}}.dump(2);
       o.map.executor = BuildExecutor::kSlurm;
-      o.map.slurm_task_command = {fs::read_symlink("/proc/self/exe").string(), "map", "build-segment",
-                                  (out / "map").string()};
+      record_build_for_tasks(o.map, out / "map", args);
     }
     const bool tty = ::isatty(STDERR_FILENO);
     std::string last_stage;

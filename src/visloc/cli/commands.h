@@ -4,7 +4,11 @@
 #pragma once
 
 #include <CLI/CLI.hpp>
+#include <filesystem>
 #include <string>
+#include <vector>
+
+#include "visloc/map/map_builder.h"
 
 namespace visloc::cli {
 
@@ -18,6 +22,10 @@ inline constexpr int kExitInternal = 4;
 void add_features_command(CLI::App& app);
 void add_map_command(CLI::App& app);
 void add_map_build_commands(CLI::App& map);  // map build, map update
+// The options of a `map build` (its arguments) recorded for `map
+// build-segment`, and with the Slurm executor the command each task runs.
+void record_build_for_tasks(MapBuildOptions& options, const std::filesystem::path& map_dir,
+                            const std::vector<std::string>& build_args);
 void add_localize_command(CLI::App& app);
 void add_eval_command(CLI::App& app);
 void add_synth_command(CLI::App& app);

@@ -114,9 +114,6 @@ std::vector<std::string> given_arguments(const CLI::App* cmd) {
   return args;
 }
 
-std::string build_record(const std::vector<std::string>& args) {
-  return nlohmann::json{{"version", 1}, {"cwd", fs::current_path().string()}, {"args", args}}.dump(2);
-}
 
 // Progress on stderr: on a terminal a live block (the map's line and one line
 // per running segment, redrawn in place); in a log, one line per stage change.
@@ -152,7 +149,6 @@ class BuildProgressPrinter {
     for (const auto& s : p.running) out += segment_line(s) + "\033[K\n";
     out += "\033[J";
     lines_ = 1 + static_cast<int>(p.running.size());
-    if (p.stage != last_stage_ && !last_stage_.empty()) lines_ = 1 + static_cast<int>(p.running.size());
     if (final_update) lines_ = 0;  // the next stage starts below
     last_stage_ = p.stage;
     std::cerr << out << std::flush;
@@ -201,13 +197,7 @@ void apply_arguments(MapBuildArgs& a) {
 void run_build(const std::string& map_dir, MapBuildArgs& a, const CLI::App* cmd) {
   MapBuildOptions& o = a.options;
   apply_arguments(a);
-  o.build_record = build_record(given_arguments(cmd));
-  if (o.executor == BuildExecutor::kSlurm) {
-    std::error_code ec;
-    const fs::path self = fs::read_symlink("/proc/self/exe", ec);
-    if (ec) throw_error(ErrorCode::kIo, "cannot find this program's path for the Slurm tasks: ", ec.message());
-    o.slurm_task_command = {self.string(), "map", "build-segment", fs::absolute(map_dir).string()};
-  }
+  record_build_for_tasks(o, map_dir, given_arguments(cmd));
   if (a.segment >= 0) o.only_segments = {a.segment};
   BuildProgressPrinter printer;
   MapBuildResult r = build_map(map_dir, o, [&printer](const MapBuildProgress& p) { printer(p); });
@@ -231,6 +221,17 @@ void run_build(const std::string& map_dir, MapBuildArgs& a, const CLI::App* cmd)
 }
 
 }  // namespace
+
+void record_build_for_tasks(MapBuildOptions& o, const std::filesystem::path& map_dir,
+                            const std::vector<std::string>& build_args) {
+  o.build_record =
+      nlohmann::json{{"version", 1}, {"cwd", fs::current_path().string()}, {"args", build_args}}.dump(2);
+  if (o.executor != BuildExecutor::kSlurm) return;
+  std::error_code ec;
+  const fs::path self = fs::read_symlink("/proc/self/exe", ec);
+  if (ec) throw_error(ErrorCode::kIo, "cannot find this program's path for the Slurm tasks: ", ec.message());
+  o.slurm_task_command = {self.string(), "map", "build-segment", fs::absolute(map_dir).string()};
+}
 
 void add_map_build_commands(CLI::App& map) {
   auto build = std::make_shared<MapBuildArgs>();
