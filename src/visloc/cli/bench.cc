@@ -13,6 +13,7 @@ void add_bench_command(CLI::App& app) {
   add_bench_retrieval(*bench);
   add_bench_end_to_end(*bench);
   add_bench_city(*bench);
+  add_bench_segments(*bench);
 }
 
 }  // namespace visloc::cli

@@ -1,12 +1,18 @@
 // visloc bench city: the city benchmark (eval/city_benchmark.h).
+#include <spawn.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
 #include <cstdio>
+#include <fstream>
+#include <iterator>
 #include <filesystem>
 #include <iostream>
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <sstream>
+#include <cerrno>
+#include <cstring>
 #include <thread>
 
 #include "visloc/cli/commands.h"
@@ -18,10 +24,48 @@
 namespace visloc::cli {
 namespace fs = std::filesystem;
 
+namespace {
+
+// Runs this very command again with "--stage localize" appended (a later
+// option wins in CLI11), in a fresh process that inherits stdout and stderr.
+void run_localize_stage_in_new_process() {
+  std::ifstream in("/proc/self/cmdline", std::ios::binary);
+  const std::string cmdline((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  std::vector<std::string> args;
+  for (size_t start = 0; start < cmdline.size();) {
+    const size_t end = cmdline.find('\0', start);
+    args.push_back(cmdline.substr(start, end == std::string::npos ? std::string::npos : end - start));
+    if (end == std::string::npos) break;
+    start = end + 1;
+  }
+  if (args.empty()) throw_error(ErrorCode::kInternal, "bench city: cannot read this process's command line");
+  args.push_back("--stage");
+  args.push_back("localize");
+  std::vector<char*> argv;
+  for (auto& x : args) argv.push_back(x.data());
+  argv.push_back(nullptr);
+  std::cout.flush();
+  std::cerr << "bench city: localizing in a fresh process (its peak memory goes into the report)\n";
+  pid_t pid = 0;
+  if (const int err = ::posix_spawn(&pid, "/proc/self/exe", nullptr, nullptr, argv.data(), environ))
+    throw_error(ErrorCode::kInternal, "bench city: cannot start the localization process: ", std::strerror(err));
+  int status = 0;
+  while (::waitpid(pid, &status, 0) < 0)
+    if (errno != EINTR) throw_error(ErrorCode::kInternal, "bench city: waitpid: ", std::strerror(errno));
+  if (!WIFEXITED(status) || WEXITSTATUS(status) != 0)
+    throw_error(ErrorCode::kExternalTool, "bench city: the localization process failed (",
+                WIFEXITED(status) ? "exit " + std::to_string(WEXITSTATUS(status))
+                                  : "signal " + std::to_string(WTERMSIG(status)),
+                ")");
+}
+
+}  // namespace
+
 void add_bench_city(CLI::App& bench) {
   struct Args {
     CityBenchmarkOptions options;
     std::string out, layout = "grid", elevations = "10", size = "640x640", executor = "local", setting = "3+";
+    std::string stage = "auto";
     std::string shared_data = VISLOC_DEFAULT_SHARED_DATA;
     int jobs = 0;
   };
@@ -66,6 +110,12 @@ void add_bench_city(CLI::App& bench) {
       ->check(CLI::IsMember({"local", "slurm"}))
       ->capture_default_str();
   cmd->add_option("--seed", o.city.layout.seed, "Seed of the city")->capture_default_str();
+  cmd->add_option("--stage", a->stage,
+                  "auto: render and build here, then localize in a fresh process (so that the report's peak memory "
+                  "is the localizer's); all: everything in this process; prepare: render and build only; localize: "
+                  "localize and report only (after prepare, same options)")
+      ->check(CLI::IsMember({"auto", "all", "prepare", "localize"}))
+      ->capture_default_str();
   add_localizer_options(cmd, o.localizer, a->setting);
   cmd->callback([a] {
     CityBenchmarkOptions& o = a->options;
@@ -110,7 +160,18 @@ void add_bench_city(CLI::App& bench) {
       std::cerr << (tty ? "\r" : "") << "bench city: map segments " << p.done << "/" << p.total
                 << (tty && p.done != p.total ? "   " : "\n") << std::flush;
     };
-    run_city_benchmark(a->out, o, progress, map_progress);
+    if (a->stage == "auto") {
+      o.stage = CityBenchmarkStage::kPrepare;
+      run_city_benchmark(a->out, o, progress, map_progress);
+      run_localize_stage_in_new_process();  // it prints the report
+      return;
+    } else {
+      o.stage = a->stage == "all"       ? CityBenchmarkStage::kAll
+                : a->stage == "prepare" ? CityBenchmarkStage::kPrepare
+                                        : CityBenchmarkStage::kLocalize;
+      run_city_benchmark(a->out, o, progress, map_progress);
+      if (o.stage == CityBenchmarkStage::kPrepare) return;
+    }
     std::cout << read_file(fs::path(a->out) / "report.md");
   });
 }

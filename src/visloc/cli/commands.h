@@ -41,5 +41,6 @@ void add_bench_pose(CLI::App& bench);
 void add_bench_retrieval(CLI::App& bench);
 void add_bench_end_to_end(CLI::App& bench);
 void add_bench_city(CLI::App& bench);
+void add_bench_segments(CLI::App& bench);
 
 }  // namespace visloc::cli

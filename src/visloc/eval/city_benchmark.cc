@@ -12,6 +12,9 @@
 #include "visloc/geo/gps_csv.h"
 #include "visloc/geometry/pose_list.h"
 #include "visloc/map/map.h"
+#include "visloc/map/segment_file.h"
+#include "visloc/synth/city_scene.h"
+#include "visloc/synth/ray_renderer.h"
 #include "visloc/util/error.h"
 #include "visloc/util/file_io.h"
 
@@ -26,6 +29,11 @@ void CityBenchmarkOptions::validate() const {
                 "bench city: need 0 < positive_max_distance_m <= negative_min_distance_m");
   if (!(wrong_position_m > 0) || !(wrong_rotation_deg > 0))
     throw_error(ErrorCode::kInvalidArgument, "bench city: wrong-pose thresholds must be positive");
+  if (!(positive_min_visible_points >= 0) || !(visibility_range_m > 0) ||
+      !(true_segment_share > 0 && true_segment_share <= 1))
+    throw_error(ErrorCode::kInvalidArgument,
+                "bench city: need positive_min_visible_points >= 0, visibility_range_m > 0 and "
+                "true_segment_share in (0, 1]");
   if (!shared_data.empty() && !fs::is_directory(shared_data))
     throw_error(ErrorCode::kNotFound, shared_data.string(), ": no such shared data directory");
 }
@@ -114,6 +122,60 @@ nlohmann::json pose_summary(const std::vector<double>& errors_m, size_t count, s
           {"median_position_error_m", errors_m.empty() ? nlohmann::json(nullptr) : nlohmann::json(median(errors_m))}};
 }
 
+
+// The map's points as samples per segment (at most max_samples each, evenly
+// strided), for counting what a query camera sees of each segment.
+struct SegmentPointSample {
+  int segment = -1;
+  double points_per_sample = 1;  // the stride: visible samples × stride ≈ visible points
+  std::vector<Eigen::Vector3d> xyz;
+};
+
+std::vector<SegmentPointSample> sample_segment_points(const fs::path& map_dir, size_t max_samples) {
+  const Map map = Map::open(map_dir);
+  std::vector<SegmentPointSample> out;
+  for (size_t i = 0; i < map.manifest().segments.size(); ++i) {
+    const auto seg = map.open_segment(i);
+    SegmentPointSample s;
+    s.segment = static_cast<int>(seg->id());
+    const size_t n = seg->num_points();
+    const size_t stride = std::max<size_t>(1, (n + max_samples - 1) / max_samples);
+    s.points_per_sample = static_cast<double>(stride);
+    const auto xyz = seg->xyz();
+    for (size_t p = 0; p < n; p += stride) s.xyz.emplace_back(xyz[3 * p], xyz[3 * p + 1], xyz[3 * p + 2]);
+    out.push_back(std::move(s));
+  }
+  return out;
+}
+
+// Points of each segment that the camera sees: in front, inside the image,
+// within max_range_m, and not hidden by the city's buildings (a ray cast in
+// the scene reaches the point). The query's own occluders (cars, trees) are
+// ignored. Returns estimated point counts, one per sample set.
+std::vector<double> visible_points(const synth::ViewRenderer& scene, const PinholeCamera& camera,
+                                   const CameraPose& cam_from_world, const std::vector<SegmentPointSample>& samples,
+                                   double max_range_m) {
+  const Eigen::Matrix3d R = cam_from_world.rotation_matrix();
+  const Eigen::Vector3d C = cam_from_world.center();
+  std::vector<double> counts;
+  for (const auto& s : samples) {
+    size_t seen = 0;
+    for (const Eigen::Vector3d& X : s.xyz) {
+      const Eigen::Vector3d x = R * X + cam_from_world.translation;
+      if (x.z() < 0.3) continue;
+      const Eigen::Vector2d uv = camera.project(x);
+      if (uv.x() < 0 || uv.y() < 0 || uv.x() >= camera.width || uv.y() >= camera.height) continue;
+      const Eigen::Vector3d ray = X - C;
+      const double d = ray.norm();
+      if (d > max_range_m) continue;
+      const auto hit = scene.cast_ray(C, ray / d);
+      // Triangulated points lie on surfaces up to their error: tolerate some.
+      if (!hit || *hit >= d - (0.3 + 0.02 * d)) ++seen;
+    }
+    counts.push_back(static_cast<double>(seen) * s.points_per_sample);
+  }
+  return counts;
+}
 }  // namespace
 
 nlohmann::json run_city_benchmark(const fs::path& out, const CityBenchmarkOptions& opt,
@@ -123,13 +185,21 @@ nlohmann::json run_city_benchmark(const fs::path& out, const CityBenchmarkOption
   fs::create_directories(out);
   const fs::path city_dir = out / "city";
 
-  // 1. The whole city (resumes: images already written are kept).
-  if (!fs::exists(city_dir / "queries" / "truth.txt") || !fs::exists(city_dir / "city.json")) {
+  // 1. The whole city (resumes: images already written are kept; a city made
+  // with other options is refused, since its scene is regenerated below).
+  const bool city_complete = fs::exists(city_dir / "queries" / "truth.txt") && fs::exists(city_dir / "city.json");
+  if (opt.stage != CityBenchmarkStage::kLocalize && !city_complete) {
     if (progress) progress({"render", 0, 1});
     synth::CityOptions city = opt.city;
     city.resume = fs::exists(city_dir);
     synth::write_city(city, city_dir);
     if (progress) progress({"render", 1, 1});
+  } else {
+    const auto existing = nlohmann::json::parse(read_file(city_dir / "city.json"), nullptr, false);
+    if (existing.is_discarded() || !existing.contains("options") ||
+        existing["options"] != nlohmann::json::parse(synth::city_options_json(opt.city)))
+      throw_error(ErrorCode::kInvalidArgument, (city_dir / "city.json").string(),
+                  ": the city was made with other options than these");
   }
   const std::vector<CityPlacemark> placemarks = read_city_placemarks(city_dir / "city.json");
   int max_road = 0;
@@ -157,29 +227,45 @@ nlohmann::json run_city_benchmark(const fs::path& out, const CityBenchmarkOption
   for (const auto& p : placemarks)
     if (!left_out.count(p.road)) mapped_centres.push_back(p.enu);
 
-  MapBuildOptions mb = opt.map;
-  mb.images_dir = city_dir / "images";
-  mb.gps_csv = out / "map_gps.csv";
-  mb.poses = PoseSource::kKnown;
-  mb.known_poses = city_dir / "sparse";
-  if (progress) progress({"map", 0, 1});
-  const MapBuildResult built = build_map(out / "map", mb, map_progress);
-  if (built.failed() == built.segments.size())
-    throw_error(ErrorCode::kExternalTool, "bench city: no segment of the map could be built (logs under ",
-                (out / "map" / "work").string(), ")");
-  if (progress) progress({"map", 1, 1});
-
-  // Segments of each placemark (for retrieval scoring).
-  std::map<int, std::vector<int>> segments_of_placemark;
-  {
-    const MapManifest man = read_manifest(out / "map");
-    std::set<int> built_ids;
-    for (const auto& s : man.segments) built_ids.insert(static_cast<int>(s.id));
-    const auto& plan = man.source.at("segment_placemarks");
-    for (size_t s = 0; s < plan.size(); ++s)
-      if (built_ids.count(static_cast<int>(s)))
-        for (int pm : plan[s].get<std::vector<int>>()) segments_of_placemark[pm].push_back(static_cast<int>(s));
+  const fs::path build_summary_path = out / "map_build.json";
+  nlohmann::json build_summary;
+  if (opt.stage != CityBenchmarkStage::kLocalize) {
+    MapBuildOptions mb = opt.map;
+    mb.images_dir = city_dir / "images";
+    mb.gps_csv = out / "map_gps.csv";
+    mb.poses = PoseSource::kKnown;
+    mb.known_poses = city_dir / "sparse";
+    if (progress) progress({"map", 0, 1});
+    const MapBuildResult built = build_map(out / "map", mb, map_progress);
+    if (built.failed() == built.segments.size())
+      throw_error(ErrorCode::kExternalTool, "bench city: no segment of the map could be built (logs under ",
+                  (out / "map" / "work").string(), ")");
+    if (progress) progress({"map", 1, 1});
+    size_t map_bytes = 0, points = 0;
+    for (const auto& s : built.segments) {
+      map_bytes += s.file_bytes;
+      points += s.points;
+    }
+    build_summary = {{"segments", built.segments.size()}, {"segments_failed", built.failed()}, {"points", points},
+                     {"segment_bytes", map_bytes}, {"build_seconds_this_run", built.seconds_total}};
+    write_file_atomic(build_summary_path, build_summary.dump(2));
+    if (opt.stage == CityBenchmarkStage::kPrepare) return build_summary;
+  } else {
+    try {
+      build_summary = nlohmann::json::parse(read_file(build_summary_path));
+    } catch (const Error&) {
+      throw;
+    } catch (const std::exception& e) {
+      throw_error(ErrorCode::kFormat, build_summary_path.string(), ": ", e.what());
+    }
   }
+
+  // The scene (regenerated from the options) and the map's points, to tell
+  // which segments a positive query sees.
+  synth::CityScene scene = synth::generate_city_scene(opt.city.layout);
+  synth::add_markers(opt.city, scene);
+  const synth::ViewRenderer scene_probe(scene, nullptr, opt.city.render);
+  const std::vector<SegmentPointSample> point_samples = sample_segment_points(out / "map", 4000);
 
   // 3. Localize: synthetic queries (positives and negatives), then foreign photos.
   const Localizer localizer(out / "map", opt.localizer);
@@ -192,10 +278,10 @@ nlohmann::json run_city_benchmark(const fs::path& out, const CityBenchmarkOption
   struct Kind {
     size_t count = 0, registered = 0, wrong = 0;
     std::vector<double> errors_m;
-  } positives, negatives, between, foreigners;
+  } positives, negatives, between, near_unseen, foreigners;
   std::vector<double> ms_excluding_features, ms_total;
   size_t retrieval_hits = 0;
-  std::vector<double> true_ranks;
+  std::vector<double> true_ranks, top_vote_share, voted_segments;
   nlohmann::json per_query = nlohmann::json::array();
   size_t done = 0;
   for (const NamedPose& q : truth) {
@@ -205,19 +291,28 @@ nlohmann::json run_city_benchmark(const fs::path& out, const CityBenchmarkOption
         cam == intrinsics.end() ? std::nullopt : std::optional<PinholeCamera>(cam->second));
     const Eigen::Vector3d c = q.cam_from_world.center();
     double nearest = std::numeric_limits<double>::infinity();
-    int nearest_pm = -1;
     for (const auto& p : placemarks) {
       if (left_out.count(p.road)) continue;
       const double d = (p.enu - c).head<2>().norm();
       if (d < nearest) {
         nearest = d;
-        nearest_pm = p.id;
       }
     }
-    const std::string kind = nearest <= opt.positive_max_distance_m   ? "positive"
+    // What the query sees of each segment (positives only: near the map).
+    std::vector<double> seen;
+    double most_seen = 0;
+    if (nearest <= opt.positive_max_distance_m && cam != intrinsics.end()) {
+      seen = visible_points(scene_probe, cam->second, q.cam_from_world, point_samples, opt.visibility_range_m);
+      for (double v : seen) most_seen = std::max(most_seen, v);
+    }
+    const std::string kind = nearest <= opt.positive_max_distance_m
+                                 ? (most_seen >= opt.positive_min_visible_points ? "positive" : "near_unseen")
                              : nearest >= opt.negative_min_distance_m ? "negative"
                                                                       : "between";
-    Kind& k = kind == "positive" ? positives : kind == "negative" ? negatives : between;
+    Kind& k = kind == "positive"    ? positives
+              : kind == "negative"  ? negatives
+              : kind == "between"   ? between
+                                    : near_unseen;
     ++k.count;
     double pos_err = -1, rot_err = -1;
     bool wrong = false;
@@ -230,14 +325,22 @@ nlohmann::json run_city_benchmark(const fs::path& out, const CityBenchmarkOption
       k.errors_m.push_back(pos_err);
     }
     int rank = -1;
+    std::vector<int> truth_segments;
     if (kind == "positive") {
-      const auto& truth_segments = segments_of_placemark[nearest_pm];
-      for (size_t i = 0; i < r.candidates.size() && rank < 0; ++i)
-        if (std::find(truth_segments.begin(), truth_segments.end(), r.candidates[i]) != truth_segments.end())
+      // True segments: those that show the query at least true_segment_share
+      // as many points as the segment that shows it most.
+      for (size_t i = 0; i < seen.size(); ++i)
+        if (seen[i] >= opt.true_segment_share * most_seen) truth_segments.push_back(point_samples[i].segment);
+      for (size_t i = 0; i < r.retrieval_segments.size() && rank < 0; ++i)
+        if (std::find(truth_segments.begin(), truth_segments.end(), r.retrieval_segments[i]) != truth_segments.end())
           rank = static_cast<int>(i) + 1;
       if (rank > 0) {
         ++retrieval_hits;
         true_ranks.push_back(rank);
+      }
+      if (r.retrieval_total_votes > 0 && !r.retrieval_votes.empty()) {
+        top_vote_share.push_back(r.retrieval_votes[0] / r.retrieval_total_votes);
+        voted_segments.push_back(static_cast<double>(r.retrieval_voted_segments));
       }
       ms_excluding_features.push_back(r.times.total - r.times.features);
       ms_total.push_back(r.times.total);
@@ -245,7 +348,10 @@ nlohmann::json run_city_benchmark(const fs::path& out, const CityBenchmarkOption
     per_query.push_back({{"image", q.name}, {"kind", kind}, {"distance_to_map_m", nearest},
                          {"registered", r.registered}, {"wrong", wrong}, {"inliers", r.inliers},
                          {"position_error_m", pos_err}, {"rotation_error_deg", rot_err},
-                         {"true_segment_rank", rank}, {"error", r.error}});
+                         {"true_segment_rank", rank}, {"true_segments", truth_segments},
+                         {"retrieval_segments", r.retrieval_segments}, {"retrieval_votes", r.retrieval_votes},
+                         {"retrieval_voted_segments", r.retrieval_voted_segments},
+                         {"most_visible_points", most_seen}, {"error", r.error}});
     if (progress) progress({"localize", ++done, total});
   }
   for (const fs::path& photo : foreign) {
@@ -261,11 +367,13 @@ nlohmann::json run_city_benchmark(const fs::path& out, const CityBenchmarkOption
   }
 
   // 4. Report.
-  size_t map_bytes = 0, points = 0;
-  for (const auto& s : built.segments) {
-    map_bytes += s.file_bytes;
-    points += s.points;
-  }
+  std::vector<size_t> rank_histogram(static_cast<size_t>(opt.localizer.max_segments) + 1, 0);  // [0]: not found
+  for (const auto& q : per_query)
+    if (q["kind"] == "positive") {
+      const int r = q["true_segment_rank"].get<int>();
+      ++rank_histogram[r > 0 && r < static_cast<int>(rank_histogram.size()) ? r : 0];
+    }
+  const size_t points = build_summary.at("points").get<size_t>();
   const size_t wrong_total = positives.wrong + negatives.wrong + foreigners.wrong;
   nlohmann::json report = {
       {"city", {{"road_length_m", nlohmann::json::parse(read_file(city_dir / "city.json")).at("counts").at("road_length_m")},
@@ -273,19 +381,29 @@ nlohmann::json run_city_benchmark(const fs::path& out, const CityBenchmarkOption
                 {"roads_left_out", std::vector<int>(left_out.begin(), left_out.end())},
                 {"placemarks_mapped", mapped_centres.size()},
                 {"images_mapped", mapped.size()}}},
-      {"map", {{"segments", built.segments.size()}, {"segments_failed", built.failed()}, {"points", points},
-               {"segment_bytes", map_bytes}, {"build_seconds_this_run", built.seconds_total}}},
+      {"map", build_summary},
+      {"peak_memory_bytes_of_localizing_process", peak_memory_bytes()},
+      {"localized_in_separate_process", opt.stage == CityBenchmarkStage::kLocalize},
       {"positives", pose_summary(positives.errors_m, positives.count, positives.registered, positives.wrong)},
       {"negatives_unmapped_streets",
        pose_summary(negatives.errors_m, negatives.count, negatives.registered, negatives.wrong)},
       {"between_not_scored", {{"queries", between.count}, {"registered", between.registered}}},
+      {"near_but_unseen_not_scored", {{"queries", near_unseen.count}, {"registered", near_unseen.registered},
+                                      {"rule", {{"min_visible_points", opt.positive_min_visible_points},
+                                                {"range_m", opt.visibility_range_m}}}}},
       {"foreign_photos", {{"queries", foreigners.count}, {"registered", foreigners.registered}}},
       {"wrong_poses", wrong_total},
       {"wrong_pose_rule", {{"position_m", opt.wrong_position_m}, {"rotation_deg", opt.wrong_rotation_deg}}},
       {"retrieval",
        {{"positives_with_true_segment_among_candidates", retrieval_hits},
         {"fraction", positives.count ? double(retrieval_hits) / double(positives.count) : 0.0},
-        {"median_rank_of_true_segment", true_ranks.empty() ? nlohmann::json(nullptr) : nlohmann::json(median(true_ranks))}}},
+        {"median_rank_of_true_segment", true_ranks.empty() ? nlohmann::json(nullptr) : nlohmann::json(median(true_ranks))},
+        {"rank_histogram", rank_histogram},
+        {"true_segment_rule", {{"share_of_best", opt.true_segment_share}}},
+        {"median_top_candidate_vote_share", top_vote_share.empty() ? nlohmann::json(nullptr)
+                                                                   : nlohmann::json(median(top_vote_share))},
+        {"median_segments_voted", voted_segments.empty() ? nlohmann::json(nullptr)
+                                                         : nlohmann::json(median(voted_segments))}}},
       {"median_ms_per_positive", {{"total", ms_total.empty() ? 0.0 : median(ms_total)},
                                   {"excluding_features", ms_excluding_features.empty() ? 0.0 : median(ms_excluding_features)}}},
       {"per_query", per_query}};
@@ -295,8 +413,8 @@ nlohmann::json run_city_benchmark(const fs::path& out, const CityBenchmarkOption
   md << std::fixed << std::setprecision(3);
   md << "# City benchmark\n\n"
      << "City: " << report["city"]["road_length_m"] << " m of street, " << (max_road + 1) << " roads, "
-     << left_out.size() << " left out of the map; map: " << built.segments.size() << " segments ("
-     << built.failed() << " failed), " << points << " points.\n\n"
+     << left_out.size() << " left out of the map; map: " << build_summary.at("segments") << " segments ("
+     << build_summary.at("segments_failed") << " failed), " << points << " points.\n\n"
      << "| queries | count | registered | wrong poses | misses | median position error (m) |\n|---|---|---|---|---|---|\n";
   auto row = [&](const char* name, const Kind& k) {
     md << "| " << name << " | " << k.count << " | " << k.registered << " | " << k.wrong << " | "
@@ -310,14 +428,26 @@ nlohmann::json run_city_benchmark(const fs::path& out, const CityBenchmarkOption
      << "Wrong poses in all: " << wrong_total << " (a wrong pose: registered more than " << opt.wrong_position_m
      << " m or " << opt.wrong_rotation_deg << "° from the truth, or any registered foreign photo). "
      << between.count << " queries between " << opt.positive_max_distance_m << " and " << opt.negative_min_distance_m
-     << " m from the map are not scored. A negative registered within the thresholds of its true pose (it sees "
+     << " m from the map are not scored, nor " << near_unseen.count << " near the map that see fewer than "
+     << opt.positive_min_visible_points << " of its points. A negative registered within the thresholds of its true pose (it sees "
      << "mapped facades) is not a wrong pose: " << (negatives.registered - negatives.wrong) << " here.\n\n"
      << "Retrieval: the true segment is among the candidates for " << retrieval_hits << "/" << positives.count
      << " positives";
   if (!true_ranks.empty()) md << " (median rank " << median(true_ranks) << ")";
-  md << ".\n\nMedian milliseconds per positive: " << (ms_total.empty() ? 0.0 : median(ms_total))
+  md << "; by rank:";
+  for (size_t r = 1; r < rank_histogram.size(); ++r) md << " " << r << ": " << rank_histogram[r] << ",";
+  md << " not among them: " << rank_histogram[0] << ". A true segment shows the query at least "
+     << opt.true_segment_share << " × the points of the segment that shows it most.";
+  if (!top_vote_share.empty())
+    md << " Votes: the top candidate holds a median " << median(top_vote_share) << " of the votes, spread over a median "
+       << median(voted_segments) << " segments.";
+  md << "\n\nMedian milliseconds per positive: " << (ms_total.empty() ? 0.0 : median(ms_total))
      << " in all, " << (ms_excluding_features.empty() ? 0.0 : median(ms_excluding_features))
-     << " excluding features.\n";
+     << " excluding features (one core). Peak memory of the process that localized: "
+     << std::setprecision(1) << double(peak_memory_bytes()) / (1024.0 * 1024.0) << " MiB ("
+     << (opt.stage == CityBenchmarkStage::kLocalize ? "a separate process that only localized"
+                                                    : "the same process built the map: an upper bound")
+     << ").\n";
   write_file_atomic(out / "report.md", md.str());
   return report;
 }

@@ -7,8 +7,9 @@
 // A wrong pose is a positive or negative registered more than
 // wrong_position_m or wrong_rotation_deg from its truth, or any registered
 // foreign photo; the report counts wrong poses apart from misses. Retrieval
-// is scored on the positives: is a true segment (one holding the nearest
-// mapped placemark) among the candidates, and at which rank.
+// is scored on the positives: is a true segment (one that shows the query
+// view nearly as many points as the best one) among the candidates, at which
+// rank, and how the votes are spread.
 // Every stage resumes: the city render and the map build keep what is done.
 #pragma once
 
@@ -24,13 +25,28 @@
 
 namespace visloc {
 
+// kAll runs everything in this process. kPrepare renders and builds the map
+// and stops; kLocalize (after kPrepare, same options) only localizes and
+// reports, so that its process's peak memory is the localizer's.
+enum class CityBenchmarkStage { kAll, kPrepare, kLocalize };
+
 struct CityBenchmarkOptions {
+  CityBenchmarkStage stage = CityBenchmarkStage::kAll;
   synth::CityOptions city;              // the whole city; city.queries.count views are rendered
   // The last roads of the layout are not mapped. On the default 2×2 grid the
   // last two are parallel streets 90 m apart that cross mapped ones every 90 m.
   int leave_out_roads = 2;
   double positive_max_distance_m = 12;  // a positive is this close to a mapped placemark (in plan)...
   double negative_min_distance_m = 30;  // ...a negative this far from every one (between: neither)
+  // A query near the map is a positive only when it sees the map: some
+  // segment holds at least this many points in its view (in front, inside the
+  // image, within visibility_range_m, not hidden by a building). Otherwise it
+  // is "near_unseen" (e.g. facing an unmapped street) and not scored.
+  double positive_min_visible_points = 200;
+  double visibility_range_m = 60;
+  // A positive's true segments: those showing it at least this share of the
+  // points shown by the segment that shows it most.
+  double true_segment_share = 0.5;
   size_t foreign_photos = 60;           // at most this many, spread over the shared data sets
   std::filesystem::path shared_data;    // empty: no foreign photos
   MapBuildOptions map;                  // images, GPS and poses are set by the benchmark

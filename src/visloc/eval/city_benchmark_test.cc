@@ -1,4 +1,5 @@
 #include "visloc/eval/city_benchmark.h"
+#include "visloc/eval/segment_study.h"
 
 #include <gtest/gtest.h>
 
@@ -57,8 +58,16 @@ TEST(CityBenchmark, SmallCityRunsAndResumes) {
   EXPECT_GE(r["map"]["segments"].get<int>(), 1);
   const size_t positives = r["positives"]["queries"].get<size_t>();
   const size_t scored = positives + r["negatives_unmapped_streets"]["queries"].get<size_t>() +
-                        r["between_not_scored"]["queries"].get<size_t>();
+                        r["between_not_scored"]["queries"].get<size_t>() +
+                        r["near_but_unseen_not_scored"]["queries"].get<size_t>();
   EXPECT_EQ(scored, 16u);
+  // A positive sees the map: some segment shows it enough points, and that
+  // segment is among its true ones.
+  for (const auto& q : r["per_query"])
+    if (q["kind"] == "positive") {
+      EXPECT_GE(q["most_visible_points"].get<double>(), o.positive_min_visible_points) << q["image"];
+      EXPECT_FALSE(q["true_segments"].empty()) << q["image"];
+    }
   ASSERT_GE(positives, 8u);
   EXPECT_GE(r["positives"]["registered"].get<size_t>(), positives / 2);
   EXPECT_EQ(r["per_query"].size(), 16u + r["foreign_photos"]["queries"].get<size_t>());
@@ -70,11 +79,49 @@ TEST(CityBenchmark, SmallCityRunsAndResumes) {
                                                 r["negatives_unmapped_streets"]["wrong_poses"].get<size_t>() +
                                                 r["foreign_photos"]["registered"].get<size_t>());
 
-  // Resume: nothing is rendered or built again.
+  // Resume: nothing is rendered or built again. The localize stage alone
+  // (what `bench city` runs in a fresh process) reads the build summary.
   const auto city_time = fs::last_write_time(dir / "city" / "city.json");
+  o.stage = CityBenchmarkStage::kLocalize;
   const nlohmann::json again = run_city_benchmark(dir, o);
+  EXPECT_TRUE(again["localized_in_separate_process"].get<bool>());
+  EXPECT_GT(again["peak_memory_bytes_of_localizing_process"].get<uint64_t>(), 0u);
   EXPECT_EQ(fs::last_write_time(dir / "city" / "city.json"), city_time);
   EXPECT_EQ(again["map"]["points"], r["map"]["points"]);
   EXPECT_EQ(again["positives"]["registered"], r["positives"]["registered"]);
+  // The localize stage refuses a city made with other options.
+  CityBenchmarkOptions other = o;
+  other.city.layout.seed += 1;
+  EXPECT_THROW(run_city_benchmark(dir, other), Error);
+
+  // The segment design study on this city: two layouts, resumable.
+  const StudyDataset data = city_study_dataset(dir);
+  EXPECT_EQ(data.queries.size(), r["positives"]["queries"].get<size_t>() +
+                                     r["negatives_unmapped_streets"]["queries"].get<size_t>());
+  SegmentStudyOptions so;
+  so.placemarks = {4};
+  so.overlaps = {0, 1, 5};  // 5 >= 4: skipped
+  so.map = o.map;
+  so.map.build_retrieval = false;
+  so.localizer.max_segments = 16;  // no retrieval index: every segment is searched
+  const fs::path study = dir / "study";
+  const nlohmann::json rows = run_segment_study(study, data, so);
+  ASSERT_EQ(rows.size(), 2u);
+  EXPECT_EQ(rows[0]["overlap"].get<int>(), 0);
+  EXPECT_EQ(rows[1]["overlap"].get<int>(), 1);
+  // More overlap: more segments.
+  EXPECT_GT(rows[1]["segments"].get<int>(), rows[0]["segments"].get<int>());
+  for (const auto& row : rows) {
+    EXPECT_GT(row["registered"].get<size_t>(), 0u);
+    EXPECT_GT(row["segment_bytes"].get<uint64_t>(), 0u);
+    EXPECT_FALSE(fs::exists(study / "city" / "p4_o0" / "map"));  // maps are not kept by default
+  }
+  // Features were extracted once: the second map linked them.
+  EXPECT_TRUE(fs::exists(study / "city" / "shared" / "pq_codebook.vlpq"));
+  EXPECT_EQ(run_segment_study(study, data, so), rows);  // resumes from result.json
+  write_segment_study_report(study, {{"city", rows}});
+  EXPECT_TRUE(fs::exists(study / "report.md"));
+  EXPECT_TRUE(fs::exists(study / "segments_city_registration.svg"));
+  EXPECT_TRUE(fs::exists(study / "segments_city_bytes.png"));
   fs::remove_all(dir);
 }

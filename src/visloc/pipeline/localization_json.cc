@@ -25,6 +25,11 @@ nlohmann::json to_json(const LocalizationResult& r) {
   }
   if (r.heading_deg) j["heading_deg"] = *r.heading_deg;
   j["candidates"] = r.candidates;
+  if (!r.retrieval_segments.empty())
+    j["retrieval"] = {{"segments", r.retrieval_segments},
+                      {"votes", r.retrieval_votes},
+                      {"voted_segments", r.retrieval_voted_segments},
+                      {"total_votes", r.retrieval_total_votes}};
   if (r.full_search_fallback) j["full_search_fallback"] = true;
   j["features"] = r.features;
   j["times_ms"] = {{"features", r.times.features},

@@ -210,6 +210,12 @@ LocalizationResult Localizer::localize_features(const FeatureSet& f, const Pinho
   std::vector<size_t> candidates;
   if (impl_->retrieval) {
     const RetrievalQueryResult q = impl_->retrieval->query(f.descriptors, impl_->voting);
+    res.retrieval_voted_segments = q.voted_segments;
+    res.retrieval_total_votes = q.total_votes;
+    for (const SegmentCandidate& c : q.candidates) {
+      res.retrieval_segments.push_back(c.segment);
+      res.retrieval_votes.push_back(c.votes);
+    }
     for (const SegmentCandidate& c : q.candidates)
       for (size_t i = 0; i < man.segments.size(); ++i)
         if (static_cast<int32_t>(man.segments[i].id) == c.segment) candidates.push_back(i);

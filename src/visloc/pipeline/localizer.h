@@ -73,6 +73,13 @@ struct LocalizationResult {
   std::optional<GeoPosition> position;   // WGS84
   std::optional<double> heading_deg;
   std::vector<int> candidates;       // segment ids searched, in order
+  // Retrieval's candidate segments (ids, best first) with their votes, how
+  // many segments received a vote and the votes in all: how decisive the
+  // retrieval was. Empty / 0 for a map without a retrieval index.
+  std::vector<int> retrieval_segments;
+  std::vector<float> retrieval_votes;
+  size_t retrieval_voted_segments = 0;
+  float retrieval_total_votes = 0;
   bool full_search_fallback = false; // the prioritized search failed; all features were searched
   size_t features = 0;
   size_t matches_one_to_one = 0;     // of the best segment

@@ -42,7 +42,10 @@ RetrievalQueryResult RetrievalMap::query(const DescriptorMatrix& descriptors, co
   r.images = index_.search(v, options.top_images);
   r.search_ms = t.elapsed_ms();
   t.reset();
-  r.candidates = SegmentVoter(segments_, options).candidates(r.images);
+  r.candidates = SegmentVoter(segments_, options).all_votes(r.images);
+  r.voted_segments = r.candidates.size();
+  for (const SegmentCandidate& c : r.candidates) r.total_votes += c.votes;
+  if (r.candidates.size() > static_cast<size_t>(options.max_candidates)) r.candidates.resize(options.max_candidates);
   r.vote_ms = t.elapsed_ms();
   return r;
 }

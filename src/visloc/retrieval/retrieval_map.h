@@ -25,6 +25,8 @@ inline constexpr uint32_t kRetrievalImagesFileVersion = 1;
 struct RetrievalQueryResult {
   std::vector<ImageSearchResult> images;       // nearest first (ids = rows of image_names)
   std::vector<SegmentCandidate> candidates;    // at most max_candidates
+  size_t voted_segments = 0;                   // segments with any vote (candidates are the first of them)
+  float total_votes = 0;                       // over all voted segments
   double embed_ms = 0, search_ms = 0, vote_ms = 0;
 };
 

@@ -302,6 +302,13 @@ TEST(SegmentVoter, VotesOrderAndCap) {
   EXPECT_EQ(c[0].segment, 3);  // ties broken by best rank
   EXPECT_EQ(c[1].segment, 0);
   EXPECT_EQ(c[0].votes, 2.0f);
+  // all_votes: every voted segment (5), the candidates first.
+  const auto all = voter.all_votes(ranked);
+  ASSERT_EQ(all.size(), 5u);
+  EXPECT_EQ(all[0].segment, 3);
+  EXPECT_EQ(all[1].segment, 0);
+  EXPECT_EQ(all[3].votes, 1.0f);
+  EXPECT_EQ(all[4].votes, 1.0f);
   o.max_candidates = 4;
   o.weighting = VoteWeighting::kReciprocalRank;
   SegmentVoter weighted(table, o);

@@ -82,6 +82,12 @@ SegmentVoter::SegmentVoter(SegmentTable table, const SegmentVoterOptions& option
 }
 
 std::vector<SegmentCandidate> SegmentVoter::candidates(std::span<const ImageSearchResult> ranked) const {
+  std::vector<SegmentCandidate> votes = all_votes(ranked);
+  if (votes.size() > static_cast<size_t>(options_.max_candidates)) votes.resize(options_.max_candidates);
+  return votes;
+}
+
+std::vector<SegmentCandidate> SegmentVoter::all_votes(std::span<const ImageSearchResult> ranked) const {
   std::vector<SegmentCandidate> votes;  // few (≤ 2 per retrieved image): linear search
   const size_t n = std::min(ranked.size(), static_cast<size_t>(options_.top_images));
   for (size_t r = 0; r < n; ++r) {
@@ -104,7 +110,6 @@ std::vector<SegmentCandidate> SegmentVoter::candidates(std::span<const ImageSear
     if (a.best_rank != b.best_rank) return a.best_rank < b.best_rank;
     return a.segment < b.segment;
   });
-  if (votes.size() > static_cast<size_t>(options_.max_candidates)) votes.resize(options_.max_candidates);
   return votes;
 }
 

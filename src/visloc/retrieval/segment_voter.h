@@ -81,6 +81,9 @@ class SegmentVoter {
   // are used; ids outside the table are an error). Ordered by votes, then by
   // best rank, then by segment id.
   std::vector<SegmentCandidate> candidates(std::span<const ImageSearchResult> ranked) const;
+  // Every segment that received a vote, in the same order (candidates() is
+  // its first max_candidates): how the votes are spread over the map.
+  std::vector<SegmentCandidate> all_votes(std::span<const ImageSearchResult> ranked) const;
   const SegmentTable& table() const { return table_; }
   const SegmentVoterOptions& options() const { return options_; }
 

@@ -1,0 +1,339 @@
+#include "visloc/eval/segment_study.h"
+
+#include <algorithm>
+#include <cmath>
+#include <fstream>
+#include <iomanip>
+#include <map>
+#include <set>
+#include <sstream>
+
+#include "visloc/eval/evaluation.h"
+#include "visloc/eval/plot.h"
+#include "visloc/features/sift_extractor.h"
+#include "visloc/geo/gps_csv.h"
+#include "visloc/geometry/pose_list.h"
+#include "visloc/util/error.h"
+#include "visloc/util/file_io.h"
+#include "visloc/util/timer.h"
+
+namespace visloc {
+namespace fs = std::filesystem;
+
+void SegmentStudyOptions::validate() const {
+  if (placemarks.empty() || overlaps.empty())
+    throw_error(ErrorCode::kInvalidArgument, "bench segments: need at least one placemark count and one overlap");
+  for (int p : placemarks)
+    if (p < 1) throw_error(ErrorCode::kInvalidArgument, "bench segments: placemarks per segment ", p, " must be >= 1");
+  for (int o : overlaps)
+    if (o < 0) throw_error(ErrorCode::kInvalidArgument, "bench segments: overlap ", o, " must be >= 0");
+  if (!(wrong_position_m > 0) || !(wrong_rotation_deg > 0))
+    throw_error(ErrorCode::kInvalidArgument, "bench segments: wrong-pose thresholds must be positive");
+  localizer.validate();
+}
+
+StudyDataset city_study_dataset(const fs::path& dir) {
+  const fs::path report_path = dir / "report.json";
+  if (!fs::exists(report_path))
+    throw_error(ErrorCode::kNotFound, report_path.string(),
+                ": no city benchmark report; run 'visloc bench city --out ", dir.string(), "' first");
+  StudyDataset d;
+  d.name = "city";
+  d.images_dir = dir / "city" / "images";
+  d.gps_csv = dir / "map_gps.csv";
+  d.known_poses = dir / "city" / "sparse";
+  std::map<std::string, PinholeCamera> cameras;
+  for (const auto& c : read_intrinsics_list(dir / "city" / "queries" / "intrinsics.txt")) cameras[c.name] = c.camera;
+  std::map<std::string, CameraPose> truth;
+  for (const auto& p : read_pose_list(dir / "city" / "queries" / "truth.txt")) truth[p.name] = p.cam_from_world;
+  nlohmann::json report;
+  try {
+    report = nlohmann::json::parse(read_file(report_path));
+    for (const auto& q : report.at("per_query")) {
+      const std::string kind = q.at("kind").get<std::string>();
+      if (kind != "positive" && kind != "negative") continue;  // foreign photos: not per segment layout
+      const std::string name = q.at("image").get<std::string>();
+      auto c = cameras.find(name);
+      auto t = truth.find(name);
+      if (c == cameras.end() || t == truth.end())
+        throw_error(ErrorCode::kFormat, report_path.string(), ": query ", name, " has no intrinsics or truth");
+      d.queries.push_back({dir / "city" / "queries" / "images" / name, c->second,
+                           std::optional<CameraPose>(t->second), kind});
+    }
+  } catch (const Error&) {
+    throw;
+  } catch (const std::exception& e) {
+    throw_error(ErrorCode::kFormat, report_path.string(), ": bad report: ", e.what());
+  }
+  if (d.queries.empty()) throw_error(ErrorCode::kFormat, report_path.string(), ": no positives or negatives");
+  return d;
+}
+
+StudyDataset kitti_study_dataset(const fs::path& kitti, const fs::path& work_dir) {
+  for (const char* f : {"gps.csv", "truth.txt", "calib.txt", "queries.txt"})
+    if (!fs::exists(kitti / f)) throw_error(ErrorCode::kNotFound, (kitti / f).string(), ": missing (KITTI data set)");
+  // P0 of calib.txt: f 0 cx 0 / 0 f cy 0 / 0 0 1 0.
+  double f = 0, cx = 0, cy = 0;
+  {
+    std::istringstream in(read_file(kitti / "calib.txt"));
+    std::string line;
+    while (std::getline(in, line))
+      if (line.rfind("P0:", 0) == 0) {
+        std::istringstream ls(line.substr(3));
+        double p[12];
+        for (double& v : p)
+          if (!(ls >> v)) throw_error(ErrorCode::kFormat, (kitti / "calib.txt").string(), ": P0 needs 12 numbers");
+        f = p[0];
+        cx = p[2];
+        cy = p[6];
+      }
+    if (!(f > 0)) throw_error(ErrorCode::kFormat, (kitti / "calib.txt").string(), ": no P0 line");
+  }
+  const std::vector<std::string> query_names = read_name_list(kitti / "queries.txt");
+  const std::set<std::string> is_query(query_names.begin(), query_names.end());
+  std::vector<GpsRecord> map_records;
+  for (const auto& r : read_gps_csv(kitti / "gps.csv"))
+    if (!is_query.count(r.image)) map_records.push_back(r);
+  if (map_records.empty()) throw_error(ErrorCode::kFormat, (kitti / "gps.csv").string(), ": no map frames");
+  // The image size: from the first map image.
+  ImageMetadata meta;
+  SiftExtractor(SiftOptions{}).extract_file(kitti / "images" / map_records.front().image, &meta);
+  fs::create_directories(work_dir);
+  StudyDataset d;
+  d.name = "kitti";
+  d.images_dir = kitti / "images";
+  d.gps_csv = work_dir / "map_gps.csv";
+  write_gps_csv(d.gps_csv, map_records);
+  d.known_poses = kitti / "truth.txt";
+  d.known_intrinsics = work_dir / "intrinsics.txt";
+  std::ostringstream intr;
+  intr << std::setprecision(10) << "* PINHOLE " << meta.width << " " << meta.height << " " << f << " " << f << " "
+       << cx << " " << cy << "\n";
+  write_file_atomic(d.known_intrinsics, intr.str());
+  PinholeCamera cam = PinholeCamera::centered(meta.width, meta.height, f);
+  cam.cx = cx;
+  cam.cy = cy;
+  std::map<std::string, CameraPose> truth;
+  for (const auto& p : read_pose_list(kitti / "truth.txt")) truth[p.name] = p.cam_from_world;
+  for (const auto& name : query_names) {
+    auto t = truth.find(name);
+    if (t == truth.end()) throw_error(ErrorCode::kFormat, (kitti / "truth.txt").string(), ": no pose for ", name);
+    d.queries.push_back({kitti / "images" / name, cam, std::optional<CameraPose>(t->second), "positive"});
+  }
+  return d;
+}
+
+namespace {
+
+// Hard-links (or copies) every file of `from` missing in `to`.
+void link_files(const fs::path& from, const fs::path& to) {
+  std::error_code ec;
+  if (!fs::is_directory(from)) return;
+  fs::create_directories(to);
+  for (fs::directory_iterator it(from, ec), end; !ec && it != end; it.increment(ec)) {
+    if (!it->is_regular_file()) continue;
+    const fs::path dst = to / it->path().filename();
+    if (fs::exists(dst)) continue;
+    std::error_code link_ec;
+    fs::create_hard_link(it->path(), dst, link_ec);
+    if (link_ec) fs::copy_file(it->path(), dst);
+  }
+}
+
+std::string config_name(int p, int o) { return "p" + std::to_string(p) + "_o" + std::to_string(o); }
+
+}  // namespace
+
+nlohmann::json run_segment_study(const fs::path& out, const StudyDataset& dataset, const SegmentStudyOptions& opt,
+                                 const std::function<void(const SegmentStudyProgress&)>& progress) {
+  opt.validate();
+  const fs::path dir = out / dataset.name;
+  const fs::path shared_features = dir / "shared" / "features";
+  const fs::path shared_codebook = dir / "shared" / "pq_codebook.vlpq";
+  fs::create_directories(shared_features);
+
+  std::vector<std::pair<int, int>> configs;
+  for (int p : opt.placemarks)
+    for (int o : opt.overlaps)
+      if (o < p) configs.emplace_back(p, o);
+
+  // Query features, once (the localizer's extractor settings).
+  std::vector<FeatureSet> query_features;
+  auto ensure_query_features = [&] {
+    if (!query_features.empty()) return;
+    const SiftExtractor sift(opt.localizer.sift);
+    for (size_t i = 0; i < dataset.queries.size(); ++i) {
+      query_features.push_back(sift.extract_file(dataset.queries[i].image));
+      if (progress) progress({dataset.name, 0, 0, "features", i + 1, dataset.queries.size()});
+    }
+  };
+
+  nlohmann::json rows = nlohmann::json::array();
+  for (const auto& [p, o] : configs) {
+    const fs::path cdir = dir / config_name(p, o);
+    const fs::path result_path = cdir / "result.json";
+    if (fs::exists(result_path)) {
+      try {
+        rows.push_back(nlohmann::json::parse(read_file(result_path)));
+        continue;
+      } catch (const std::exception&) {
+        // A damaged result: run the configuration again.
+      }
+    }
+    // Build (features and codebook shared with the configurations before).
+    const fs::path map_dir = cdir / "map";
+    link_files(shared_features, map_dir / "work" / "features");
+    if (fs::exists(shared_codebook) && !fs::exists(map_dir / "pq_codebook.vlpq"))
+      fs::create_hard_link(shared_codebook, map_dir / "pq_codebook.vlpq");
+    MapBuildOptions mb = opt.map;
+    mb.images_dir = dataset.images_dir;
+    mb.gps_csv = dataset.gps_csv;
+    mb.poses = PoseSource::kKnown;
+    mb.known_poses = dataset.known_poses;
+    mb.known_intrinsics = dataset.known_intrinsics;
+    mb.plan.min_placemarks = mb.plan.max_placemarks = p;
+    mb.plan.overlap = o;
+    if (progress) progress({dataset.name, p, o, "build", 0, 1});
+    const MapBuildResult built = build_map(map_dir, mb);
+    link_files(map_dir / "work" / "features", shared_features);
+    if (!fs::exists(shared_codebook)) fs::create_hard_link(map_dir / "pq_codebook.vlpq", shared_codebook);
+    uint64_t segment_bytes = 0;
+    size_t points = 0;
+    for (const auto& s : built.segments) {
+      segment_bytes += s.file_bytes;
+      points += s.points;
+    }
+    uint64_t retrieval_bytes = 0;
+    std::error_code ec;
+    for (fs::recursive_directory_iterator it(map_dir / "retrieval", ec), end; !ec && it != end; it.increment(ec))
+      if (it->is_regular_file()) retrieval_bytes += it->file_size();
+
+    // Localize.
+    ensure_query_features();
+    const Localizer localizer(map_dir, opt.localizer);
+    size_t positives = 0, negatives = 0, registered = 0, wrong = 0, negatives_registered = 0;
+    std::vector<double> errors, ms;
+    for (size_t i = 0; i < dataset.queries.size(); ++i) {
+      const StudyQuery& q = dataset.queries[i];
+      const LocalizationResult r = localizer.localize_features(query_features[i], q.camera);
+      ms.push_back(r.times.total);
+      const bool positive = q.kind == "positive";
+      positive ? ++positives : ++negatives;
+      if (r.registered) {
+        bool is_wrong = !q.truth;
+        if (q.truth) {
+          const double pe = position_error(r.cam_from_segment, *q.truth);
+          const double re = rotation_error_deg(r.cam_from_segment, *q.truth);
+          is_wrong = pe > opt.wrong_position_m || re > opt.wrong_rotation_deg;
+          if (positive) errors.push_back(pe);
+        }
+        if (positive) ++registered;
+        else ++negatives_registered;
+        wrong += is_wrong;
+      }
+      if (progress && (i % 20 == 19 || i + 1 == dataset.queries.size()))
+        progress({dataset.name, p, o, "localize", i + 1, dataset.queries.size()});
+    }
+    nlohmann::json row = {
+        {"dataset", dataset.name},
+        {"placemarks_per_segment", p},
+        {"overlap", o},
+        {"segments", built.segments.size()},
+        {"segments_failed", built.failed()},
+        {"points", points},
+        {"segment_bytes", segment_bytes},
+        {"retrieval_bytes", retrieval_bytes},
+        {"build_seconds", built.seconds_segments + built.seconds_retrieval},
+        {"positives", positives},
+        {"registered", registered},
+        {"registered_fraction", positives ? double(registered) / double(positives) : 0.0},
+        {"median_position_error_m", errors.empty() ? nlohmann::json(nullptr) : nlohmann::json(median(errors))},
+        {"negatives", negatives},
+        {"negatives_registered", negatives_registered},
+        {"wrong_poses", wrong},
+        {"median_ms_per_query_excluding_features", ms.empty() ? 0.0 : median(ms)}};
+    write_file_atomic(result_path, row.dump(2));
+    if (!opt.keep_maps) fs::remove_all(map_dir, ec);
+    if (progress) progress({dataset.name, p, o, "done", 1, 1});
+    rows.push_back(row);
+  }
+  return rows;
+}
+
+void write_segment_study_report(const fs::path& out,
+                                const std::vector<std::pair<std::string, nlohmann::json>>& rows_by_dataset) {
+  std::ostringstream md;
+  md << std::fixed;
+  md << "# Segment design study (the paper's GSV model design)\n\n"
+     << "Each map holds the same images, cut into segments of P placemarks that share O placemarks with their "
+        "neighbours. Build seconds: segments and retrieval index (SIFT features and the PQ codebook are shared "
+        "by all configurations and not counted). Milliseconds: median per query, excluding features, one core.\n";
+  for (const auto& [name, rows] : rows_by_dataset) {
+    md << "\n## " << name << "\n\n"
+       << "| P | O | segments | registered | median error (m) | wrong poses | negatives registered | points | "
+          "segment MB | build s | ms/query |\n|---|---|---|---|---|---|---|---|---|---|---|\n";
+    double max_mb = 0;
+    std::set<int> overlaps;
+    int p_min = 1 << 30, p_max = 0;
+    for (const auto& r : rows) {
+      const double mb = r["segment_bytes"].get<double>() / 1e6;
+      max_mb = std::max(max_mb, mb);
+      overlaps.insert(r["overlap"].get<int>());
+      p_min = std::min(p_min, r["placemarks_per_segment"].get<int>());
+      p_max = std::max(p_max, r["placemarks_per_segment"].get<int>());
+      md << "| " << r["placemarks_per_segment"] << " | " << r["overlap"] << " | " << r["segments"] << " | "
+         << r["registered"] << "/" << r["positives"] << " (" << std::setprecision(1)
+         << 100.0 * r["registered_fraction"].get<double>() << "%) | " << std::setprecision(3)
+         << (r["median_position_error_m"].is_null() ? std::string("-")
+                                                    : std::to_string(r["median_position_error_m"].get<double>()))
+         << " | " << r["wrong_poses"] << " | " << r["negatives_registered"] << "/" << r["negatives"] << " | "
+         << r["points"] << " | " << std::setprecision(1) << mb << " | " << std::setprecision(0)
+         << r["build_seconds"].get<double>() << " | " << std::setprecision(1)
+         << r["median_ms_per_query_excluding_features"].get<double>() << " |\n";
+    }
+    if (rows.empty()) continue;
+    md << "\n![" << name << "](segments_" << name << "_registration.svg) ![" << name << "](segments_" << name
+       << "_bytes.svg)\n";
+    // Plots: a line per overlap over P.
+    static const char* colours[] = {"#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b"};
+    static const cv::Scalar bgr[] = {{180, 119, 31}, {40, 39, 214}, {44, 160, 44}, {189, 103, 148}, {14, 127, 255},
+                                     {75, 86, 140}};
+    const double x0 = p_min == p_max ? p_min - 1 : p_min, x1 = p_min == p_max ? p_max + 1 : p_max;
+    Plot reg(name + ": registered positives by segment size", "placemarks per segment", "registered fraction", x0,
+             x1, 0, 1);
+    Plot bytes(name + ": segment bytes by segment size", "placemarks per segment", "segment MB", x0, x1, 0,
+               max_mb > 0 ? max_mb * 1.1 : 1);
+    int k = 0;
+    for (int o : overlaps) {
+      std::vector<std::pair<double, const nlohmann::json*>> pts;
+      for (const auto& r : rows)
+        if (r["overlap"].get<int>() == o) pts.emplace_back(r["placemarks_per_segment"].get<double>(), &r);
+      std::sort(pts.begin(), pts.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
+      const char* c = colours[k % 6];
+      const cv::Scalar b = bgr[k % 6];
+      for (size_t i = 0; i < pts.size(); ++i) {
+        const double y = (*pts[i].second)["registered_fraction"].get<double>();
+        const double yb = (*pts[i].second)["segment_bytes"].get<double>() / 1e6;
+        reg.point(pts[i].first, y, c, b);
+        bytes.point(pts[i].first, yb, c, b);
+        if (i > 0) {
+          reg.line(pts[i - 1].first, (*pts[i - 1].second)["registered_fraction"].get<double>(), pts[i].first, y, c, b,
+                   2);
+          bytes.line(pts[i - 1].first, (*pts[i - 1].second)["segment_bytes"].get<double>() / 1e6, pts[i].first, yb,
+                     c, b, 2);
+        }
+      }
+      const double lx = x0 + 0.03 * (x1 - x0), ly = 0.95 - 0.06 * k, ymax = max_mb > 0 ? max_mb * 1.1 : 1;
+      reg.point(lx, ly, c, b, 4);
+      reg.label(lx, ly, "overlap " + std::to_string(o), 8, 4);
+      bytes.point(lx, ymax * ly, c, b, 4);
+      bytes.label(lx, ymax * ly, "overlap " + std::to_string(o), 8, 4);
+      ++k;
+    }
+    reg.save(out / ("segments_" + name + "_registration"));
+    bytes.save(out / ("segments_" + name + "_bytes"));
+  }
+  write_file_atomic(out / "report.md", md.str());
+}
+
+}  // namespace visloc
