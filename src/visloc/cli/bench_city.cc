@@ -4,6 +4,7 @@
 #include <unistd.h>
 
 #include <cstdio>
+#include <cstdlib>
 #include <fstream>
 #include <iterator>
 #include <filesystem>
@@ -26,8 +27,8 @@ namespace fs = std::filesystem;
 
 namespace {
 
-// Runs this very command again with "--stage localize" appended (a later
-// option wins in CLI11), in a fresh process that inherits stdout and stderr.
+// Runs this very command again with "--stage localize" appended (--stage
+// takes the last value), in a fresh process that inherits stdout and stderr.
 void run_localize_stage_in_new_process() {
   std::ifstream in("/proc/self/cmdline", std::ios::binary);
   const std::string cmdline((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
@@ -52,11 +53,10 @@ void run_localize_stage_in_new_process() {
   int status = 0;
   while (::waitpid(pid, &status, 0) < 0)
     if (errno != EINTR) throw_error(ErrorCode::kInternal, "bench city: waitpid: ", std::strerror(errno));
-  if (!WIFEXITED(status) || WEXITSTATUS(status) != 0)
-    throw_error(ErrorCode::kExternalTool, "bench city: the localization process failed (",
-                WIFEXITED(status) ? "exit " + std::to_string(WEXITSTATUS(status))
-                                  : "signal " + std::to_string(WTERMSIG(status)),
-                ")");
+  // It printed its own error; pass its exit status on.
+  if (WIFEXITED(status) && WEXITSTATUS(status) != 0) std::exit(WEXITSTATUS(status));
+  if (!WIFEXITED(status))
+    throw_error(ErrorCode::kInternal, "bench city: the localization process died from signal ", WTERMSIG(status));
 }
 
 }  // namespace
@@ -105,6 +105,12 @@ void add_bench_city(CLI::App& bench) {
       ->capture_default_str();
   cmd->add_option("--shared-data", a->shared_data, "Real photos for foreign negatives ('' for none)")
       ->capture_default_str();
+  cmd->add_option("--min-placemarks", o.map.plan.min_placemarks, "Map: placemarks per segment, at least")
+      ->capture_default_str();
+  cmd->add_option("--max-placemarks", o.map.plan.max_placemarks, "Map: placemarks per segment, at most")
+      ->capture_default_str();
+  cmd->add_option("--overlap", o.map.plan.overlap, "Map: placemarks shared by consecutive segments")
+      ->capture_default_str();
   cmd->add_option("--jobs", a->jobs, "Render threads and segments built at once (0: cores)")->capture_default_str();
   cmd->add_option("--executor", a->executor, "Map build: local or slurm (see 'map build --help')")
       ->check(CLI::IsMember({"local", "slurm"}))
@@ -115,6 +121,7 @@ void add_bench_city(CLI::App& bench) {
                   "is the localizer's); all: everything in this process; prepare: render and build only; localize: "
                   "localize and report only (after prepare, same options)")
       ->check(CLI::IsMember({"auto", "all", "prepare", "localize"}))
+      ->take_last()  // the fresh process appends "--stage localize"
       ->capture_default_str();
   add_localizer_options(cmd, o.localizer, a->setting);
   cmd->callback([a] {
@@ -143,7 +150,10 @@ void add_bench_city(CLI::App& bench) {
       const fs::path out = fs::absolute(a->out);
       const std::vector<std::string> args = {"--images", (out / "city" / "images").string(), "--gps",
                                              (out / "map_gps.csv").string(), "--poses", "known", "--known-poses",
-                                             (out / "city" / "sparse").string(), "--out", (out / "map").string()};
+                                             (out / "city" / "sparse").string(), "--out", (out / "map").string(),
+                                             "--min-placemarks", std::to_string(o.map.plan.min_placemarks),
+                                             "--max-placemarks", std::to_string(o.map.plan.max_placemarks),
+                                             "--overlap", std::to_string(o.map.plan.overlap)};
       o.map.executor = BuildExecutor::kSlurm;
       record_build_for_tasks(o.map, out / "map", args);
     }
@@ -160,6 +170,7 @@ void add_bench_city(CLI::App& bench) {
       std::cerr << (tty ? "\r" : "") << "bench city: map segments " << p.done << "/" << p.total
                 << (tty && p.done != p.total ? "   " : "\n") << std::flush;
     };
+    o.map.plan.validate();  // before hours of rendering
     if (a->stage == "auto") {
       o.stage = CityBenchmarkStage::kPrepare;
       run_city_benchmark(a->out, o, progress, map_progress);

@@ -56,6 +56,9 @@ void add_bench_segments(CLI::App& bench) {
   cmd->add_option("--overlaps", a->overlaps, "Placemarks shared by neighbours, comma-separated")
       ->capture_default_str();
   cmd->add_option("--jobs", a->jobs, "Segments built at once (0: cores)")->capture_default_str();
+  cmd->add_option("--max-queries", a->options.max_queries,
+                  "Localize at most this many queries per data set, evenly spread (0: all)")
+      ->capture_default_str();
   cmd->add_flag("--keep-maps", a->options.keep_maps, "Keep every configuration's map (default: only its result)");
   add_localizer_options(cmd, a->options.localizer, a->setting);
   cmd->callback([a] {

@@ -29,10 +29,10 @@ void CityBenchmarkOptions::validate() const {
                 "bench city: need 0 < positive_max_distance_m <= negative_min_distance_m");
   if (!(wrong_position_m > 0) || !(wrong_rotation_deg > 0))
     throw_error(ErrorCode::kInvalidArgument, "bench city: wrong-pose thresholds must be positive");
-  if (!(positive_min_visible_points >= 0) || !(visibility_range_m > 0) ||
+  if (!(positive_min_visible_points > 0) || !(visibility_range_m > 0) ||
       !(true_segment_share > 0 && true_segment_share <= 1))
     throw_error(ErrorCode::kInvalidArgument,
-                "bench city: need positive_min_visible_points >= 0, visibility_range_m > 0 and "
+                "bench city: need positive_min_visible_points > 0, visibility_range_m > 0 and "
                 "true_segment_share in (0, 1]");
   if (!shared_data.empty() && !fs::is_directory(shared_data))
     throw_error(ErrorCode::kNotFound, shared_data.string(), ": no such shared data directory");
@@ -113,6 +113,8 @@ std::vector<fs::path> foreign_photos(const fs::path& shared, size_t n) {
   }
   return out;
 }
+
+double median_or_zero(const std::vector<double>& v) { return v.empty() ? 0.0 : median(v); }
 
 nlohmann::json pose_summary(const std::vector<double>& errors_m, size_t count, size_t registered, size_t wrong) {
   return {{"queries", count},
@@ -279,7 +281,8 @@ nlohmann::json run_city_benchmark(const fs::path& out, const CityBenchmarkOption
     size_t count = 0, registered = 0, wrong = 0;
     std::vector<double> errors_m;
   } positives, negatives, between, near_unseen, foreigners;
-  std::vector<double> ms_excluding_features, ms_total;
+  std::vector<double> ms_excluding_features, ms_total, ms_retrieval, ms_matching, ms_ransac, ms_registered,
+      ms_missed;
   size_t retrieval_hits = 0;
   std::vector<double> true_ranks, top_vote_share, voted_segments;
   nlohmann::json per_query = nlohmann::json::array();
@@ -344,6 +347,10 @@ nlohmann::json run_city_benchmark(const fs::path& out, const CityBenchmarkOption
       }
       ms_excluding_features.push_back(r.times.total - r.times.features);
       ms_total.push_back(r.times.total);
+      ms_retrieval.push_back(r.times.retrieval);
+      ms_matching.push_back(r.times.matching);
+      ms_ransac.push_back(r.times.ransac);
+      (r.registered ? ms_registered : ms_missed).push_back(r.times.total - r.times.features);
     }
     per_query.push_back({{"image", q.name}, {"kind", kind}, {"distance_to_map_m", nearest},
                          {"registered", r.registered}, {"wrong", wrong}, {"inliers", r.inliers},
@@ -404,8 +411,13 @@ nlohmann::json run_city_benchmark(const fs::path& out, const CityBenchmarkOption
                                                                    : nlohmann::json(median(top_vote_share))},
         {"median_segments_voted", voted_segments.empty() ? nlohmann::json(nullptr)
                                                          : nlohmann::json(median(voted_segments))}}},
-      {"median_ms_per_positive", {{"total", ms_total.empty() ? 0.0 : median(ms_total)},
-                                  {"excluding_features", ms_excluding_features.empty() ? 0.0 : median(ms_excluding_features)}}},
+      {"median_ms_per_positive", {{"total", median_or_zero(ms_total)},
+                                  {"excluding_features", median_or_zero(ms_excluding_features)},
+                                  {"retrieval", median_or_zero(ms_retrieval)},
+                                  {"matching", median_or_zero(ms_matching)},
+                                  {"ransac", median_or_zero(ms_ransac)},
+                                  {"registered_excluding_features", median_or_zero(ms_registered)},
+                                  {"missed_excluding_features", median_or_zero(ms_missed)}}},
       {"per_query", per_query}};
   write_file_atomic(out / "report.json", report.dump(2));
 
@@ -443,7 +455,9 @@ nlohmann::json run_city_benchmark(const fs::path& out, const CityBenchmarkOption
        << median(voted_segments) << " segments.";
   md << "\n\nMedian milliseconds per positive: " << (ms_total.empty() ? 0.0 : median(ms_total))
      << " in all, " << (ms_excluding_features.empty() ? 0.0 : median(ms_excluding_features))
-     << " excluding features (one core). Peak memory of the process that localized: "
+     << " excluding features (one core): retrieval " << median_or_zero(ms_retrieval) << ", matching "
+     << median_or_zero(ms_matching) << ", RANSAC " << median_or_zero(ms_ransac) << "; registered positives "
+     << median_or_zero(ms_registered) << ", missed " << median_or_zero(ms_missed) << ". Peak memory of the process that localized: "
      << std::setprecision(1) << double(peak_memory_bytes()) / (1024.0 * 1024.0) << " MiB ("
      << (opt.stage == CityBenchmarkStage::kLocalize ? "a separate process that only localized"
                                                     : "the same process built the map: an upper bound")

@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <fstream>
 #include <iomanip>
 #include <sstream>
 
@@ -35,6 +36,16 @@ nlohmann::json stats(const std::vector<double>& v) {
 }  // namespace
 
 uint64_t peak_memory_bytes() {
+  // VmHWM: the resident high-water mark of this process's address space,
+  // which starts afresh at exec (ru_maxrss does not: it keeps the peak of the
+  // process image before an exec, e.g. a parent's memory after posix_spawn).
+  std::ifstream status("/proc/self/status");
+  for (std::string line; std::getline(status, line);)
+    if (line.rfind("VmHWM:", 0) == 0) {
+      std::istringstream in(line.substr(6));
+      uint64_t kib = 0;
+      if (in >> kib) return kib * 1024;
+    }
   struct rusage u {};
   getrusage(RUSAGE_SELF, &u);
   return static_cast<uint64_t>(u.ru_maxrss) * 1024;

@@ -50,7 +50,8 @@ void write_report(const std::filesystem::path& dir, const EvaluationReport& repo
 // Median of a sample (NaN when empty); even sizes average the middle two.
 double median(std::vector<double> values);
 
-// Peak resident memory of this process (bytes), from getrusage.
+// Peak resident memory of this process image (bytes): VmHWM, which starts
+// afresh at exec; getrusage where /proc is absent.
 uint64_t peak_memory_bytes();
 
 }  // namespace visloc

@@ -13,6 +13,7 @@
 #include "visloc/features/sift_extractor.h"
 #include "visloc/geo/gps_csv.h"
 #include "visloc/geometry/pose_list.h"
+#include "visloc/image/image_io.h"
 #include "visloc/util/error.h"
 #include "visloc/util/file_io.h"
 #include "visloc/util/timer.h"
@@ -29,6 +30,12 @@ void SegmentStudyOptions::validate() const {
     if (o < 0) throw_error(ErrorCode::kInvalidArgument, "bench segments: overlap ", o, " must be >= 0");
   if (!(wrong_position_m > 0) || !(wrong_rotation_deg > 0))
     throw_error(ErrorCode::kInvalidArgument, "bench segments: wrong-pose thresholds must be positive");
+  if (std::set<int>(placemarks.begin(), placemarks.end()).size() != placemarks.size() ||
+      std::set<int>(overlaps.begin(), overlaps.end()).size() != overlaps.size())
+    throw_error(ErrorCode::kInvalidArgument, "bench segments: a placemark count or overlap is given twice");
+  if (*std::min_element(overlaps.begin(), overlaps.end()) >= *std::max_element(placemarks.begin(), placemarks.end()))
+    throw_error(ErrorCode::kInvalidArgument,
+                "bench segments: no configuration has an overlap smaller than its placemarks per segment");
   localizer.validate();
 }
 
@@ -96,8 +103,7 @@ StudyDataset kitti_study_dataset(const fs::path& kitti, const fs::path& work_dir
     if (!is_query.count(r.image)) map_records.push_back(r);
   if (map_records.empty()) throw_error(ErrorCode::kFormat, (kitti / "gps.csv").string(), ": no map frames");
   // The image size: from the first map image.
-  ImageMetadata meta;
-  SiftExtractor(SiftOptions{}).extract_file(kitti / "images" / map_records.front().image, &meta);
+  const ImageMetadata meta = read_image_metadata(kitti / "images" / map_records.front().image);
   fs::create_directories(work_dir);
   StudyDataset d;
   d.name = "kitti";
@@ -125,32 +131,90 @@ StudyDataset kitti_study_dataset(const fs::path& kitti, const fs::path& work_dir
 
 namespace {
 
-// Hard-links (or copies) every file of `from` missing in `to`.
+// `dst` becomes a hard link to `src`, or, where links are impossible (another
+// file system), a copy written under a temporary name and renamed: never a
+// partial file under the final name.
+void link_or_copy(const fs::path& src, const fs::path& dst) {
+  std::error_code ec;
+  fs::create_hard_link(src, dst, ec);
+  if (!ec || fs::exists(dst)) return;
+  const fs::path tmp = dst.string() + ".copying";
+  fs::copy_file(src, tmp, fs::copy_options::overwrite_existing, ec);
+  if (!ec) fs::rename(tmp, dst, ec);
+  if (ec) {
+    std::error_code ignored;
+    fs::remove(tmp, ignored);
+    throw_error(ErrorCode::kIo, "cannot link or copy ", src.string(), " to ", dst.string(), ": ", ec.message());
+  }
+}
+
+// Links every regular file of `from` missing in `to`.
 void link_files(const fs::path& from, const fs::path& to) {
   std::error_code ec;
   if (!fs::is_directory(from)) return;
   fs::create_directories(to);
   for (fs::directory_iterator it(from, ec), end; !ec && it != end; it.increment(ec)) {
-    if (!it->is_regular_file()) continue;
+    if (!it->is_regular_file() || it->path().extension() == ".copying") continue;
     const fs::path dst = to / it->path().filename();
-    if (fs::exists(dst)) continue;
-    std::error_code link_ec;
-    fs::create_hard_link(it->path(), dst, link_ec);
-    if (link_ec) fs::copy_file(it->path(), dst);
+    if (!fs::exists(dst)) link_or_copy(it->path(), dst);
   }
 }
+
+// What a configuration's result depends on besides P and O: a result.json
+// made under another fingerprint is not reused.
+nlohmann::json study_fingerprint(const StudyDataset& d, const SegmentStudyOptions& o) {
+  nlohmann::json queries = nlohmann::json::array();
+  for (const auto& q : d.queries) queries.push_back(q.image.filename().string() + ":" + q.kind);
+  return {{"dataset", d.name},
+          {"images", fs::absolute(d.images_dir).string()},
+          {"gps", fs::absolute(d.gps_csv).string()},
+          {"gps_bytes", fs::exists(d.gps_csv) ? fs::file_size(d.gps_csv) : 0},
+          {"queries", queries},
+          {"setting", to_string(o.localizer.setting)},
+          {"top_images", o.localizer.top_images},
+          {"max_segments", o.localizer.max_segments},
+          {"accept_inliers", o.localizer.accept_inliers},
+          {"min_inliers", o.localizer.ransac.min_inliers},
+          {"threshold_px", o.localizer.ransac.threshold_px},
+          {"sift", nlohmann::json::parse(o.map.sift.to_json())},
+          {"wrong_position_m", o.wrong_position_m},
+          {"wrong_rotation_deg", o.wrong_rotation_deg}};
+}
+
+const char* const kRowKeys[] = {"placemarks_per_segment", "overlap", "segments", "points", "segment_bytes",
+                                "retrieval_bytes", "build_seconds", "positives", "registered",
+                                "registered_fraction", "median_position_error_m", "negatives",
+                                "negatives_registered", "wrong_poses", "median_ms_per_query_excluding_features"};
 
 std::string config_name(int p, int o) { return "p" + std::to_string(p) + "_o" + std::to_string(o); }
 
 }  // namespace
 
-nlohmann::json run_segment_study(const fs::path& out, const StudyDataset& dataset, const SegmentStudyOptions& opt,
+nlohmann::json run_segment_study(const fs::path& out, const StudyDataset& all_queries, const SegmentStudyOptions& opt,
                                  const std::function<void(const SegmentStudyProgress&)>& progress) {
   opt.validate();
+  StudyDataset dataset = all_queries;
+  if (opt.max_queries > 0 && dataset.queries.size() > opt.max_queries) {
+    dataset.queries.clear();
+    const size_t n = all_queries.queries.size();
+    for (size_t i = 0; i < opt.max_queries; ++i) dataset.queries.push_back(all_queries.queries[i * n / opt.max_queries]);
+  }
   const fs::path dir = out / dataset.name;
   const fs::path shared_features = dir / "shared" / "features";
   const fs::path shared_codebook = dir / "shared" / "pq_codebook.vlpq";
+  // The study's fingerprint: a directory made with other inputs or options
+  // is refused (its results and shared features would not apply).
+  const fs::path fingerprint_path = dir / "study.json";
+  const nlohmann::json fingerprint = study_fingerprint(dataset, opt);
+  if (fs::exists(fingerprint_path)) {
+    const auto earlier = nlohmann::json::parse(read_file(fingerprint_path), nullptr, false);
+    if (earlier != fingerprint)
+      throw_error(ErrorCode::kInvalidArgument, fingerprint_path.string(),
+                  ": this study was made with other inputs or options; use another --out (or delete ", dir.string(),
+                  ")");
+  }
   fs::create_directories(shared_features);
+  write_file_atomic(fingerprint_path, fingerprint.dump(2));
 
   std::vector<std::pair<int, int>> configs;
   for (int p : opt.placemarks)
@@ -174,8 +238,12 @@ nlohmann::json run_segment_study(const fs::path& out, const StudyDataset& datase
     const fs::path result_path = cdir / "result.json";
     if (fs::exists(result_path)) {
       try {
-        rows.push_back(nlohmann::json::parse(read_file(result_path)));
-        continue;
+        nlohmann::json row = nlohmann::json::parse(read_file(result_path));
+        for (const char* key : kRowKeys) (void)row.at(key);
+        if (row.at("placemarks_per_segment").get<int>() == p && row.at("overlap").get<int>() == o) {
+          rows.push_back(std::move(row));
+          continue;
+        }
       } catch (const std::exception&) {
         // A damaged result: run the configuration again.
       }
@@ -183,8 +251,9 @@ nlohmann::json run_segment_study(const fs::path& out, const StudyDataset& datase
     // Build (features and codebook shared with the configurations before).
     const fs::path map_dir = cdir / "map";
     link_files(shared_features, map_dir / "work" / "features");
+    fs::create_directories(map_dir);
     if (fs::exists(shared_codebook) && !fs::exists(map_dir / "pq_codebook.vlpq"))
-      fs::create_hard_link(shared_codebook, map_dir / "pq_codebook.vlpq");
+      link_or_copy(shared_codebook, map_dir / "pq_codebook.vlpq");
     MapBuildOptions mb = opt.map;
     mb.images_dir = dataset.images_dir;
     mb.gps_csv = dataset.gps_csv;
@@ -195,8 +264,15 @@ nlohmann::json run_segment_study(const fs::path& out, const StudyDataset& datase
     mb.plan.overlap = o;
     if (progress) progress({dataset.name, p, o, "build", 0, 1});
     const MapBuildResult built = build_map(map_dir, mb);
+    if (built.failed() == built.segments.size())
+      throw_error(ErrorCode::kExternalTool, "bench segments: no segment of ", map_dir.string(),
+                  " could be built (logs under its work/)");
     link_files(map_dir / "work" / "features", shared_features);
-    if (!fs::exists(shared_codebook)) fs::create_hard_link(map_dir / "pq_codebook.vlpq", shared_codebook);
+    if (!fs::exists(shared_codebook)) link_or_copy(map_dir / "pq_codebook.vlpq", shared_codebook);
+    // Build time: the segments' own seconds summed (reused ones included;
+    // independent of --jobs) and the retrieval index.
+    double segment_seconds = 0;
+    for (const auto& s : built.segments) segment_seconds += s.seconds;
     uint64_t segment_bytes = 0;
     size_t points = 0;
     for (const auto& s : built.segments) {
@@ -243,7 +319,7 @@ nlohmann::json run_segment_study(const fs::path& out, const StudyDataset& datase
         {"points", points},
         {"segment_bytes", segment_bytes},
         {"retrieval_bytes", retrieval_bytes},
-        {"build_seconds", built.seconds_segments + built.seconds_retrieval},
+        {"build_seconds", segment_seconds + built.seconds_retrieval},
         {"positives", positives},
         {"registered", registered},
         {"registered_fraction", positives ? double(registered) / double(positives) : 0.0},
@@ -266,12 +342,12 @@ void write_segment_study_report(const fs::path& out,
   md << std::fixed;
   md << "# Segment design study (the paper's GSV model design)\n\n"
      << "Each map holds the same images, cut into segments of P placemarks that share O placemarks with their "
-        "neighbours. Build seconds: segments and retrieval index (SIFT features and the PQ codebook are shared "
-        "by all configurations and not counted). Milliseconds: median per query, excluding features, one core.\n";
+        "neighbours. Build seconds: the segments' seconds summed (as if built one at a time) plus the retrieval "
+        "index; SIFT features and the PQ codebook are shared by all configurations and not counted. Milliseconds: median per query, excluding features, one core.\n";
   for (const auto& [name, rows] : rows_by_dataset) {
     md << "\n## " << name << "\n\n"
        << "| P | O | segments | registered | median error (m) | wrong poses | negatives registered | points | "
-          "segment MB | build s | ms/query |\n|---|---|---|---|---|---|---|---|---|---|---|\n";
+          "segments + retrieval MB | build s | ms/query |\n|---|---|---|---|---|---|---|---|---|---|---|\n";
     double max_mb = 0;
     std::set<int> overlaps;
     int p_min = 1 << 30, p_max = 0;
@@ -285,9 +361,10 @@ void write_segment_study_report(const fs::path& out,
          << r["registered"] << "/" << r["positives"] << " (" << std::setprecision(1)
          << 100.0 * r["registered_fraction"].get<double>() << "%) | " << std::setprecision(3)
          << (r["median_position_error_m"].is_null() ? std::string("-")
-                                                    : std::to_string(r["median_position_error_m"].get<double>()))
+                                                    : Plot::fmt(r["median_position_error_m"].get<double>()))
          << " | " << r["wrong_poses"] << " | " << r["negatives_registered"] << "/" << r["negatives"] << " | "
-         << r["points"] << " | " << std::setprecision(1) << mb << " | " << std::setprecision(0)
+         << r["points"] << " | " << std::setprecision(1) << mb << " + "
+         << r["retrieval_bytes"].get<double>() / 1e6 << " | " << std::setprecision(0)
          << r["build_seconds"].get<double>() << " | " << std::setprecision(1)
          << r["median_ms_per_query_excluding_features"].get<double>() << " |\n";
     }

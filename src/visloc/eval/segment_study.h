@@ -58,6 +58,7 @@ struct SegmentStudyOptions {
   LocalizerOptions localizer;
   double wrong_position_m = 5, wrong_rotation_deg = 10;
   bool keep_maps = false;       // keep each configuration's map (else only its result)
+  size_t max_queries = 0;       // 0: every query; else this many, evenly spread (the same in every configuration)
   void validate() const;
 };
 

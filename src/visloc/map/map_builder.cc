@@ -860,7 +860,25 @@ MapBuildResult build_map(const fs::path& map_dir, const MapBuildOptions& opt,
   if (!opt.build_record.empty()) write_file_atomic(map_dir / "work" / "build.json", opt.build_record);
   BuildContext ctx = prepare_context(map_dir, opt);
   const GeoPosition origin = ctx.origin;
-  write_file_atomic(map_dir / "work" / "plan.json", plan_json(ctx).dump());
+  {
+    // A segment finished under another plan (other segment sizes, other
+    // inputs) is built again: its result is forgotten when its images differ.
+    const fs::path plan_path = map_dir / "work" / "plan.json";
+    const nlohmann::json plan = plan_json(ctx);
+    if (fs::exists(plan_path)) {
+      nlohmann::json earlier = nlohmann::json::parse(read_file(plan_path), nullptr, false);
+      const bool usable = !earlier.is_discarded() && earlier.is_object() && earlier.contains("segments") &&
+                          earlier["segments"].is_array();
+      const size_t n_new = plan["segments"].size();
+      const size_t n_old = usable ? earlier["segments"].size() : 0;
+      std::error_code ec;
+      for (size_t id = 0; id < std::max(n_new, n_old); ++id) {
+        const bool same = usable && id < n_old && id < n_new && earlier["segments"][id] == plan["segments"][id];
+        if (!same) fs::remove(segment_result_file(map_dir, static_cast<int>(id)), ec);
+      }
+    }
+    write_file_atomic(plan_path, plan.dump());
+  }
   result.images = ctx.records.size();
   result.placemarks = ctx.plan.placemarks.size();
 

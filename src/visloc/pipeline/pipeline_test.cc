@@ -133,6 +133,18 @@ TEST(Localizer, EndToEndOnSyntheticStreet) {
   // A second run reuses the finished segments.
   MapBuildResult again = build_map(dir / "map", mb);
   EXPECT_TRUE(again.segments[0].reused);
+  // Another segment plan in the same directory: segments whose images differ
+  // are built again, never reused from the earlier plan; and back.
+  MapBuildOptions other = mb;
+  other.plan.min_placemarks = other.plan.max_placemarks = 3;
+  other.plan.overlap = 1;
+  const MapBuildResult changed = build_map(dir / "map", other);
+  ASSERT_GT(changed.segments.size(), built.segments.size());
+  EXPECT_FALSE(changed.segments[0].reused);
+  const MapBuildResult back = build_map(dir / "map", mb);
+  ASSERT_EQ(back.segments.size(), built.segments.size());
+  EXPECT_FALSE(back.segments[0].reused);
+  EXPECT_EQ(back.failed(), 0u);
 
   std::map<std::string, CameraPose> truth;
   for (const auto& p : read_pose_list(dir / "city" / "queries" / "truth.txt")) truth[p.name] = p.cam_from_world;
