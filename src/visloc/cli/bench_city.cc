@@ -66,6 +66,7 @@ void add_bench_city(CLI::App& bench) {
     CityBenchmarkOptions options;
     std::string out, layout = "grid", elevations = "10", size = "640x640", executor = "local", setting = "3+";
     std::string stage = "auto";
+    double cache_mib = 512;
     std::string shared_data = VISLOC_DEFAULT_SHARED_DATA;
     int jobs = 0;
   };
@@ -124,7 +125,11 @@ void add_bench_city(CLI::App& bench) {
       ->take_last()  // the fresh process appends "--stage localize"
       ->capture_default_str();
   add_localizer_options(cmd, o.localizer, a->setting);
+  cmd->add_option("--cache-mib", a->cache_mib, "Localizer: segment cache budget (MiB)")
+      ->check(positive_finite_number())
+      ->capture_default_str();
   cmd->callback([a] {
+    a->options.localizer.cache_bytes = static_cast<uint64_t>(a->cache_mib * 1024 * 1024);
     CityBenchmarkOptions& o = a->options;
     o.localizer.setting = parse_paper_setting(a->setting);
     o.city.layout.layout = synth::road_layout_from_string(a->layout);

@@ -47,7 +47,8 @@ void add_bench_segments(CLI::App& bench) {
       "segments",
       "The paper's segment design study: build the same map with P placemarks per segment and O shared with "
       "neighbours, for every P and O (O < P), localize the same queries on each; report registration, median "
-      "error, wrong poses, map bytes and build time as report.md and plots in --out. Resumes per configuration");
+      "error, wrong poses, map bytes and build time as report.md and plots in --out (every configuration measured "
+      "there so far). Resumes per configuration");
   cmd->add_option("--out", a->out, "Study directory (DATASET/pP_oO/result.json, report.md, plots)")->required();
   cmd->add_option("--city", a->city,
                   "A 'visloc bench city' directory: its map images, positives and negatives (run that first)");
@@ -85,7 +86,10 @@ void add_bench_segments(CLI::App& bench) {
       std::cerr << (tty && p.stage != "done" ? "     " : "\n") << std::flush;
     };
     std::vector<std::pair<std::string, nlohmann::json>> rows;
-    for (const auto& d : sets) rows.emplace_back(d.name, run_segment_study(out, d, o, progress));
+    for (const auto& d : sets) {
+      run_segment_study(out, d, o, progress);
+      rows.emplace_back(d.name, collect_segment_study_rows(out, d.name));  // earlier runs' configurations too
+    }
     write_segment_study_report(out, rows);
     std::cout << read_file(out / "report.md");
   });

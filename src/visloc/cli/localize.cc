@@ -36,7 +36,9 @@ void add_localize_command(CLI::App& app) {
                   "Per-image intrinsics: 'name MODEL width height params...' (SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL)")
       ->excludes("--focal");
   add_localizer_options(cmd, args->options, args->setting);
-  cmd->add_option("--cache-mib", args->cache_mib, "Segment cache budget (MiB)")->capture_default_str();
+  cmd->add_option("--cache-mib", args->cache_mib, "Segment cache budget (MiB)")
+      ->check(positive_finite_number())
+      ->capture_default_str();
   cmd->callback([args] {
     args->options.setting = parse_paper_setting(args->setting);
     args->options.cache_bytes = static_cast<uint64_t>(args->cache_mib * 1024 * 1024);

@@ -2,12 +2,28 @@
 #pragma once
 
 #include <CLI/CLI.hpp>
+#include <cmath>
 #include <string>
 
 #include "visloc/cli/sift_options.h"
 #include "visloc/pipeline/localizer.h"
 
 namespace visloc::cli {
+
+// A number that is finite and > 0 (CLI::Range lets NaN through).
+inline CLI::Validator positive_finite_number() {
+  return CLI::Validator(
+      [](std::string& text) -> std::string {
+        try {
+          size_t used = 0;
+          const double v = std::stod(text, &used);
+          if (used == text.size() && std::isfinite(v) && v > 0) return {};
+        } catch (const std::exception&) {
+        }
+        return "'" + text + "' is not a positive finite number";
+      },
+      "POSITIVE");
+}
 
 // `setting` receives the --setting text; parse it with parse_paper_setting.
 inline void add_localizer_options(CLI::App* cmd, LocalizerOptions& o, std::string& setting) {

@@ -119,6 +119,7 @@ TEST(CityBenchmark, SmallCityRunsAndResumes) {
   // Features were extracted once: the second map linked them.
   EXPECT_TRUE(fs::exists(study / "city" / "shared" / "pq_codebook.vlpq"));
   EXPECT_EQ(run_segment_study(study, data, so), rows);  // resumes from result.json
+  EXPECT_EQ(collect_segment_study_rows(study, "city"), rows);
   write_segment_study_report(study, {{"city", rows}});
   EXPECT_TRUE(fs::exists(study / "report.md"));
   EXPECT_TRUE(fs::exists(study / "segments_city_registration.svg"));

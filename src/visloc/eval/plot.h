@@ -5,6 +5,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include <algorithm>
 #include <filesystem>
 #include <iomanip>
 #include <sstream>
@@ -31,7 +32,10 @@ struct Plot {
         << "<text x='" << w / 2 << "' y='" << h - 10 << "' text-anchor='middle'>" << xlabel << "</text>\n"
         << "<text x='14' y='" << h / 2 << "' transform='rotate(-90 14 " << h / 2 << ")' text-anchor='middle'>"
         << ylabel << "</text>\n";
-    cv::putText(png, title, {left, 20}, cv::FONT_HERSHEY_SIMPLEX, 0.5, {0, 0, 0}, 1, cv::LINE_AA);
+    int baseline = 0;
+    const int title_width = cv::getTextSize(title, cv::FONT_HERSHEY_SIMPLEX, 0.5, 1, &baseline).width;
+    cv::putText(png, title, {std::max(left + 60, (w - title_width) / 2), 18}, cv::FONT_HERSHEY_SIMPLEX, 0.5,
+                {0, 0, 0}, 1, cv::LINE_AA);
     cv::putText(png, xlabel, {w / 2 - 60, h - 10}, cv::FONT_HERSHEY_SIMPLEX, 0.45, {0, 0, 0}, 1, cv::LINE_AA);
     cv::putText(png, ylabel, {4, top - 8}, cv::FONT_HERSHEY_SIMPLEX, 0.4, {0, 0, 0}, 1, cv::LINE_AA);
     // Axes box and ticks.

@@ -336,6 +336,29 @@ nlohmann::json run_segment_study(const fs::path& out, const StudyDataset& all_qu
   return rows;
 }
 
+nlohmann::json collect_segment_study_rows(const fs::path& out, const std::string& dataset) {
+  std::vector<nlohmann::json> rows;
+  std::error_code ec;
+  for (fs::directory_iterator it(out / dataset, ec), end; !ec && it != end; it.increment(ec)) {
+    const fs::path result = it->path() / "result.json";
+    if (!fs::is_regular_file(result)) continue;
+    try {
+      nlohmann::json row = nlohmann::json::parse(read_file(result));
+      for (const char* key : kRowKeys) (void)row.at(key);
+      if (it->path().filename() != config_name(row.at("placemarks_per_segment").get<int>(), row.at("overlap").get<int>()))
+        continue;
+      rows.push_back(std::move(row));
+    } catch (const std::exception&) {
+      // Damaged: left out (run_segment_study measures it again).
+    }
+  }
+  std::sort(rows.begin(), rows.end(), [](const nlohmann::json& a, const nlohmann::json& b) {
+    return std::make_pair(a["placemarks_per_segment"].get<int>(), a["overlap"].get<int>()) <
+           std::make_pair(b["placemarks_per_segment"].get<int>(), b["overlap"].get<int>());
+  });
+  return nlohmann::json(rows);
+}
+
 void write_segment_study_report(const fs::path& out,
                                 const std::vector<std::pair<std::string, nlohmann::json>>& rows_by_dataset) {
   std::ostringstream md;

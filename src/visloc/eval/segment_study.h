@@ -75,6 +75,10 @@ nlohmann::json run_segment_study(const std::filesystem::path& out_dir, const Stu
                                  const SegmentStudyOptions& options,
                                  const std::function<void(const SegmentStudyProgress&)>& progress = {});
 
+// Every configuration measured so far in out_dir/DATASET (result.json files,
+// those of earlier runs with other P and O lists included), by P then O.
+nlohmann::json collect_segment_study_rows(const std::filesystem::path& out_dir, const std::string& dataset);
+
 // report.md (tables) and one plot per data set (registration and map size
 // against placemarks per segment, a line per overlap) from the rows of
 // run_segment_study, keyed by data set name.
