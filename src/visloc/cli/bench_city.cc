@@ -165,7 +165,8 @@ void add_bench_city(CLI::App& bench) {
     const bool tty = ::isatty(STDERR_FILENO);
     std::string last_stage;
     auto progress = [&](const CityBenchmarkProgress& p) {
-      if (!tty && p.stage == last_stage && p.done != p.total && p.done % 20 != 0) return;
+      if (!tty && p.stage == last_stage && p.done != p.total && p.done % (p.stage == "render" ? 100 : 20) != 0)
+        return;
       last_stage = p.stage;
       std::cerr << (tty ? "\r" : "") << "bench city: " << p.stage << " " << p.done << "/" << p.total
                 << (tty && p.done != p.total ? "   " : "\n") << std::flush;

@@ -191,11 +191,11 @@ nlohmann::json run_city_benchmark(const fs::path& out, const CityBenchmarkOption
   // with other options is refused, since its scene is regenerated below).
   const bool city_complete = fs::exists(city_dir / "queries" / "truth.txt") && fs::exists(city_dir / "city.json");
   if (opt.stage != CityBenchmarkStage::kLocalize && !city_complete) {
-    if (progress) progress({"render", 0, 1});
     synth::CityOptions city = opt.city;
     city.resume = fs::exists(city_dir);
-    synth::write_city(city, city_dir);
-    if (progress) progress({"render", 1, 1});
+    synth::write_city(city, city_dir, [&](const synth::CityProgress& p) {
+      if (progress) progress({"render", p.done, p.total});
+    });
   } else {
     const auto existing = nlohmann::json::parse(read_file(city_dir / "city.json"), nullptr, false);
     if (existing.is_discarded() || !existing.contains("options") ||
