@@ -133,15 +133,7 @@ void add_bench_city(CLI::App& bench) {
     CityBenchmarkOptions& o = a->options;
     o.localizer.setting = parse_paper_setting(a->setting);
     o.city.layout.layout = synth::road_layout_from_string(a->layout);
-    o.city.views.elevations_deg.clear();
-    std::stringstream es(a->elevations);
-    for (std::string item; std::getline(es, item, ',');) {
-      try {
-        o.city.views.elevations_deg.push_back(std::stod(item));
-      } catch (const std::exception&) {
-        throw_error(ErrorCode::kInvalidArgument, "--elevations: '", item, "' is not a number");
-      }
-    }
+    o.city.views.elevations_deg = parse_numbers(a->elevations, "--elevations");
     if (std::sscanf(a->size.c_str(), "%dx%d", &o.city.views.width, &o.city.views.height) != 2)
       throw_error(ErrorCode::kInvalidArgument, "--size: '", a->size, "' is not WIDTHxHEIGHT");
     const int jobs = a->jobs > 0 ? a->jobs : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));

@@ -1,6 +1,7 @@
 // visloc bench segments: the paper's segment design study (eval/segment_study.h).
 #include <unistd.h>
 
+#include <cmath>
 #include <filesystem>
 #include <iostream>
 #include <memory>
@@ -18,17 +19,12 @@ namespace fs = std::filesystem;
 
 namespace {
 
-std::vector<int> parse_int_list(const std::string& option, const std::string& text) {
+std::vector<int> parse_int_list(const char* option, const std::string& text) {
   std::vector<int> out;
-  std::stringstream ss(text);
-  for (std::string item; std::getline(ss, item, ',');) {
-    try {
-      size_t used = 0;
-      out.push_back(std::stoi(item, &used));
-      if (used != item.size()) throw std::invalid_argument(item);
-    } catch (const std::exception&) {
-      throw_error(ErrorCode::kInvalidArgument, option, ": '", item, "' is not an integer");
-    }
+  for (double v : parse_numbers(text, option)) {
+    if (v != std::floor(v) || std::abs(v) > 1e6)
+      throw_error(ErrorCode::kInvalidArgument, option, ": ", v, " is not an integer");
+    out.push_back(static_cast<int>(v));
   }
   if (out.empty()) throw_error(ErrorCode::kInvalidArgument, option, ": empty list");
   return out;

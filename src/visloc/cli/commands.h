@@ -40,6 +40,8 @@ void add_bench_matching(CLI::App& bench);
 void add_bench_pose(CLI::App& bench);
 void add_bench_retrieval(CLI::App& bench);
 void add_bench_end_to_end(CLI::App& bench);
+// "1,2.5,3" → numbers; throws Error(kInvalidArgument) naming the option and the item.
+std::vector<double> parse_numbers(const std::string& text, const char* option);
 void add_bench_city(CLI::App& bench);
 void add_bench_segments(CLI::App& bench);
 

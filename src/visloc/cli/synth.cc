@@ -18,7 +18,6 @@
 #include "visloc/util/error.h"
 
 namespace visloc::cli {
-namespace {
 
 std::vector<double> parse_numbers(const std::string& text, const char* option) {
   std::vector<double> out;
@@ -35,6 +34,8 @@ std::vector<double> parse_numbers(const std::string& text, const char* option) {
   }
   return out;
 }
+
+namespace {
 
 std::array<int, 2> parse_size(const std::string& text, const char* option) {
   const auto x = text.find('x');
