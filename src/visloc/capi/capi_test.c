@@ -59,6 +59,7 @@ static void test_strings_and_defaults(void) {
   CHECK(o.max_image_side == 1600 && o.max_features == 8192 && o.threads == 1, "sift %d %d %d", o.max_image_side,
         o.max_features, o.threads);
   CHECK(o.use_exif_focal == 1 && o.min_inliers == 12, "exif %d min_inliers %d", o.use_exif_focal, o.min_inliers);
+  CHECK(o.min_confidence > 0 && o.min_confidence < 1, "min_confidence %f", o.min_confidence);
 }
 
 static void test_open_errors(void) {
@@ -107,6 +108,11 @@ static void test_open_errors(void) {
   s = visloc_localizer_open(missing, &o, &loc, error, sizeof(error));
   CHECK(s == VISLOC_INVALID_ARGUMENT && strstr(error, "cache_bytes") != NULL, "%s: '%s'", visloc_status_string(s),
         error);
+  visloc_options_init(&o);
+  o.min_confidence = 1.5;
+  s = visloc_localizer_open(missing, &o, &loc, error, sizeof(error));
+  CHECK(s == VISLOC_INVALID_ARGUMENT && strstr(error, "min_confidence") != NULL, "%s: '%s'",
+        visloc_status_string(s), error);
 
   visloc_localizer_close(NULL);
 }
@@ -260,6 +266,11 @@ static void test_fountain(const char* scene, const char* map_dir) {
   CHECK(fabs(r.focal_px - 0.5 * (k.fx + k.fy)) < 1e-9 && r.focal_estimated == 0, "focal %.3f estimated %d",
         r.focal_px, r.focal_estimated);
   CHECK(r.has_enu == 0 && r.has_geo == 0 && r.has_heading == 0, "an imported COLMAP model is not geo-registered");
+  CHECK(r.confidence >= o.min_confidence && r.confidence <= 1, "confidence %f (threshold %f)", r.confidence,
+        o.min_confidence);
+  CHECK(r.has_sigma == 1 && r.position_sigma > 0 && r.position_sigma < 0.25 && r.rotation_sigma_deg > 0,
+        "sigma %d position %f rotation %f", r.has_sigma, r.position_sigma, r.rotation_sigma_deg);
+  CHECK(r.position_sigma_m == 0 && r.heading_sigma_deg == 0, "metric sigmas need a geo-registered map");
   CHECK(r.features > 1000 && r.features <= o.max_features, "features %d", r.features);
   CHECK(r.times.total_ms > 0 && r.times.total_ms >= r.times.features_ms && r.times.features_ms > 0,
         "times total %.1f features %.1f", r.times.total_ms, r.times.features_ms);

@@ -98,6 +98,7 @@ visloc::LocalizerOptions localizer_options(const visloc_options& o) {
   if (o.min_inliers < 1)
     visloc::throw_error(ErrorCode::kInvalidArgument, "options: min_inliers must be >= 1, got ", o.min_inliers);
   l.ransac.min_inliers = static_cast<size_t>(o.min_inliers);
+  l.min_confidence = o.min_confidence;
   l.validate();
   return l;
 }
@@ -160,6 +161,17 @@ void fill(const visloc::LocalizationResult& l, visloc_result* r) {
     r->has_heading = 1;
     r->heading_deg = *l.heading_deg;
   }
+  r->confidence = l.confidence;
+  if (l.uncertainty.valid) {
+    const visloc::PoseUncertainty& u = l.uncertainty;
+    r->has_sigma = 1;
+    r->position_sigma = u.position_sigma;
+    r->rotation_sigma_deg = u.rotation_sigma_deg;
+    r->position_sigma_m = u.position_sigma_m.value_or(0);
+    r->horizontal_sigma_m = u.horizontal_sigma_m.value_or(0);
+    r->vertical_sigma_m = u.vertical_sigma_m.value_or(0);
+    r->heading_sigma_deg = u.heading_sigma_deg.value_or(0);
+  }
   r->times.features_ms = l.times.features;
   r->times.retrieval_ms = l.times.retrieval;
   r->times.matching_ms = l.times.matching;
@@ -201,6 +213,7 @@ void visloc_options_init(visloc_options* options) {
   options->threads = d.sift.num_threads;
   options->use_exif_focal = d.use_exif_focal ? 1 : 0;
   options->min_inliers = static_cast<int>(d.ransac.min_inliers);
+  options->min_confidence = d.min_confidence;
 }
 
 visloc_status visloc_localizer_open(const char* map_dir, const visloc_options* options, visloc_localizer** out,

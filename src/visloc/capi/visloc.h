@@ -68,6 +68,8 @@ typedef struct visloc_options {
   int threads;            /* threads for feature extraction per call (default 1) */
   int use_exif_focal;     /* visloc_localize_file: EXIF focal length when no intrinsics (default 1) */
   int min_inliers;        /* a pose is registered at this many inliers (default 12) */
+  double min_confidence;  /* ... and at this confidence, in [0, 1] (default: the builtin model's
+                             threshold, chosen for a precision >= 99.5 %; 0: inliers only) */
 } visloc_options;
 
 /* Intrinsics of the query image. visloc models one focal length: fx and fy
@@ -86,7 +88,7 @@ typedef struct visloc_stage_times {
 
 /* Written completely by every localize call (zeroed first). */
 typedef struct visloc_result {
-  int registered;          /* 1: the pose is reliable (at least min_inliers inliers) */
+  int registered;          /* 1: the pose is reliable (min_inliers inliers and min_confidence) */
   int segment;             /* map segment of the pose; -1 when no pose */
   int inliers;
   int features;            /* SIFT features of the photo */
@@ -104,6 +106,13 @@ typedef struct visloc_result {
   double latitude_deg, longitude_deg, altitude_m; /* altitude above the ellipsoid */
   int has_heading;
   double heading_deg;      /* viewing direction, degrees clockwise from north */
+  double confidence;       /* probability that the pose is right (within 5 m, 10 deg), 0 without a pose */
+  /* 1-sigma uncertainty from the pose refinement's covariance (has_sigma):
+   * centre (sqrt of the covariance's trace) in segment units and rotation;
+   * with has_enu also in metres (3D, horizontal, vertical) and the heading. */
+  int has_sigma;
+  double position_sigma, rotation_sigma_deg;
+  double position_sigma_m, horizontal_sigma_m, vertical_sigma_m, heading_sigma_deg;
   visloc_stage_times times;
   char error[256];         /* empty on VISLOC_OK; otherwise the message (truncated) */
 } visloc_result;

@@ -44,5 +44,6 @@ void add_bench_end_to_end(CLI::App& bench);
 std::vector<double> parse_numbers(const std::string& text, const char* option);
 void add_bench_city(CLI::App& bench);
 void add_bench_segments(CLI::App& bench);
+void add_bench_confidence(CLI::App& bench);
 
 }  // namespace visloc::cli

@@ -38,7 +38,8 @@ std::vector<NamedPose> read_reference_poses(const fs::path& path) {
   return read_pose_list(path);
 }
 
-void write_results(const fs::path& dir, const std::vector<LocalizationResult>& results, const EvaluationReport& rep,
+void write_results(const fs::path& dir, const std::vector<LocalizationResult>& results,
+                   const std::vector<LocalizationResult>& negative_results, const EvaluationReport& rep,
                    const nlohmann::json& context) {
   write_report(dir, rep, results, context);
   std::vector<NamedPose> poses;  // registered queries, visuallocalization.net format
@@ -47,6 +48,11 @@ void write_results(const fs::path& dir, const std::vector<LocalizationResult>& r
   write_pose_list(dir / "poses.txt", poses);
   std::ostringstream lines;
   for (const auto& r : results) lines << to_json(r).dump() << '\n';
+  for (const auto& r : negative_results) {
+    nlohmann::json j = to_json(r);
+    j["negative"] = true;
+    lines << j.dump() << '\n';
+  }
   write_file_atomic(dir / "results.jsonl", lines.str());
 }
 
@@ -70,7 +76,8 @@ std::string comparison_row(const std::string& method, const nlohmann::json& j, d
 
 void add_eval_command(CLI::App& app) {
   struct Args {
-    std::string map, queries, images, truth, out, intrinsics, setting = "3+", query_features = "images", compare;
+    std::string map, queries, images, truth, out, intrinsics, setting = "3+", query_features = "images", compare,
+        negatives;
     bool leave_one_out = false;
     LocalizerOptions options;
     ColmapRunnerOptions colmap;
@@ -106,6 +113,9 @@ void add_eval_command(CLI::App& app) {
   cmd->add_flag("--leave-one-out", args->leave_one_out,
                 "Localize every image of the imported COLMAP model against the "
                 "model without it");
+  cmd->add_option("--negatives", args->negatives,
+                  "Images that must not register (other places, foreign photos): one path per line, relative "
+                  "paths against --images; each registered one counts as a wrong pose");
   cmd->add_option("--compare", args->compare, "Also run a peer on the same queries: 'colmap' (image_registrator)")
       ->check(CLI::IsMember({"colmap"}));
   cmd->add_option("--colmap", args->colmap.binary, "COLMAP executable (with --compare colmap)")->capture_default_str();
@@ -212,8 +222,28 @@ void add_eval_command(CLI::App& app) {
       context["truth"] = fs::absolute(args->truth).string();
     }
 
-    EvaluationReport rep = evaluate(results, truth);
-    write_results(out, results, rep, context);
+    // Negatives: localized from their files (EXIF focal, else estimated).
+    std::vector<LocalizationResult> negative_results;
+    if (!args->negatives.empty()) {
+      const auto list = read_name_list(args->negatives);
+      if (list.empty()) throw_error(ErrorCode::kInvalidArgument, args->negatives, ": no image paths");
+      Localizer localizer(args->map, args->options);
+      for (size_t i = 0; i < list.size(); ++i) {
+        fs::path p = list[i];
+        if (p.is_relative() && !args->images.empty()) p = fs::path(args->images) / p;
+        if (!fs::is_regular_file(p))
+          throw_error(ErrorCode::kNotFound, args->negatives, ": negative image '", list[i], "' not found at ",
+                      p.string());
+        LocalizationResult r = localizer.localize_file(p);
+        r.image = p.string();
+        negative_results.push_back(std::move(r));
+        if (tty) std::cerr << "\reval: negatives " << i + 1 << "/" << list.size() << std::flush;
+      }
+      if (tty) std::cerr << "\n";
+      context["negatives"] = fs::absolute(args->negatives).string();
+    }
+    EvaluationReport rep = evaluate(results, truth, negative_results, args->options);
+    write_results(out, results, negative_results, rep, context);
     std::cout << read_file(out / "report.md");
     if (peer) {
       EvaluationReport peer_rep = evaluate(peer->results, truth);
@@ -223,7 +253,7 @@ void add_eval_command(CLI::App& app) {
           "against every model image)";
       peer_context["seconds_matching"] = peer->seconds_matching;
       peer_context["seconds_registration"] = peer->seconds_registration;
-      write_results(out / "colmap", peer->results, peer_rep, peer_context);
+      write_results(out / "colmap", peer->results, {}, peer_rep, peer_context);
       std::vector<double> ours_ms, peer_ms;
       for (const auto& r : results) ours_ms.push_back(r.times.total - r.times.features);
       for (const auto& r : peer->results) peer_ms.push_back(r.times.total - r.times.features);

@@ -42,6 +42,11 @@ inline void add_localizer_options(CLI::App* cmd, LocalizerOptions& o, std::strin
                 "Settings 3, 3+: do not search all features again when the prioritized search fails");
   cmd->add_option("--threshold", o.ransac.threshold_px, "RANSAC reprojection threshold (px)")->capture_default_str();
   cmd->add_option("--min-inliers", o.ransac.min_inliers, "Registered at this many inliers")->capture_default_str();
+  cmd->add_option("--min-confidence", o.min_confidence,
+                  "... and at this confidence in [0, 1] (the builtin model's probability that the pose is right; "
+                  "the default is chosen for a precision of 99.5%; 0: inliers only, the paper's rule)")
+      ->check(CLI::Range(0.0, 1.0))
+      ->capture_default_str();
   cmd->add_flag("!--no-exif-focal", o.use_exif_focal, "Ignore EXIF focal lengths");
   add_sift_options(cmd, o.sift);
 }

@@ -116,6 +116,17 @@ std::vector<fs::path> foreign_photos(const fs::path& shared, size_t n) {
 
 double median_or_zero(const std::vector<double>& v) { return v.empty() ? 0.0 : median(v); }
 
+// Confidence, its inputs and the pose's uncertainty (when there is a pose).
+void add_pose_evidence(const LocalizationResult& r, nlohmann::json* entry) {
+  (*entry)["confidence"] = r.confidence;
+  if (r.segment < 0) return;
+  (*entry)["confidence_features"] = r.confidence_features.to_json();
+  if (r.uncertainty.valid) {
+    (*entry)["position_sigma"] = r.uncertainty.position_sigma;
+    (*entry)["rotation_sigma_deg"] = r.uncertainty.rotation_sigma_deg;
+  }
+}
+
 nlohmann::json pose_summary(const std::vector<double>& errors_m, size_t count, size_t registered, size_t wrong) {
   return {{"queries", count},
           {"registered", registered},
@@ -352,13 +363,19 @@ nlohmann::json run_city_benchmark(const fs::path& out, const CityBenchmarkOption
       ms_ransac.push_back(r.times.ransac);
       (r.registered ? ms_registered : ms_missed).push_back(r.times.total - r.times.features);
     }
-    per_query.push_back({{"image", q.name}, {"kind", kind}, {"distance_to_map_m", nearest},
-                         {"registered", r.registered}, {"wrong", wrong}, {"inliers", r.inliers},
-                         {"position_error_m", pos_err}, {"rotation_error_deg", rot_err},
-                         {"true_segment_rank", rank}, {"true_segments", truth_segments},
-                         {"retrieval_segments", r.retrieval_segments}, {"retrieval_votes", r.retrieval_votes},
-                         {"retrieval_voted_segments", r.retrieval_voted_segments},
-                         {"most_visible_points", most_seen}, {"error", r.error}});
+    nlohmann::json entry = {{"image", q.name}, {"kind", kind}, {"distance_to_map_m", nearest},
+                            {"registered", r.registered}, {"wrong", wrong}, {"inliers", r.inliers},
+                            {"position_error_m", pos_err}, {"rotation_error_deg", rot_err},
+                            {"true_segment_rank", rank}, {"true_segments", truth_segments},
+                            {"retrieval_segments", r.retrieval_segments}, {"retrieval_votes", r.retrieval_votes},
+                            {"retrieval_voted_segments", r.retrieval_voted_segments},
+                            {"most_visible_points", most_seen}, {"error", r.error}};
+    add_pose_evidence(r, &entry);
+    if (r.segment >= 0) {  // the pose's error whether registered or not (confidence fits)
+      entry["pose_position_error_m"] = position_error(r.cam_from_segment, q.cam_from_world);
+      entry["pose_rotation_error_deg"] = rotation_error_deg(r.cam_from_segment, q.cam_from_world);
+    }
+    per_query.push_back(entry);
     if (progress) progress({"localize", ++done, total});
   }
   // Peak memory over the city's queries (up to 1024×768), before the foreign
@@ -371,8 +388,10 @@ nlohmann::json run_city_benchmark(const fs::path& out, const CityBenchmarkOption
       ++foreigners.registered;
       ++foreigners.wrong;
     }
-    per_query.push_back({{"image", photo.string()}, {"kind", "foreign"}, {"registered", r.registered},
-                         {"wrong", r.registered}, {"inliers", r.inliers}, {"error", r.error}});
+    nlohmann::json entry = {{"image", photo.string()}, {"kind", "foreign"}, {"registered", r.registered},
+                            {"wrong", r.registered}, {"inliers", r.inliers}, {"error", r.error}};
+    add_pose_evidence(r, &entry);
+    per_query.push_back(entry);
     if (progress) progress({"localize", ++done, total});
   }
 
@@ -385,6 +404,26 @@ nlohmann::json run_city_benchmark(const fs::path& out, const CityBenchmarkOption
     }
   const size_t points = build_summary.at("points").get<size_t>();
   const size_t wrong_total = positives.wrong + negatives.wrong + foreigners.wrong;
+  // Confidence: poses with enough inliers that the threshold turned away,
+  // right and wrong; uncertainty: registered positives' errors within 1σ, 2σ.
+  size_t turned_away_right = 0, turned_away_wrong = 0, with_sigma = 0, within1 = 0, within2 = 0;
+  for (const auto& q : per_query) {
+    const std::string kind = q["kind"];
+    if (kind == "between" || kind == "near_unseen" || !q.contains("confidence_features")) continue;
+    if (!q["registered"].get<bool>() &&
+        q["inliers"].get<size_t>() >= opt.localizer.ransac.min_inliers) {
+      const bool right = kind != "foreign" && q.contains("pose_position_error_m") &&
+                         q["pose_position_error_m"].get<double>() <= opt.wrong_position_m &&
+                         q["pose_rotation_error_deg"].get<double>() <= opt.wrong_rotation_deg;
+      (right ? turned_away_right : turned_away_wrong)++;
+    }
+    if (kind == "positive" && q["registered"].get<bool>() && q.contains("position_sigma")) {
+      const double e = q["position_error_m"].get<double>(), sigma = q["position_sigma"].get<double>();
+      ++with_sigma;
+      within1 += e <= sigma;
+      within2 += e <= 2 * sigma;
+    }
+  }
   nlohmann::json report = {
       {"city", {{"road_length_m", nlohmann::json::parse(read_file(city_dir / "city.json")).at("counts").at("road_length_m")},
                 {"roads", max_road + 1},
@@ -405,6 +444,12 @@ nlohmann::json run_city_benchmark(const fs::path& out, const CityBenchmarkOption
       {"foreign_photos", {{"queries", foreigners.count}, {"registered", foreigners.registered}}},
       {"wrong_poses", wrong_total},
       {"wrong_pose_rule", {{"position_m", opt.wrong_position_m}, {"rotation_deg", opt.wrong_rotation_deg}}},
+      {"confidence", {{"min_confidence", opt.localizer.min_confidence},
+                      {"turned_away_right_poses", turned_away_right},
+                      {"turned_away_wrong_poses", turned_away_wrong}}},
+      {"uncertainty", {{"registered_positives_with_sigma", with_sigma},
+                       {"within_1_sigma", with_sigma ? double(within1) / double(with_sigma) : 0.0},
+                       {"within_2_sigma", with_sigma ? double(within2) / double(with_sigma) : 0.0}}},
       {"retrieval",
        {{"positives_with_true_segment_among_candidates", retrieval_hits},
         {"fraction", positives.count ? double(retrieval_hits) / double(positives.count) : 0.0},
@@ -447,6 +492,11 @@ nlohmann::json run_city_benchmark(const fs::path& out, const CityBenchmarkOption
      << " m from the map are not scored, nor " << near_unseen.count << " near the map that see fewer than "
      << opt.positive_min_visible_points << " of its points. A negative registered within the thresholds of its true pose (it sees "
      << "mapped facades) is not a wrong pose: " << (negatives.registered - negatives.wrong) << " here.\n\n"
+     << "Confidence threshold " << opt.localizer.min_confidence << ": of the poses with at least "
+     << opt.localizer.ransac.min_inliers << " inliers it turned away " << turned_away_wrong << " wrong and "
+     << turned_away_right << " right ones. Uncertainty: of " << with_sigma << " registered positives, "
+     << (with_sigma ? double(within1) / double(with_sigma) : 0.0) << " have their position error within 1σ and "
+     << (with_sigma ? double(within2) / double(with_sigma) : 0.0) << " within 2σ.\n\n"
      << "Retrieval: the true segment is among the candidates for " << retrieval_hits << "/" << positives.count
      << " positives";
   if (!true_ranks.empty()) md << " (median rank " << median(true_ranks) << ")";

@@ -11,6 +11,7 @@
 #include <iomanip>
 #include <sstream>
 
+#include "visloc/eval/confidence_fit.h"
 #include "visloc/eval/plot.h"
 #include "visloc/util/error.h"
 #include "visloc/util/file_io.h"
@@ -52,32 +53,71 @@ uint64_t peak_memory_bytes() {
 }
 
 EvaluationReport evaluate(const std::vector<LocalizationResult>& results,
-                          const std::map<std::string, QueryTruth>& truth) {
+                          const std::map<std::string, QueryTruth>& truth,
+                          const std::vector<LocalizationResult>& negative_results, const LocalizerOptions& localizer,
+                          const WrongPoseRule& rule) {
   EvaluationReport rep;
+  rep.rule = rule;
+  rep.min_inliers = localizer.ransac.min_inliers;
+  rep.min_confidence = localizer.min_confidence;
+  auto common = [](const LocalizationResult& r, QueryEvaluation* q) {
+    q->image = r.image;
+    q->registered = r.registered;
+    q->inliers = r.inliers;
+    q->confidence = r.confidence;
+    if (r.segment >= 0) q->confidence_features = r.confidence_features;
+    q->uncertainty = r.uncertainty;
+  };
   for (const auto& r : results) {
     auto it = truth.find(r.image);
     if (it == truth.end()) continue;
     QueryEvaluation q;
-    q.image = r.image;
-    q.registered = r.registered;
+    common(r, &q);
     const QueryTruth& t = it->second;
     if (t.cam_from_world) q.true_center = t.cam_from_world->center();
     else q.true_center = t.center;
-    if (r.registered) {
+    if (r.segment >= 0) {
       if (t.cam_from_world) {
-        q.estimated_center = r.cam_from_segment.center();
-        q.position_error = position_error(r.cam_from_segment, *t.cam_from_world);
-        q.rotation_error = rotation_error_deg(r.cam_from_segment, *t.cam_from_world);
+        q.pose_position_error = position_error(r.cam_from_segment, *t.cam_from_world);
+        q.pose_rotation_error = rotation_error_deg(r.cam_from_segment, *t.cam_from_world);
       } else if (t.center && r.center_enu) {
-        q.estimated_center = r.center_enu;
-        q.position_error = (*r.center_enu - *t.center).norm();
+        q.pose_position_error = (*r.center_enu - *t.center).norm();
+        q.uncertainty_in_metres = true;
       }
+    }
+    if (r.registered) {
+      q.estimated_center = t.cam_from_world ? std::optional<Eigen::Vector3d>(r.cam_from_segment.center()) : r.center_enu;
+      q.position_error = q.pose_position_error;
+      q.rotation_error = q.pose_rotation_error;
+      q.wrong = q.position_error > rule.position_m || q.rotation_error > rule.rotation_deg;
+      rep.wrong_positives += q.wrong;
     }
     ++rep.queries;
     rep.registered += r.registered;
     rep.per_query.push_back(q);
   }
+  for (const auto& r : negative_results) {
+    QueryEvaluation q;
+    common(r, &q);
+    q.negative = true;
+    q.wrong = r.registered;
+    ++rep.negatives;
+    rep.negatives_registered += r.registered;
+    rep.per_query.push_back(q);
+  }
   return rep;
+}
+
+std::vector<PrecisionRecallPoint> EvaluationReport::confidence_curve() const {
+  std::vector<double> scores;
+  std::vector<bool> right;
+  for (const auto& q : per_query) {
+    if (!q.confidence_features || q.inliers < min_inliers) continue;
+    scores.push_back(q.confidence);
+    right.push_back(!q.negative && q.pose_position_error >= 0 && q.pose_position_error <= rule.position_m &&
+                    q.pose_rotation_error <= rule.rotation_deg);
+  }
+  return precision_recall_curve(scores, right, queries);
 }
 
 nlohmann::json EvaluationReport::to_json(const std::vector<LocalizationResult>& results,
@@ -126,10 +166,65 @@ nlohmann::json EvaluationReport::to_json(const std::vector<LocalizationResult>& 
       }(),
       0.5);
   j["peak_memory_bytes"] = peak_memory_bytes();
+  // Wrong poses apart from misses.
+  j["wrong_poses"] = {{"positives", wrong_positives},
+                      {"negatives", negatives_registered},
+                      {"total", wrong_positives + negatives_registered},
+                      {"rule", {{"position_m", rule.position_m}, {"rotation_deg", rule.rotation_deg}}}};
+  j["negatives"] = {{"queries", negatives}, {"registered", negatives_registered}};
+  // Confidence: the threshold used, what it kept and lost.
+  {
+    size_t gated_right = 0, gated_wrong = 0;
+    for (const auto& q : per_query) {
+      if (!q.confidence_features || q.inliers < min_inliers || q.registered) continue;
+      const bool right = !q.negative && q.pose_position_error >= 0 && q.pose_position_error <= rule.position_m &&
+                         q.pose_rotation_error <= rule.rotation_deg;
+      (right ? gated_right : gated_wrong)++;
+    }
+    j["confidence"] = {{"min_confidence", min_confidence},
+                       {"min_inliers", min_inliers},
+                       {"rejected_right_poses", gated_right},
+                       {"rejected_wrong_poses", gated_wrong}};
+  }
+  // Uncertainty: the fraction of the registered positives' errors within 1σ and 2σ.
+  {
+    size_t n = 0, in1 = 0, in2 = 0;
+    std::vector<double> sigmas;
+    for (const auto& q : per_query) {
+      if (q.negative || !q.registered || !q.uncertainty.valid || q.position_error < 0) continue;
+      const double sigma = q.uncertainty_in_metres ? q.uncertainty.position_sigma_m.value_or(-1)
+                                                   : q.uncertainty.position_sigma;
+      if (!(sigma >= 0)) continue;
+      ++n;
+      in1 += q.position_error <= sigma;
+      in2 += q.position_error <= 2 * sigma;
+      sigmas.push_back(sigma);
+    }
+    j["uncertainty"] = {{"registered_with_sigma", n},
+                        {"within_1_sigma", n ? double(in1) / n : 0.0},
+                        {"within_2_sigma", n ? double(in2) / n : 0.0},
+                        {"median_position_sigma", stats(sigmas).is_null() ? nlohmann::json() : stats(sigmas)["median"]}};
+  }
   nlohmann::json per = nlohmann::json::array();
-  for (const auto& q : per_query)
-    per.push_back({{"image", q.image}, {"registered", q.registered}, {"position_error_m", q.position_error},
-                   {"rotation_error_deg", q.rotation_error}});
+  for (const auto& q : per_query) {
+    nlohmann::json e = {{"image", q.image},
+                        {"registered", q.registered},
+                        {"wrong", q.wrong},
+                        {"inliers", q.inliers},
+                        {"confidence", q.confidence},
+                        {"position_error_m", q.position_error},
+                        {"rotation_error_deg", q.rotation_error}};
+    if (q.negative) e["negative"] = true;
+    if (q.confidence_features) e["confidence_features"] = q.confidence_features->to_json();
+    if (q.pose_position_error >= 0) e["pose_position_error_m"] = q.pose_position_error;
+    if (q.pose_rotation_error >= 0) e["pose_rotation_error_deg"] = q.pose_rotation_error;
+    if (q.uncertainty.valid) {
+      e["position_sigma"] = q.uncertainty.position_sigma;
+      e["rotation_sigma_deg"] = q.uncertainty.rotation_sigma_deg;
+      if (q.uncertainty.position_sigma_m) e["position_sigma_m"] = *q.uncertainty.position_sigma_m;
+    }
+    per.push_back(e);
+  }
   j["per_query"] = per;
   return j;
 }
@@ -162,8 +257,21 @@ void write_report(const std::filesystem::path& dir, const EvaluationReport& repo
   md << "\n\nMedian times (ms): ";
   for (auto& [k, v] : j["median_times_ms"].items()) md << k << " " << num(v, 4) << "; ";
   md << "excluding features " << num(j["median_ms_excluding_features"], 4) << ".\n\nPeak memory: "
-     << j["peak_memory_bytes"].get<uint64_t>() / (1024 * 1024) << " MiB.\n\n"
-     << "![cumulative error](error_curve.png) ![top view](top_view.png)\n";
+     << j["peak_memory_bytes"].get<uint64_t>() / (1024 * 1024) << " MiB.\n\n";
+  md << "Wrong poses (registered more than " << num(j["wrong_poses"]["rule"]["position_m"]) << " m or "
+     << num(j["wrong_poses"]["rule"]["rotation_deg"]) << "° from the truth, or a registered negative): "
+     << j["wrong_poses"]["total"] << " (" << j["wrong_poses"]["positives"] << " of the queries, "
+     << j["wrong_poses"]["negatives"] << " of " << j["negatives"]["queries"] << " negatives); misses: "
+     << (report.queries - report.registered) << ".\n\n"
+     << "Confidence threshold " << num(j["confidence"]["min_confidence"]) << ": it turned away "
+     << j["confidence"]["rejected_wrong_poses"] << " wrong and " << j["confidence"]["rejected_right_poses"]
+     << " right poses that had at least " << j["confidence"]["min_inliers"] << " inliers.\n\n"
+     << "Uncertainty: of " << j["uncertainty"]["registered_with_sigma"] << " registered queries, "
+     << num(j["uncertainty"]["within_1_sigma"]) << " have their position error within 1σ and "
+     << num(j["uncertainty"]["within_2_sigma"]) << " within 2σ (median σ "
+     << num(j["uncertainty"]["median_position_sigma"]) << ").\n\n"
+     << "![cumulative error](error_curve.png) ![top view](top_view.png) "
+        "![precision-recall of the confidence](precision_recall.png)\n";
   write_file_atomic(dir / "report.md", md.str());
 
   // Cumulative position error curve (fraction of all queries).
@@ -207,6 +315,9 @@ void write_report(const std::filesystem::path& dir, const EvaluationReport& repo
     }
   }
   top.save(dir / "top_view");
+
+  plot_precision_recall(dir / "precision_recall", "Confidence: precision-recall (threshold marked)",
+                        report.confidence_curve(), report.min_confidence);
 }
 
 double median(std::vector<double> v) {

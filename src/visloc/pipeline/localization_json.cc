@@ -9,7 +9,18 @@ nlohmann::json to_json(const LocalizationResult& r) {
   if (!r.error.empty()) j["error"] = r.error;
   j["segment"] = r.segment;
   j["inliers"] = r.inliers;
+  j["confidence"] = r.confidence;
   if (r.segment >= 0) {
+    j["confidence_features"] = r.confidence_features.to_json();
+    if (r.uncertainty.valid) {
+      const PoseUncertainty& u = r.uncertainty;
+      nlohmann::json a = {{"position_sigma", u.position_sigma}, {"rotation_sigma_deg", u.rotation_sigma_deg}};
+      if (u.position_sigma_m) a["position_sigma_m"] = *u.position_sigma_m;
+      if (u.horizontal_sigma_m) a["horizontal_sigma_m"] = *u.horizontal_sigma_m;
+      if (u.vertical_sigma_m) a["vertical_sigma_m"] = *u.vertical_sigma_m;
+      if (u.heading_sigma_deg) a["heading_sigma_deg"] = *u.heading_sigma_deg;
+      j["uncertainty"] = a;
+    }
     const auto q = r.cam_from_segment.q_wxyz();
     j["q_wxyz"] = {q[0], q[1], q[2], q[3]};
     const auto& t = r.cam_from_segment.translation;

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <map>
 
 #include "visloc/map/map.h"
 #include "visloc/matching/correspondence_arrays.h"
@@ -40,6 +41,8 @@ void LocalizerOptions::validate() const {
   if (accept_inliers < 0)
     throw_error(ErrorCode::kInvalidArgument, "accept_inliers must be >= 0, got ", accept_inliers);
   if (cache_bytes < (1u << 20)) throw_error(ErrorCode::kInvalidArgument, "cache_bytes must be at least 1 MiB");
+  if (!(min_confidence >= 0 && min_confidence <= 1))
+    throw_error(ErrorCode::kInvalidArgument, "min_confidence must be in [0, 1], got ", min_confidence);
 }
 
 namespace {
@@ -227,12 +230,17 @@ LocalizationResult Localizer::localize_features(const FeatureSet& f, const Pinho
   CascadeMatches matches;
   CorrespondenceSet set;
   size_t best_inliers = 0;
+  bool best_has_enough_inliers = false;
+  PoseQuality best_quality;
+  std::shared_ptr<const Segment> best_segment;
+  std::map<int, size_t> inliers_per_segment;  // best inliers of each segment searched (the margin)
   // One pass over the candidates with the given search; the best pose wins.
   auto search_candidates = [&](const CascadeSearchOptions& search) {
     for (size_t index : candidates) {
       // Candidates come best-voted first; a pose this well supported ends
       // the search (RANSAC on a wrong segment runs to its iteration cap).
-      if (options_.accept_inliers > 0 && res.registered && best_inliers >= static_cast<size_t>(options_.accept_inliers))
+      if (options_.accept_inliers > 0 && best_has_enough_inliers &&
+          best_inliers >= static_cast<size_t>(options_.accept_inliers))
         break;
       std::shared_ptr<const Segment> seg = impl_->cache->get(index);
       res.candidates.push_back(static_cast<int>(seg->id()));
@@ -257,33 +265,102 @@ LocalizationResult Localizer::localize_features(const FeatureSet& f, const Pinho
       if (can_win && (set.num_hypothesis_features() >= 6 || (camera.has_focal && set.num_hypothesis_features() >= 3)))
         pose = estimate_pose(set, camera, impl_->ransac);
       res.times.ransac += t.elapsed_ms();
+      if (pose.has_pose) {
+        size_t& seen = inliers_per_segment[static_cast<int>(seg->id())];
+        seen = std::max(seen, pose.num_inliers);
+      }
       if (pose.has_pose && pose.num_inliers > best_inliers) {
         best_inliers = pose.num_inliers;
+        best_has_enough_inliers = pose.registered;
+        best_quality = pose.quality;
+        best_segment = seg;
         res.segment = static_cast<int>(seg->id());
         res.inliers = pose.num_inliers;
-        res.registered = pose.registered;
         res.cam_from_segment = pose.cam_from_world;
         res.focal_px = pose.focal;
         res.focal_estimated = !camera.has_focal;
         res.matches_one_to_one = matches.query.size();
-        const SegmentFrame frame = segment_frame(*seg);
-        if (frame.georegistered) {
-          const Eigen::Vector3d c = frame.enu_from_segment.apply(pose.cam_from_world.center());
-          res.center_enu = c;
-          const Eigen::Vector3d dir = frame.enu_from_segment.rotation * pose.cam_from_world.viewing_direction();
-          res.heading_deg = heading_deg_from_enu(dir);
-          if (impl_->frame) res.position = impl_->frame->to_geo(c);
-        } else {
-          res.center_enu.reset();
-          res.heading_deg.reset();
-          res.position.reset();
+      }
+    }
+  };
+  // Confidence, uncertainty and the geographic pose of the best pose so far.
+  auto assess_best = [&] {
+    res.registered = false;
+    res.confidence = 0;
+    res.center_enu.reset();
+    res.heading_deg.reset();
+    res.position.reset();
+    res.uncertainty = {};
+    if (!best_segment) return;
+    const SegmentFrame frame = segment_frame(*best_segment);
+    ConfidenceFeatures& cf = res.confidence_features;
+    cf = {};
+    cf.inliers = static_cast<double>(res.inliers);
+    cf.inlier_ratio = best_quality.hypothesis_features
+                          ? double(best_quality.hypothesis_inliers) / double(best_quality.hypothesis_features)
+                          : 0.0;
+    cf.coverage = best_quality.coverage;
+    cf.residual = best_quality.median_residual_px / impl_->ransac.threshold_px;
+    size_t other = 0;
+    for (const auto& [id, n] : inliers_per_segment)
+      if (id != res.segment) other = std::max(other, n);
+    cf.margin = std::max(res.inliers ? double(other) / double(res.inliers) : 0.0,
+                         best_quality.best_score ? double(best_quality.rival_score) / double(best_quality.best_score)
+                                                 : 0.0);
+    cf.vote_share = kVoteShareWithoutRetrieval;
+    if (impl_->retrieval) {
+      cf.vote_share = 0;
+      for (size_t k = 0; k < res.retrieval_segments.size(); ++k)
+        if (res.retrieval_segments[k] == res.segment && res.retrieval_total_votes > 0)
+          cf.vote_share = res.retrieval_votes[k] / res.retrieval_total_votes;
+    }
+    std::optional<Eigen::Vector3d> up;
+    if (frame.georegistered) up = frame.enu_from_segment.rotation.transpose() * Eigen::Vector3d::UnitZ();
+    MapCameraRange(best_segment->images(), up).assess(res.cam_from_segment, &cf);
+    res.confidence = ConfidenceModel::builtin().evaluate(cf);
+    res.registered = best_has_enough_inliers && res.confidence >= options_.min_confidence;
+
+    const PoseCovariance& cov = best_quality.covariance;
+    const Eigen::Matrix3d R = res.cam_from_segment.rotation_matrix();
+    if (cov.valid) {
+      PoseUncertainty& u = res.uncertainty;
+      const Eigen::Matrix3d center_cov = cov.center(res.cam_from_segment);
+      u.valid = true;
+      u.position_sigma = std::sqrt(std::max(0.0, center_cov.trace()));
+      u.rotation_sigma_deg = std::sqrt(std::max(0.0, cov.omega_t.topLeftCorner<3, 3>().trace())) * 180.0 / M_PI;
+      if (frame.georegistered) {
+        const Eigen::Matrix3d& Rs = frame.enu_from_segment.rotation;
+        const double s2 = frame.enu_from_segment.scale * frame.enu_from_segment.scale;
+        const Eigen::Matrix3d enu_cov = s2 * Rs * center_cov * Rs.transpose();
+        u.position_sigma_m = std::sqrt(std::max(0.0, enu_cov.trace()));
+        u.horizontal_sigma_m = std::sqrt(std::max(0.0, enu_cov(0, 0) + enu_cov(1, 1)));
+        u.vertical_sigma_m = std::sqrt(std::max(0.0, enu_cov(2, 2)));
+        // Heading of d = Rs Rᵀ e_z; with R ← exp([ω]×) R, ∂d/∂ω = Rs Rᵀ [e_z]×.
+        Eigen::Matrix3d ez_skew;
+        ez_skew << 0, -1, 0, 1, 0, 0, 0, 0, 0;
+        const Eigen::Matrix3d dd_domega = Rs * R.transpose() * ez_skew;
+        const Eigen::Vector3d d = Rs * res.cam_from_segment.viewing_direction();
+        const double h2 = d.x() * d.x() + d.y() * d.y();
+        if (h2 > 1e-12) {
+          const Eigen::RowVector3d dh_dd(d.y() / h2, -d.x() / h2, 0);
+          const Eigen::RowVector3d g = dh_dd * dd_domega;
+          const double var = g * cov.omega_t.topLeftCorner<3, 3>() * g.transpose();
+          u.heading_sigma_deg = std::sqrt(std::max(0.0, var)) * 180.0 / M_PI;
         }
       }
+    }
+    if (frame.georegistered) {
+      const Eigen::Vector3d c = frame.enu_from_segment.apply(res.cam_from_segment.center());
+      res.center_enu = c;
+      const Eigen::Vector3d dir = frame.enu_from_segment.rotation * res.cam_from_segment.viewing_direction();
+      res.heading_deg = heading_deg_from_enu(dir);
+      if (impl_->frame) res.position = impl_->frame->to_geo(c);
     }
   };
   if (!candidates.empty()) {
     res.candidates.clear();
     search_candidates(impl_->search);
+    assess_best();
     // Prioritized search stops at N_early matches; on repetitive facades they
     // can all be wrong. Before giving up, search every feature once more.
     if (!res.registered && impl_->search.prioritize && options_.full_search_fallback) {
@@ -292,6 +369,7 @@ LocalizationResult Localizer::localize_features(const FeatureSet& f, const Pinho
       res.candidates.clear();
       res.full_search_fallback = true;
       search_candidates(full);
+      assess_best();
     }
   }
   res.times.total = total.elapsed_ms();

@@ -21,6 +21,7 @@
 #include "visloc/geometry/camera.h"
 #include "visloc/geometry/pose.h"
 #include "visloc/matching/cascade_index.h"
+#include "visloc/pipeline/confidence.h"
 #include "visloc/pose/one_many_ransac.h"
 
 namespace visloc {
@@ -53,11 +54,28 @@ struct LocalizerOptions {
   // search all features of the candidates once more (not in the paper; it
   // costs time only on queries that would otherwise fail).
   bool full_search_fallback = true;
+  // Registered only when the pose's confidence (confidence.h) is at least
+  // this, besides ransac.min_inliers. The default is the builtin model's
+  // threshold, chosen for a precision of ≥ 99.5% on its fit data; 0 keeps
+  // every pose with enough inliers (the paper's rule).
+  double min_confidence = kDefaultMinConfidence;
   void validate() const;
 };
 
 struct StageTimes {
   double features = 0, retrieval = 0, matching = 0, ransac = 0, total = 0;  // milliseconds
+};
+
+// 1σ uncertainty of a pose, from the covariance of its refinement on the
+// inliers (pose_refinement.h, pose_covariance): the residual noise the
+// inliers show, propagated to the camera centre and heading. In the segment
+// frame's units, and in metres / degrees of the ENU frame when the segment is
+// geo-registered (as a GNSS receiver or ARCore reports its accuracy).
+struct PoseUncertainty {
+  bool valid = false;
+  double position_sigma = 0;       // sqrt(trace Σ_centre), segment units
+  double rotation_sigma_deg = 0;   // sqrt(trace Σ_ω)
+  std::optional<double> position_sigma_m, horizontal_sigma_m, vertical_sigma_m, heading_sigma_deg;
 };
 
 struct LocalizationResult {
@@ -66,6 +84,11 @@ struct LocalizationResult {
   std::string error;                 // a bad image: the reason (the rest go on)
   int segment = -1;                  // segment id of the best pose
   size_t inliers = 0;
+  // Probability that the pose is right (confidence.h), 0 without a pose;
+  // registered = inliers ≥ min_inliers and confidence ≥ min_confidence.
+  double confidence = 0;
+  ConfidenceFeatures confidence_features;  // what it was computed from (segment ≥ 0)
+  PoseUncertainty uncertainty;
   CameraPose cam_from_segment;       // world-to-camera in the segment frame
   double focal_px = 0;
   bool focal_estimated = false;

@@ -1,5 +1,6 @@
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <filesystem>
 
 #include "visloc/colmap/colmap_database.h"
@@ -16,6 +17,18 @@ TEST(PaperSetting, ParsesAndRejects) {
   EXPECT_EQ(parse_paper_setting("3+"), PaperSetting::k3Plus);
   EXPECT_EQ(to_string(parse_paper_setting("2")), "2");
   EXPECT_THROW(parse_paper_setting("4"), Error);
+}
+
+TEST(LocalizerOptions, MinConfidenceMustBeAProbability) {
+  for (double bad : {-0.1, 1.5, std::nan("")}) {
+    LocalizerOptions o;
+    o.min_confidence = bad;
+    EXPECT_THROW(o.validate(), Error) << bad;
+  }
+  LocalizerOptions o;
+  EXPECT_EQ(o.min_confidence, kDefaultMinConfidence);
+  o.min_confidence = 0;
+  EXPECT_NO_THROW(o.validate());
 }
 
 TEST(Localizer, MissingMapIsAClearError) {
@@ -163,6 +176,26 @@ TEST(Localizer, EndToEndOnSyntheticStreet) {
     ASSERT_TRUE(r.position.has_value());
     EXPECT_LT((EnuFrame(city.origin).to_enu(*r.position) - pose.center()).norm(), 0.5);
     accurate += err < 0.5;
+    // Registered: enough confidence, with its inputs and a pose uncertainty
+    // in metres and degrees (the map is geo-registered).
+    EXPECT_GE(r.confidence, loc.options().min_confidence);
+    EXPECT_EQ(r.confidence, ConfidenceModel::builtin().evaluate(r.confidence_features));
+    EXPECT_EQ(r.confidence_features.inliers, static_cast<double>(r.inliers));
+    ASSERT_TRUE(r.uncertainty.valid);
+    ASSERT_TRUE(r.uncertainty.position_sigma_m && r.uncertainty.heading_sigma_deg);
+    EXPECT_GT(*r.uncertainty.position_sigma_m, 0.0);
+    EXPECT_LT(*r.uncertainty.position_sigma_m, 5.0);
+    EXPECT_LE(*r.uncertainty.horizontal_sigma_m, *r.uncertainty.position_sigma_m);
+    const nlohmann::json j = to_json(r);
+    EXPECT_EQ(j.at("confidence").get<double>(), r.confidence);
+    EXPECT_TRUE(j.at("uncertainty").contains("heading_sigma_deg"));
+    // The same query with a confidence threshold of 1 does not register.
+    LocalizerOptions strict;
+    strict.min_confidence = 1.0;
+    if (r.confidence < 1.0) {
+      EXPECT_FALSE(Localizer(dir / "map", strict).localize_file(dir / "city" / "queries" / "images" / name,
+                                                                cams.at(name)).registered);
+    }
   }
   EXPECT_GE(accurate, 2) << "of " << truth.size() << " queries";
 }

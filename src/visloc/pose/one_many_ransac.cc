@@ -70,11 +70,16 @@ inline double reprojection_error2(const Matrix34d& P, const Eigen::Vector3d& X, 
   return (p.head<2>() / p.z() - x).squaredNorm();
 }
 
-Matrix34d projection_from_pose(const Eigen::Matrix3d& R, const Eigen::Vector3d& t, double focal) {
+// K [R | t] with K = [[f, 0, o_x], [0, f, o_y], [0, 0, 1]] (o: principal
+// point offset from the assumed one).
+Matrix34d projection_from_pose(const Eigen::Matrix3d& R, const Eigen::Vector3d& t, double focal,
+                               const Eigen::Vector2d& offset = Eigen::Vector2d::Zero()) {
   Matrix34d P;
   P.leftCols<3>() = R;
   P.col(3) = t;
   P.topRows<2>() *= focal;
+  P.row(0) += offset.x() * P.row(2);
+  P.row(1) += offset.y() * P.row(2);
   return P;
 }
 
@@ -173,6 +178,23 @@ PoseEstimate estimate_pose(const CorrespondenceSet& corr, const PinholeCamera& c
   Matrix34d best_model = Matrix34d::Zero();
   size_t best_score = 0;
   const double f = camera.focal;
+  // Every verified model's camera centre, principal axis and score: after the
+  // loop, the best-supported model that is a different pose gives the margin.
+  struct ModelSummary {
+    Eigen::Vector3d center, axis;
+    size_t score;
+  };
+  std::vector<ModelSummary> verified;
+  verified.reserve(64);
+  auto summarize = [](const Matrix34d& P, size_t score, ModelSummary* out) {
+    const Eigen::Matrix3d M = P.leftCols<3>();
+    const double det = M.determinant();
+    if (!(std::abs(det) > 1e-300)) return false;
+    out->center = -M.inverse() * P.col(3);
+    out->axis = (det > 0 ? 1.0 : -1.0) * M.row(2).transpose().normalized();
+    out->score = score;
+    return out->center.allFinite() && out->axis.allFinite();
+  };
 
   size_t iter = 0;
   for (; iter < k_max; ++iter) {
@@ -247,6 +269,7 @@ PoseEstimate estimate_pose(const CorrespondenceSet& corr, const PinholeCamera& c
       }
       ++st.models_verified;
       const size_t score = one_many ? ws.count_one_many(P) : ws.count_one_one(P);
+      if (ModelSummary summary; summarize(P, score, &summary)) verified.push_back(summary);
       if (score > best_score) {
         best_score = score;
         best_model = P;
@@ -356,20 +379,81 @@ PoseEstimate estimate_pose(const CorrespondenceSet& corr, const PinholeCamera& c
   size_t inliers = options.refine && options.refine_rounds > 0
                        ? st.ransac_inliers
                        : select(projection_from_pose(pose.rotation_matrix(), pose.translation, focal));
+  Eigen::Vector2d pp_offset = Eigen::Vector2d::Zero();
+  // An unknown camera's principal point is refined too when there are
+  // enough inliers to see it, under a prior of 3% of the image size.
+  constexpr size_t kMinInliersForPrincipalPoint = 50;
+  const double pp_prior_px = 0.03 * std::max<double>(std::max(camera.width, camera.height), 100);
+  bool pp_refined = false;
   if (options.refine) {
     RefinementOptions ro;
     ro.loss_scale_px = options.threshold_px;
     ro.max_iterations = options.refine_max_iterations;
     ro.refine_focal = !calibrated;
+    ro.principal_point_prior_px = pp_prior_px;
     for (int round = 0; round < options.refine_rounds; ++round) {
       if (inlier2d.size() < (calibrated ? 3u : 4u)) break;
-      const RefinementResult rr = refine_pose(inlier2d.data(), inlier3d.data(), inlier2d.size(), pose, focal, ro);
+      ro.refine_principal_point = options.refine_principal_point && !calibrated &&
+                                  inlier2d.size() >= kMinInliersForPrincipalPoint;
+      const RefinementResult rr =
+          refine_pose(inlier2d.data(), inlier3d.data(), inlier2d.size(), pose, focal, ro, pp_offset);
       st.refine_iterations += rr.iterations;
       if (!rr.success) break;
       pose = rr.cam_from_world;
       focal = rr.focal;
-      inliers = select(projection_from_pose(pose.rotation_matrix(), pose.translation, focal));
+      pp_offset = rr.principal_point_offset;
+      pp_refined = pp_refined || ro.refine_principal_point;
+      inliers = select(projection_from_pose(pose.rotation_matrix(), pose.translation, focal, pp_offset));
     }
+  }
+  // The pose's evidence: 1-1 inlier ratio, residuals, image coverage and the
+  // covariance on the final inliers.
+  {
+    const Matrix34d P = projection_from_pose(pose.rotation_matrix(), pose.translation, focal, pp_offset);
+    PoseQuality& q = result.quality;
+    q.hypothesis_features = ws.hypothesis.size();
+    q.hypothesis_inliers = ws.count_one_one(P);
+    std::vector<double> residuals;
+    residuals.reserve(inlier2d.size());
+    constexpr int kGrid = 8;
+    std::array<bool, kGrid * kGrid> occupied{};
+    const double w = std::max<double>(1, static_cast<double>(camera.width));
+    const double h = std::max<double>(1, static_cast<double>(camera.height));
+    for (size_t k = 0; k < inlier2d.size(); ++k) {
+      residuals.push_back(std::sqrt(reprojection_error2(P, inlier3d[k], inlier2d[k])));
+      const double u = inlier2d[k].x() + camera.cx, v = inlier2d[k].y() + camera.cy;
+      const int gx = std::clamp(static_cast<int>(u / w * kGrid), 0, kGrid - 1);
+      const int gy = std::clamp(static_cast<int>(v / h * kGrid), 0, kGrid - 1);
+      occupied[gy * kGrid + gx] = true;
+    }
+    if (!residuals.empty()) {
+      std::nth_element(residuals.begin(), residuals.begin() + residuals.size() / 2, residuals.end());
+      q.median_residual_px = residuals[residuals.size() / 2];
+    }
+    q.coverage = static_cast<double>(std::count(occupied.begin(), occupied.end(), true)) / (kGrid * kGrid);
+    q.covariance = pose_covariance(inlier2d.data(), inlier3d.data(), inlier2d.size(), pose, focal,
+                                   options.threshold_px, !calibrated, pp_offset, pp_refined ? pp_prior_px : 0.0);
+  }
+  result.principal_point_offset = pp_offset;
+  // The strongest rival: a verified model whose camera is elsewhere (farther
+  // than 10% of the inliers' median depth) or looks elsewhere (> 10°).
+  {
+    const Eigen::Vector3d c = pose.center(), a = pose.viewing_direction();
+    std::vector<double> depths;
+    depths.reserve(inlier3d.size());
+    const Eigen::Matrix3d R = pose.rotation_matrix();
+    for (const auto& X : inlier3d) depths.push_back((R * X + pose.translation).z());
+    double depth = 0;
+    if (!depths.empty()) {
+      std::nth_element(depths.begin(), depths.begin() + depths.size() / 2, depths.end());
+      depth = std::abs(depths[depths.size() / 2]);
+    }
+    const double cos_limit = std::cos(10.0 * M_PI / 180.0);
+    size_t rival = 0;
+    for (const ModelSummary& m : verified)
+      if ((m.center - c).norm() > 0.1 * depth || m.axis.dot(a) < cos_limit) rival = std::max(rival, m.score);
+    result.quality.rival_score = rival;
+    result.quality.best_score = best_score;
   }
   st.refinement_ms = ms_between(t_refine, Clock::now());
   result.has_pose = true;

@@ -68,6 +68,9 @@ struct RansacOptions {
   bool refine = true;               // non-linear refinement on the inliers
   int refine_rounds = 2;            // refine, re-select candidates, refine again
   int refine_max_iterations = 30;   // LM iterations per round
+  // Unknown focal: also refine the principal point (prior σ = 3% of the
+  // image size) once the pose has ≥ 50 inliers.
+  bool refine_principal_point = true;
   uint64_t seed = 0;                // random sampling seed (deterministic)
 
   void validate() const;  // throws Error(kInvalidArgument) naming the bad field
@@ -92,15 +95,33 @@ struct RansacStatistics {
   double total_ms = 0;
 };
 
+// How well the final pose fits its data: the pose's own evidence, which the
+// localizer turns into a confidence and an uncertainty.
+struct PoseQuality {
+  size_t hypothesis_features = 0;  // N_h: features with a 1-1 match
+  size_t hypothesis_inliers = 0;   // of them, those whose 1-1 match fits the final pose
+  double median_residual_px = 0;   // reprojection error of the inliers, median
+  double coverage = 0;             // fraction of the cells of an 8×8 image grid holding an inlier
+  // RANSAC scores: of the best model, and of the best verified model that is
+  // a different pose (camera farther than 10% of the inliers' median depth,
+  // or turned > 10°): an ambiguity of the scene, e.g. a repeated facade.
+  size_t best_score = 0, rival_score = 0;
+  PoseCovariance covariance;       // of the final pose, from the inliers
+};
+
 struct PoseEstimate {
   bool has_pose = false;    // a model was found
   bool registered = false;  // has_pose and num_inliers >= min_inliers
   CameraPose cam_from_world;
   double focal = 0;         // pixels; the camera's focal when it was known
+  // Estimated offset of the principal point from the assumed one (pixels;
+  // 0 unless the focal was unknown and refine_principal_point).
+  Eigen::Vector2d principal_point_offset = Eigen::Vector2d::Zero();
   size_t num_inliers = 0;   // features with a chosen candidate
   // Per feature: index into its candidate list of the candidate that fits
   // the final pose, or -1.
   std::vector<int32_t> chosen_candidate;
+  PoseQuality quality;      // set with has_pose
   RansacStatistics stats;
 };
 

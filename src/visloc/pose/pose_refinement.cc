@@ -3,6 +3,7 @@
 #include <Eigen/Cholesky>
 #include <Eigen/Geometry>
 #include <cmath>
+#include <vector>
 
 #include "visloc/util/error.h"
 
@@ -15,6 +16,11 @@ void RefinementOptions::validate() const {
     throw_error(ErrorCode::kInvalidArgument, "refinement: max_iterations must be >= 0, got ", max_iterations);
   if (!(min_relative_decrease >= 0))
     throw_error(ErrorCode::kInvalidArgument, "refinement: min_relative_decrease must be >= 0");
+  if (refine_principal_point && !refine_focal)
+    throw_error(ErrorCode::kInvalidArgument, "refinement: refine_principal_point needs refine_focal");
+  if (!(principal_point_prior_px > 0) || !std::isfinite(principal_point_prior_px))
+    throw_error(ErrorCode::kInvalidArgument, "refinement: principal_point_prior_px must be positive, got ",
+                principal_point_prior_px);
 }
 
 namespace {
@@ -23,17 +29,20 @@ struct State {
   Eigen::Matrix3d R;
   Eigen::Vector3d t;
   double focal;
+  Eigen::Vector2d pp = Eigen::Vector2d::Zero();  // principal point offset
 };
 
-double robust_cost(const State& s, const Eigen::Vector2d* x, const Eigen::Vector3d* X, size_t n, double c2) {
-  double cost = 0;
+// inv_prior2 = 1/σ_o² (0: no principal point term).
+double robust_cost(const State& s, const Eigen::Vector2d* x, const Eigen::Vector3d* X, size_t n, double c2,
+                   double inv_prior2) {
+  double cost = s.pp.squaredNorm() * inv_prior2;
   for (size_t i = 0; i < n; ++i) {
     const Eigen::Vector3d p = s.R * X[i] + s.t;
     if (p.z() <= 0) {
       cost += c2 * std::log1p(1e6);  // behind the camera: a large constant penalty
       continue;
     }
-    const Eigen::Vector2d r = s.focal * p.head<2>() / p.z() - x[i];
+    const Eigen::Vector2d r = s.focal * p.head<2>() / p.z() + s.pp - x[i];
     cost += c2 * std::log1p(r.squaredNorm() / c2);
   }
   return cost;
@@ -48,21 +57,33 @@ Eigen::Matrix3d exp_so3(const Eigen::Vector3d& w) {
 }  // namespace
 
 RefinementResult refine_pose(const Eigen::Vector2d* x, const Eigen::Vector3d* X, size_t n, const CameraPose& initial,
-                             double initial_focal, const RefinementOptions& options) {
+                             double initial_focal, const RefinementOptions& options,
+                             const Eigen::Vector2d& initial_pp) {
   options.validate();
   RefinementResult result;
   result.cam_from_world = initial;
   result.focal = initial_focal;
-  const int dof = options.refine_focal ? 7 : 6;
-  if (n * 2 < static_cast<size_t>(dof) || !(initial_focal > 0)) return result;
+  result.principal_point_offset = initial_pp;
+  const bool with_pp = options.refine_principal_point;
+  const int dof = options.refine_focal ? 7 : 6;  // the prior pins o: it adds no unknowns to count against n
+  if (n * 2 < static_cast<size_t>(dof) || !(initial_focal > 0) || !initial_pp.allFinite()) return result;
   const double c2 = options.loss_scale_px * options.loss_scale_px;
+  const double inv_prior2 =
+      with_pp ? 1.0 / (options.principal_point_prior_px * options.principal_point_prior_px) : 0.0;
 
-  State s{initial.rotation_matrix(), initial.translation, initial_focal};
-  double cost = robust_cost(s, x, X, n, c2);
+  State s{initial.rotation_matrix(), initial.translation, initial_focal, with_pp ? initial_pp : Eigen::Vector2d::Zero()};
+  const Eigen::Vector2d fixed_pp = with_pp ? Eigen::Vector2d::Zero() : initial_pp;  // applied to x when not refined
+  std::vector<Eigen::Vector2d> shifted;
+  if (!with_pp && !initial_pp.isZero()) {
+    shifted.assign(x, x + n);
+    for (auto& p : shifted) p -= fixed_pp;
+    x = shifted.data();
+  }
+  double cost = robust_cost(s, x, X, n, c2, inv_prior2);
   result.initial_cost = cost;
   double lambda = 1e-3;
-  using Mat7 = Eigen::Matrix<double, 7, 7>;
-  using Vec7 = Eigen::Matrix<double, 7, 1>;
+  using Mat7 = Eigen::Matrix<double, 9, 9>;
+  using Vec7 = Eigen::Matrix<double, 9, 1>;
   int it = 0;
   for (; it < options.max_iterations; ++it) {
     Mat7 H = Mat7::Zero();
@@ -73,26 +94,38 @@ RefinementResult refine_pose(const Eigen::Vector2d* x, const Eigen::Vector3d* X,
       if (p.z() <= 0) continue;
       const double iz = 1.0 / p.z();
       const Eigen::Vector2d proj(p.x() * iz, p.y() * iz);
-      const Eigen::Vector2d r = s.focal * proj - x[i];
+      const Eigen::Vector2d r = s.focal * proj + s.pp - x[i];
       const double w = 1.0 / (1.0 + r.squaredNorm() / c2);  // IRLS weight of the Cauchy loss
       // d(residual)/dp = f [[1/z, 0, −x/z²], [0, 1/z, −y/z²]].
       Eigen::Matrix<double, 2, 3> dr_dp;
       dr_dp << s.focal * iz, 0, -s.focal * proj.x() * iz, 0, s.focal * iz, -s.focal * proj.y() * iz;
-      Eigen::Matrix<double, 2, 7> J = Eigen::Matrix<double, 2, 7>::Zero();
+      Eigen::Matrix<double, 2, 9> J = Eigen::Matrix<double, 2, 9>::Zero();
       // dp/dω = −[R X]×, dp/dt = I.
       Eigen::Matrix3d skew;
       skew << 0, -RX.z(), RX.y(), RX.z(), 0, -RX.x(), -RX.y(), RX.x(), 0;
       J.leftCols<3>() = -dr_dp * skew;
       J.block<2, 3>(0, 3) = dr_dp;
       J.col(6) = s.focal * proj;  // d(residual)/d(log f)
+      J(0, 7) = 1;                // d(residual)/d(o)
+      J(1, 8) = 1;
       H.noalias() += w * J.transpose() * J;
       g.noalias() += w * J.transpose() * r;
     }
-    if (!options.refine_focal) {
-      H.row(6).setZero();
-      H.col(6).setZero();
-      H(6, 6) = 1;
-      g[6] = 0;
+    if (with_pp) {  // the prior |o|²/σ_o²
+      H(7, 7) += inv_prior2;
+      H(8, 8) += inv_prior2;
+      g.segment<2>(7) += inv_prior2 * s.pp;
+    }
+    auto freeze = [&](int k) {
+      H.row(k).setZero();
+      H.col(k).setZero();
+      H(k, k) = 1;
+      g[k] = 0;
+    };
+    if (!options.refine_focal) freeze(6);
+    if (!with_pp) {
+      freeze(7);
+      freeze(8);
     }
     bool improved = false;
     for (int attempt = 0; attempt < 10; ++attempt) {
@@ -100,8 +133,9 @@ RefinementResult refine_pose(const Eigen::Vector2d* x, const Eigen::Vector3d* X,
       A.diagonal() += lambda * H.diagonal().cwiseMax(1e-9);
       const Vec7 delta = -A.ldlt().solve(g);
       if (!delta.allFinite()) break;
-      State next{exp_so3(delta.head<3>()) * s.R, s.t + delta.segment<3>(3), s.focal * std::exp(delta[6])};
-      const double next_cost = robust_cost(next, x, X, n, c2);
+      State next{exp_so3(delta.head<3>()) * s.R, s.t + delta.segment<3>(3), s.focal * std::exp(delta[6]),
+                 s.pp + delta.segment<2>(7)};
+      const double next_cost = robust_cost(next, x, X, n, c2, inv_prior2);
       if (next_cost < cost) {
         const double decrease = (cost - next_cost) / std::max(cost, 1e-300);
         s = next;
@@ -116,12 +150,102 @@ RefinementResult refine_pose(const Eigen::Vector2d* x, const Eigen::Vector3d* X,
   }
   result.iterations = it;
   result.final_cost = cost;
-  if (s.R.allFinite() && s.t.allFinite() && std::isfinite(s.focal) && s.focal > 0 && cost <= result.initial_cost) {
+  if (s.R.allFinite() && s.t.allFinite() && std::isfinite(s.focal) && s.focal > 0 && s.pp.allFinite() &&
+      cost <= result.initial_cost) {
     result.cam_from_world = CameraPose::from_matrix(s.R, s.t);
     result.focal = s.focal;
+    result.principal_point_offset = with_pp ? s.pp : initial_pp;
     result.success = true;
   }
   return result;
+}
+
+PoseCovariance pose_covariance(const Eigen::Vector2d* x, const Eigen::Vector3d* X, size_t n, const CameraPose& pose,
+                               double focal, double loss_scale_px, bool with_focal, const Eigen::Vector2d& pp,
+                               double pp_prior_px) {
+  PoseCovariance out;
+  out.omega_t.setZero();
+  const bool with_pp = with_focal && pp_prior_px > 0;
+  const int dof = with_focal ? 7 : 6;
+  if (n * 2 <= static_cast<size_t>(dof) || !(focal > 0) || !(loss_scale_px > 0)) return out;
+  const double c2 = loss_scale_px * loss_scale_px;
+  const Eigen::Matrix3d R = pose.rotation_matrix();
+  using Mat7 = Eigen::Matrix<double, 9, 9>;
+  Mat7 H = Mat7::Zero();
+  double weighted_sq = 0;
+  size_t used = 0;
+  std::vector<double> norms;
+  norms.reserve(n);
+  for (size_t i = 0; i < n; ++i) {
+    const Eigen::Vector3d RX = R * X[i];
+    const Eigen::Vector3d p = RX + pose.translation;
+    if (p.z() <= 0) continue;
+    const double iz = 1.0 / p.z();
+    const Eigen::Vector2d proj(p.x() * iz, p.y() * iz);
+    const Eigen::Vector2d r = focal * proj + pp - x[i];
+    const double w = 1.0 / (1.0 + r.squaredNorm() / c2);
+    Eigen::Matrix<double, 2, 3> dr_dp;
+    dr_dp << focal * iz, 0, -focal * proj.x() * iz, 0, focal * iz, -focal * proj.y() * iz;
+    Eigen::Matrix3d skew;
+    skew << 0, -RX.z(), RX.y(), RX.z(), 0, -RX.x(), -RX.y(), RX.x(), 0;
+    Eigen::Matrix<double, 2, 9> J = Eigen::Matrix<double, 2, 9>::Zero();
+    J.leftCols<3>() = -dr_dp * skew;
+    J.block<2, 3>(0, 3) = dr_dp;
+    J.col(6) = focal * proj;
+    J(0, 7) = 1;
+    J(1, 8) = 1;
+    H.noalias() += w * J.transpose() * J;
+    weighted_sq += w * r.squaredNorm();
+    norms.push_back(r.norm());
+    ++used;
+  }
+  if (used * 2 <= static_cast<size_t>(dof)) return out;
+  // The noise: the larger of the weighted residual variance and a robust one
+  // from the median residual (|r| of a 2-D Gaussian is Rayleigh: median
+  // σ √(2 ln 2)); the inliers were cut at the RANSAC threshold and the Cauchy
+  // weights shrink the tail, which both make the first too small.
+  std::nth_element(norms.begin(), norms.begin() + norms.size() / 2, norms.end());
+  const double robust_sigma = norms[norms.size() / 2] / std::sqrt(2.0 * std::log(2.0));
+  const double dof_correction = static_cast<double>(2 * used) / static_cast<double>(2 * used - dof);
+  const double sigma2 =
+      std::max(weighted_sq / static_cast<double>(2 * used - dof), robust_sigma * robust_sigma * dof_correction);
+  Mat7 cov = Mat7::Zero();
+  if (with_pp) {
+    // The prior enters H in units of the noise: |o|²/σ_o² against |r|²/σ².
+    H(7, 7) += sigma2 / (pp_prior_px * pp_prior_px);
+    H(8, 8) += sigma2 / (pp_prior_px * pp_prior_px);
+    Eigen::LDLT<Mat7> ldlt(H);
+    if (ldlt.info() != Eigen::Success) return out;
+    cov = sigma2 * ldlt.solve(Mat7::Identity());
+  } else if (with_focal) {
+    const Eigen::Matrix<double, 7, 7> H7 = H.topLeftCorner<7, 7>();
+    Eigen::LDLT<Eigen::Matrix<double, 7, 7>> ldlt(H7);
+    if (ldlt.info() != Eigen::Success) return out;
+    cov.topLeftCorner<7, 7>() = sigma2 * ldlt.solve(Eigen::Matrix<double, 7, 7>::Identity());
+  } else {
+    const Eigen::Matrix<double, 6, 6> H6 = H.topLeftCorner<6, 6>();
+    Eigen::LDLT<Eigen::Matrix<double, 6, 6>> ldlt(H6);
+    if (ldlt.info() != Eigen::Success) return out;
+    cov.topLeftCorner<6, 6>() = sigma2 * ldlt.solve(Eigen::Matrix<double, 6, 6>::Identity());
+  }
+  if (!cov.allFinite() || (cov.diagonal().array() < 0).any()) return out;
+  out.omega_t = cov.topLeftCorner<6, 6>();
+  out.residual_sigma_px = std::sqrt(sigma2);
+  out.focal_sigma_relative = with_focal ? std::sqrt(cov(6, 6)) : 0;
+  out.valid = true;
+  return out;
+}
+
+Eigen::Matrix3d PoseCovariance::center(const CameraPose& pose) const {
+  // c = −Rᵀ t; with R ← exp([ω]×) R: c(ω, t) ≈ c − Rᵀ [t]× ω − Rᵀ δt.
+  const Eigen::Matrix3d Rt = pose.rotation_matrix().transpose();
+  const Eigen::Vector3d& t = pose.translation;
+  Eigen::Matrix3d t_skew;
+  t_skew << 0, -t.z(), t.y(), t.z(), 0, -t.x(), -t.y(), t.x(), 0;
+  Eigen::Matrix<double, 3, 6> Jc;
+  Jc.leftCols<3>() = -Rt * t_skew;
+  Jc.rightCols<3>() = -Rt;
+  return Jc * omega_t * Jc.transpose();
 }
 
 }  // namespace visloc

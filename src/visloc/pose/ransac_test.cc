@@ -237,3 +237,56 @@ TEST(Ransac, TooFewOrNoInliersGiveNoRegistration) {
 
 }  // namespace
 }  // namespace visloc
+
+namespace visloc {
+namespace {
+
+// The covariance's centre σ against the spread of the estimates over many
+// noise draws: the same scene, new noise each time (Monte Carlo).
+void check_covariance_calibration(SyntheticFamily family, size_t trials) {
+  std::vector<double> errors, sigmas;
+  size_t in1 = 0, in2 = 0;
+  for (size_t s = 0; s < trials; ++s) {
+    SyntheticOptions o;
+    o.family = family;
+    o.num_features = 300;
+    o.inlier_ratio = 0.5;
+    o.noise_px = 1.0;
+    o.seed = 100 + s;
+    const SyntheticProblem p = make_synthetic_problem(o);
+    const PoseEstimate r = estimate_pose(p.correspondences, p.camera, RansacOptions{});
+    ASSERT_TRUE(r.registered);
+    ASSERT_TRUE(r.quality.covariance.valid);
+    EXPECT_NEAR(r.quality.covariance.residual_sigma_px, 1.0, 0.35);  // the noise drawn, per axis
+    const Eigen::Matrix3d cov = r.quality.covariance.center(r.cam_from_world);
+    const double sigma = std::sqrt(cov.trace());
+    const double err = (r.cam_from_world.center() - p.true_cam_from_world.center()).norm();
+    in1 += err <= sigma;
+    in2 += err <= 2 * sigma;
+    // Quality figures of a clean pose.
+    EXPECT_GT(r.quality.coverage, 0.5);
+    EXPECT_LT(r.quality.median_residual_px, 2.5);
+    EXPECT_GT(r.quality.hypothesis_inliers, r.quality.hypothesis_features / 3);
+  }
+  // A 3-D Gaussian: P(|e| ≤ sqrt(trace Σ)) ≈ 0.61 (isotropic), ≤ 2σ ≈ 0.99.
+  EXPECT_GE(in1, trials * 4 / 10) << in1 << " of " << trials << " within 1σ";
+  EXPECT_LE(in1, trials * 9 / 10) << in1 << " of " << trials << " within 1σ";
+  EXPECT_GE(in2, trials * 8 / 10) << in2 << " of " << trials << " within 2σ";
+}
+
+TEST(PoseCovariance, CentreSigmaMatchesTheSpreadCalibrated) {
+  check_covariance_calibration(SyntheticFamily::kCalibrated, 40);
+}
+
+TEST(PoseCovariance, CentreSigmaMatchesTheSpreadWithTheFocalEstimated) {
+  check_covariance_calibration(SyntheticFamily::kUncalibrated, 40);
+}
+
+TEST(PoseCovariance, TooFewPointsGiveNoCovariance) {
+  const Eigen::Vector2d x[3] = {{0, 0}, {10, 0}, {0, 10}};
+  const Eigen::Vector3d X[3] = {{0, 0, 5}, {0.05, 0, 5}, {0, 0.05, 5}};
+  EXPECT_FALSE(pose_covariance(x, X, 3, CameraPose{}, 1000, 4, false).valid);
+}
+
+}  // namespace
+}  // namespace visloc

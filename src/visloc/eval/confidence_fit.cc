@@ -1,0 +1,276 @@
+#include "visloc/eval/confidence_fit.h"
+
+#include <Eigen/Cholesky>
+#include <Eigen/Core>
+#include <algorithm>
+#include <cmath>
+#include <numeric>
+
+#include "visloc/eval/plot.h"
+#include "visloc/util/error.h"
+#include "visloc/util/file_io.h"
+
+namespace visloc {
+
+void ConfidenceFitOptions::validate() const {
+  if (std::isnan(l2) || !std::isfinite(l2))
+    throw_error(ErrorCode::kInvalidArgument, "confidence fit: l2 must be a number (< 0: chosen by cross-validation)");
+  if (!(target_precision > 0 && target_precision <= 1))
+    throw_error(ErrorCode::kInvalidArgument, "confidence fit: target_precision must be in (0, 1]");
+  if (!(min_inliers >= 0) || !std::isfinite(min_inliers))
+    throw_error(ErrorCode::kInvalidArgument, "confidence fit: min_inliers must be >= 0");
+}
+
+std::vector<ConfidenceSample> read_confidence_samples(const std::filesystem::path& path, const WrongPoseRule& rule) {
+  nlohmann::json report;
+  try {
+    report = nlohmann::json::parse(read_file(path));
+  } catch (const nlohmann::json::exception& e) {
+    throw_error(ErrorCode::kFormat, path.string(), ": not JSON: ", e.what());
+  }
+  if (!report.is_object() || !report.contains("per_query") || !report["per_query"].is_array())
+    throw_error(ErrorCode::kFormat, path.string(), ": no per_query array (a report.json of bench city or eval)");
+  std::vector<ConfidenceSample> samples;
+  for (const auto& q : report["per_query"]) {
+    if (!q.is_object() || !q.contains("confidence_features")) continue;  // no pose
+    const std::string kind = q.value("kind", std::string(q.value("negative", false) ? "negative_listed" : "query"));
+    if (kind == "between" || kind == "near_unseen") continue;  // not scored by the benchmark
+    ConfidenceSample s;
+    try {
+      s.features = ConfidenceFeatures::from_json(q["confidence_features"]);
+    } catch (const Error& e) {
+      throw_error(ErrorCode::kFormat, path.string(), ": ", q.value("image", std::string("?")), ": ", e.what());
+    }
+    if (kind == "foreign" || kind == "negative_listed") {
+      s.right = false;  // these must not register at all
+    } else {
+      const auto pos = q.find("pose_position_error_m");
+      if (pos == q.end() || !pos->is_number()) continue;  // no truth to judge the pose by
+      const auto rot = q.find("pose_rotation_error_deg");
+      const double rot_err = rot != q.end() && rot->is_number() ? rot->get<double>() : 0.0;
+      s.right = pos->get<double>() <= rule.position_m && rot_err <= rule.rotation_deg;
+    }
+    samples.push_back(s);
+  }
+  return samples;
+}
+
+std::vector<PrecisionRecallPoint> precision_recall_curve(const std::vector<double>& scores,
+                                                        const std::vector<bool>& right, size_t positives) {
+  std::vector<size_t> order(scores.size());
+  std::iota(order.begin(), order.end(), 0);
+  std::sort(order.begin(), order.end(), [&](size_t a, size_t b) { return scores[a] > scores[b]; });
+  std::vector<PrecisionRecallPoint> curve;
+  size_t accepted = 0, accepted_right = 0;
+  for (size_t k = 0; k < order.size(); ++k) {
+    ++accepted;
+    accepted_right += right[order[k]] ? 1 : 0;
+    if (k + 1 < order.size() && scores[order[k + 1]] == scores[order[k]]) continue;  // ties accepted together
+    PrecisionRecallPoint p;
+    p.threshold = scores[order[k]];
+    p.accepted = accepted;
+    p.accepted_right = accepted_right;
+    p.precision = double(accepted_right) / double(accepted);
+    p.recall = positives ? double(accepted_right) / double(positives) : 0.0;
+    curve.push_back(p);
+  }
+  return curve;
+}
+
+double threshold_for_precision(const std::vector<PrecisionRecallPoint>& curve, double target) {
+  double threshold = 1.0;
+  for (const auto& p : curve)
+    if (p.precision >= target) threshold = std::min(threshold, p.threshold);
+  return threshold;
+}
+
+namespace {
+
+// Weighted logistic regression by Newton's method on standardized inputs;
+// `active` selects the inputs used. Returns (bias, weights) on raw inputs.
+std::pair<double, Eigen::VectorXd> fit_logistic(const Eigen::MatrixXd& X, const Eigen::VectorXd& y,
+                                                const Eigen::VectorXd& weight, const std::vector<int>& active,
+                                                double l2) {
+  const Eigen::Index n = X.rows();
+  const Eigen::Index d = static_cast<Eigen::Index>(active.size());
+  Eigen::VectorXd mean = Eigen::VectorXd::Zero(d), scale = Eigen::VectorXd::Ones(d);
+  Eigen::MatrixXd Z(n, d + 1);
+  Z.col(0).setOnes();
+  for (Eigen::Index k = 0; k < d; ++k) {
+    const Eigen::VectorXd c = X.col(active[k]);
+    mean[k] = c.mean();
+    const double sd = std::sqrt((c.array() - mean[k]).square().mean());
+    scale[k] = sd > 1e-12 ? sd : 1.0;
+    Z.col(k + 1) = (c.array() - mean[k]) / scale[k];
+  }
+  Eigen::VectorXd beta = Eigen::VectorXd::Zero(d + 1);
+  for (int it = 0; it < 100; ++it) {
+    const Eigen::VectorXd p = ((-(Z * beta)).array().exp() + 1.0).inverse().matrix();
+    Eigen::VectorXd g = Z.transpose() * (weight.array() * (p - y).array()).matrix();
+    Eigen::MatrixXd H = Z.transpose() * (weight.array() * p.array() * (1 - p.array())).matrix().asDiagonal() * Z;
+    for (Eigen::Index k = 1; k <= d; ++k) {
+      g[k] += l2 * beta[k];
+      H(k, k) += l2;
+    }
+    H.diagonal().array() += 1e-9;
+    const Eigen::VectorXd step = H.ldlt().solve(g);
+    if (!step.allFinite()) break;
+    beta -= step;
+    if (step.norm() < 1e-10) break;
+  }
+  Eigen::VectorXd w = Eigen::VectorXd::Zero(X.cols());
+  double bias = beta[0];
+  for (Eigen::Index k = 0; k < d; ++k) {
+    w[active[k]] = beta[k + 1] / scale[k];
+    bias -= beta[k + 1] * mean[k] / scale[k];
+  }
+  return {bias, w};
+}
+
+}  // namespace
+
+namespace {
+
+// Logistic fit kept monotone: drops, one at a time, the input whose weight is
+// most against its expected sign (the others can change sign once it is
+// gone) and refits. Returns (bias, weights) and the dropped inputs.
+std::pair<double, Eigen::VectorXd> fit_monotone(const Eigen::MatrixXd& X, const Eigen::VectorXd& y,
+                                                const Eigen::VectorXd& weight, double l2,
+                                                std::vector<std::string>* dropped) {
+  std::vector<int> active(kConfidenceInputs);
+  std::iota(active.begin(), active.end(), 0);
+  const auto& signs = confidence_input_signs();
+  for (;;) {
+    auto model = fit_logistic(X, y, weight, active, l2);
+    int worst = -1;
+    double worst_value = 0;
+    for (int k : active) {
+      const double against = -signs[k] * model.second[k] * std::sqrt(X.col(k).array().square().mean());
+      if (against > worst_value) {
+        worst_value = against;
+        worst = k;
+      }
+    }
+    if (worst < 0) return model;
+    if (dropped) dropped->push_back(confidence_input_names()[worst]);
+    active.erase(std::find(active.begin(), active.end(), worst));
+  }
+}
+
+Eigen::MatrixXd rows(const Eigen::MatrixXd& m, const std::vector<Eigen::Index>& idx) {
+  Eigen::MatrixXd out(static_cast<Eigen::Index>(idx.size()), m.cols());
+  for (size_t i = 0; i < idx.size(); ++i) out.row(static_cast<Eigen::Index>(i)) = m.row(idx[i]);
+  return out;
+}
+
+}  // namespace
+
+ConfidenceFit fit_confidence(const std::vector<ConfidenceSample>& samples, const ConfidenceFitOptions& options) {
+  options.validate();
+  ConfidenceFit fit;
+  fit.samples = samples.size();
+  for (const auto& s : samples) (s.right ? fit.right : fit.wrong)++;
+  if (fit.right < 5 || fit.wrong < 5)
+    throw_error(ErrorCode::kInvalidArgument, "confidence fit: needs at least 5 right and 5 wrong poses, got ",
+                fit.right, " right and ", fit.wrong, " wrong");
+  const Eigen::Index n = static_cast<Eigen::Index>(samples.size());
+  Eigen::MatrixXd X(n, kConfidenceInputs);
+  Eigen::VectorXd y(n), weight(n);
+  for (Eigen::Index i = 0; i < n; ++i) {
+    const auto x = confidence_inputs(samples[i].features);
+    for (int k = 0; k < kConfidenceInputs; ++k) X(i, k) = x[k];
+    y[i] = samples[i].right ? 1 : 0;
+    // Both classes weigh as much in all (the wrong poses are rare).
+    weight[i] = samples[i].right ? 0.5 * n / double(fit.right) : 0.5 * n / double(fit.wrong);
+  }
+  // The penalty: given, or the candidate with the smallest weighted log loss
+  // in 5-fold cross-validation (folds by sample index, classes interleaved).
+  fit.l2 = options.l2;
+  if (options.l2 < 0) {
+    constexpr int kFolds = 5;
+    double best_loss = INFINITY;
+    for (double l2 : {0.01, 0.1, 0.3, 1.0, 3.0, 10.0, 30.0}) {
+      double loss = 0;
+      for (int fold = 0; fold < kFolds; ++fold) {
+        std::vector<Eigen::Index> train, test;
+        for (Eigen::Index i = 0; i < n; ++i) (i % kFolds == fold ? test : train).push_back(i);
+        Eigen::VectorXd y_train(static_cast<Eigen::Index>(train.size())), w_train(y_train.size());
+        for (size_t i = 0; i < train.size(); ++i) {
+          y_train[static_cast<Eigen::Index>(i)] = y[train[i]];
+          w_train[static_cast<Eigen::Index>(i)] = weight[train[i]];
+        }
+        const auto m = fit_monotone(rows(X, train), y_train, w_train, l2, nullptr);
+        for (Eigen::Index i : test) {
+          const double z = m.first + X.row(i).dot(m.second);
+          const double p = std::clamp(1.0 / (1.0 + std::exp(-z)), 1e-9, 1 - 1e-9);
+          loss -= weight[i] * (y[i] > 0.5 ? std::log(p) : std::log(1 - p));
+        }
+      }
+      fit.cross_validation.push_back({l2, loss / double(n)});
+      if (loss < best_loss) {
+        best_loss = loss;
+        fit.l2 = l2;
+      }
+    }
+  }
+  const std::pair<double, Eigen::VectorXd> model = fit_monotone(X, y, weight, fit.l2, &fit.dropped_inputs);
+  fit.model.bias = model.first;
+  for (int k = 0; k < kConfidenceInputs; ++k) fit.model.weights[k] = model.second[k];
+
+  std::vector<double> scores;
+  std::vector<bool> right;
+  for (const auto& s : samples)
+    if (s.features.inliers >= options.min_inliers) {
+      scores.push_back(fit.model.evaluate(s.features));
+      right.push_back(s.right);
+    }
+  fit.threshold_samples = scores.size();
+  const size_t positives = static_cast<size_t>(std::count(right.begin(), right.end(), true));
+  const auto curve = precision_recall_curve(scores, right, positives);
+  fit.model.threshold = threshold_for_precision(curve, options.target_precision);
+  for (const auto& p : curve)
+    if (p.threshold >= fit.model.threshold) fit.at_threshold = p;
+  return fit;
+}
+
+nlohmann::json ConfidenceFit::to_json() const {
+  nlohmann::json cv = nlohmann::json::array();
+  for (const auto& [l2_value, loss] : cross_validation) cv.push_back({{"l2", l2_value}, {"log_loss", loss}});
+  return {{"model", model.to_json()},
+          {"l2", l2},
+          {"cross_validation", cv},
+          {"samples", samples},
+          {"right_poses", right},
+          {"wrong_poses", wrong},
+          {"threshold_samples", threshold_samples},
+          {"dropped_inputs", dropped_inputs},
+          {"at_threshold",
+           {{"precision", at_threshold.precision},
+            {"recall", at_threshold.recall},
+            {"accepted", at_threshold.accepted},
+            {"accepted_right", at_threshold.accepted_right}}}};
+}
+
+void plot_precision_recall(const std::filesystem::path& stem, const std::string& title,
+                           const std::vector<PrecisionRecallPoint>& curve, double threshold) {
+  Plot plot(title, "recall (right poses / positives)", "precision", 0, 1, 0, 1);
+  double prev_r = 0, prev_p = 1;
+  bool first = true;
+  for (const auto& p : curve) {
+    if (!first) plot.line(prev_r, prev_p, p.recall, p.precision, "#1f77b4", {180, 119, 31}, 2);
+    first = false;
+    prev_r = p.recall;
+    prev_p = p.precision;
+  }
+  // The chosen threshold: the last point at or above it.
+  const PrecisionRecallPoint* mark = nullptr;
+  for (const auto& p : curve)
+    if (p.threshold >= threshold) mark = &p;
+  if (mark) {
+    plot.point(mark->recall, mark->precision, "#d62728", {40, 39, 214}, 5);
+    plot.label(mark->recall, mark->precision, "threshold " + Plot::fmt(threshold), -60, -10);
+  }
+  plot.save(stem);
+}
+
+}  // namespace visloc

@@ -1,0 +1,76 @@
+// Fitting and checking the localizer's confidence (pipeline/confidence.h):
+//   * samples: every pose a report saw (registered or not) with its
+//     confidence inputs and whether it was right: within 5 m and 10° of the
+//     truth; a foreign photo's or a listed negative's pose is never right;
+//   * the fit: logistic regression (Newton / IRLS with an L2 penalty on
+//     standardized inputs chosen by 5-fold cross-validation, classes
+//     weighted to equal mass), kept monotone:
+//     an input whose weight comes out with the wrong sign
+//     (confidence_input_signs) is dropped and the rest refitted;
+//   * the threshold: the lowest confidence at which the registered poses
+//     (≥ min_inliers) at or above it are right with the target precision;
+//   * the precision-recall curve of a confidence over a query set.
+#pragma once
+
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "visloc/eval/evaluation.h"
+#include "visloc/pipeline/confidence.h"
+
+namespace visloc {
+
+struct ConfidenceSample {
+  ConfidenceFeatures features;
+  bool right = false;  // the pose is within the wrong-pose thresholds of the truth
+};
+
+// The samples of a report.json written by `visloc bench city` (per_query
+// with kind, confidence_features and pose_position_error_m) or by `visloc
+// eval` (per_query with negative, confidence_features and pose errors).
+// Throws Error(kFormat) naming the file when it holds neither.
+std::vector<ConfidenceSample> read_confidence_samples(const std::filesystem::path& report, const WrongPoseRule& rule);
+
+struct ConfidenceFitOptions {
+  double l2 = -1;                   // penalty on the standardized weights; < 0: by 5-fold cross-validation
+  double target_precision = 0.995;  // of the registered poses at the threshold
+  double min_inliers = 12;          // the poses the threshold is chosen on (as the localizer registers)
+  void validate() const;
+};
+
+struct PrecisionRecallPoint {
+  double threshold = 0, precision = 1, recall = 0;
+  size_t accepted = 0, accepted_right = 0;
+};
+
+// Over descending thresholds (each distinct score): precision = right poses
+// accepted / poses accepted, recall = right poses accepted / `positives`.
+// A sample is accepted at threshold t when its score ≥ t.
+std::vector<PrecisionRecallPoint> precision_recall_curve(const std::vector<double>& scores,
+                                                        const std::vector<bool>& right, size_t positives);
+
+// The lowest threshold whose precision is at least `target` (1.0 when none:
+// nothing is accepted but a perfect score).
+double threshold_for_precision(const std::vector<PrecisionRecallPoint>& curve, double target);
+
+struct ConfidenceFit {
+  ConfidenceModel model;
+  size_t samples = 0, right = 0, wrong = 0;  // all poses
+  size_t threshold_samples = 0;              // those with ≥ min_inliers
+  std::vector<std::string> dropped_inputs;   // weights with the wrong sign
+  double l2 = 0;                             // the penalty used
+  std::vector<std::pair<double, double>> cross_validation;  // (l2, weighted log loss per sample)
+  PrecisionRecallPoint at_threshold;         // on the fit's own data
+  nlohmann::json to_json() const;
+};
+
+ConfidenceFit fit_confidence(const std::vector<ConfidenceSample>& samples, const ConfidenceFitOptions& options);
+
+// Writes a precision-recall plot (stem.svg, stem.png) with `threshold` marked.
+void plot_precision_recall(const std::filesystem::path& stem, const std::string& title,
+                           const std::vector<PrecisionRecallPoint>& curve, double threshold);
+
+}  // namespace visloc

@@ -1,0 +1,139 @@
+// Confidence fit, precision-recall and wrong poses in the evaluation report.
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <random>
+
+#include "visloc/eval/confidence_fit.h"
+#include "visloc/eval/evaluation.h"
+#include "visloc/util/error.h"
+#include "visloc/util/file_io.h"
+
+namespace visloc {
+namespace {
+
+TEST(PrecisionRecall, CurveAndThresholdOnAHandExample) {
+  // Scores best first: right, right, wrong, right, wrong; 4 positives in all.
+  const std::vector<double> scores = {0.9, 0.8, 0.7, 0.6, 0.5};
+  const std::vector<bool> right = {true, true, false, true, false};
+  const auto curve = precision_recall_curve(scores, right, 4);
+  ASSERT_EQ(curve.size(), 5u);
+  EXPECT_DOUBLE_EQ(curve[1].precision, 1.0);
+  EXPECT_DOUBLE_EQ(curve[1].recall, 0.5);
+  EXPECT_DOUBLE_EQ(curve[2].precision, 2.0 / 3);
+  EXPECT_DOUBLE_EQ(curve[3].recall, 0.75);
+  EXPECT_DOUBLE_EQ(threshold_for_precision(curve, 1.0), 0.8);
+  EXPECT_DOUBLE_EQ(threshold_for_precision(curve, 0.7), 0.6);  // 3 of 4 at 0.6
+  // Ties are accepted together.
+  const auto tied = precision_recall_curve({0.5, 0.5, 0.4}, {true, false, true}, 2);
+  ASSERT_EQ(tied.size(), 2u);
+  EXPECT_DOUBLE_EQ(tied[0].precision, 0.5);
+}
+
+// Right poses: many inliers, wide coverage; wrong ones: few, clustered, far
+// from the map's cameras; with noise so that the classes overlap a little.
+std::vector<ConfidenceSample> synthetic_samples(uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> noise(0, 1);
+  std::vector<ConfidenceSample> out;
+  for (int i = 0; i < 400; ++i) {
+    const bool right = i % 4 != 0;
+    ConfidenceSample s;
+    s.right = right;
+    s.features.inliers = std::exp((right ? 4.0 : 2.5) + 0.5 * noise(rng));
+    s.features.inlier_ratio = std::clamp((right ? 0.6 : 0.15) + 0.15 * noise(rng), 0.0, 1.0);
+    s.features.coverage = std::clamp((right ? 0.35 : 0.08) + 0.08 * noise(rng), 0.0, 1.0);
+    s.features.residual = std::clamp((right ? 0.2 : 0.35) + 0.08 * noise(rng), 0.0, 1.0);
+    s.features.margin = std::clamp((right ? 0.05 : 0.6) + 0.2 * noise(rng), 0.0, 1.0);
+    s.features.vote_share = std::clamp(0.4 + 0.1 * noise(rng), 0.0, 1.0);  // uninformative
+    s.features.camera_distance = std::abs((right ? 0.05 : 1.0) + 0.3 * noise(rng));
+    out.push_back(s);
+  }
+  return out;
+}
+
+TEST(ConfidenceFit, LearnsTheExpectedSignsAndAThresholdOfThePrecision) {
+  const auto samples = synthetic_samples(1);
+  const ConfidenceFit fit = fit_confidence(samples, ConfidenceFitOptions{});
+  EXPECT_EQ(fit.right, 300u);
+  EXPECT_EQ(fit.wrong, 100u);
+  EXPECT_FALSE(fit.cross_validation.empty());
+  const auto& signs = confidence_input_signs();
+  for (int k = 0; k < kConfidenceInputs; ++k) EXPECT_GE(signs[k] * fit.model.weights[k], 0.0) << k;
+  EXPECT_GT(fit.model.weights[2], 0.0);  // coverage carries information
+  EXPECT_LT(fit.model.weights[4], 0.0);  // so does the margin
+  EXPECT_GE(fit.at_threshold.precision, 0.995);
+  EXPECT_GT(fit.at_threshold.recall, 0.5);
+  // On new samples of the same kind the model separates the classes.
+  size_t right_kept = 0, wrong_kept = 0;
+  for (const auto& s : synthetic_samples(2)) {
+    const bool kept = fit.model.evaluate(s.features) >= fit.model.threshold;
+    (s.right ? right_kept : wrong_kept) += kept;
+  }
+  EXPECT_GT(right_kept, 200u);
+  EXPECT_LE(wrong_kept, 3u);
+}
+
+TEST(ConfidenceFit, RejectsDataWithoutBothClasses) {
+  auto samples = synthetic_samples(3);
+  for (auto& s : samples) s.right = true;
+  EXPECT_THROW(fit_confidence(samples, ConfidenceFitOptions{}), Error);
+  ConfidenceFitOptions bad;
+  bad.target_precision = 0;
+  EXPECT_THROW(bad.validate(), Error);
+}
+
+LocalizationResult pose_result(const std::string& name, bool registered, const CameraPose& pose, double confidence) {
+  LocalizationResult r;
+  r.image = name;
+  r.registered = registered;
+  r.segment = 0;
+  r.inliers = 40;
+  r.cam_from_segment = pose;
+  r.confidence = confidence;
+  r.confidence_features.inliers = 40;
+  r.uncertainty.valid = true;
+  r.uncertainty.position_sigma = 0.1;
+  return r;
+}
+
+TEST(Evaluation, CountsWrongPosesApartFromMissesAndReadsBackAsSamples) {
+  const CameraPose truth = CameraPose::from_matrix(Eigen::Matrix3d::Identity(), Eigen::Vector3d(0, 0, 0));
+  const CameraPose near = CameraPose::from_matrix(Eigen::Matrix3d::Identity(), Eigen::Vector3d(0.05, 0, 0));
+  const CameraPose far = CameraPose::from_matrix(Eigen::Matrix3d::Identity(), Eigen::Vector3d(8, 0, 0));
+  std::map<std::string, QueryTruth> t;
+  for (const char* n : {"a", "b", "c", "d"}) t[n].cam_from_world = truth;
+  std::vector<LocalizationResult> results = {pose_result("a", true, near, 0.99), pose_result("b", true, far, 0.9),
+                                             pose_result("c", false, near, 0.2), LocalizationResult{}};
+  results[3].image = "d";
+  std::vector<LocalizationResult> negatives = {pose_result("/x/n1.jpg", true, far, 0.95),
+                                               pose_result("/x/n2.jpg", false, far, 0.1)};
+  LocalizerOptions lo;
+  lo.min_confidence = 0.5;
+  const EvaluationReport rep = evaluate(results, t, negatives, lo);
+  EXPECT_EQ(rep.queries, 4u);
+  EXPECT_EQ(rep.registered, 2u);
+  EXPECT_EQ(rep.wrong_positives, 1u);
+  EXPECT_EQ(rep.negatives, 2u);
+  EXPECT_EQ(rep.negatives_registered, 1u);
+  const nlohmann::json j = rep.to_json(results, {});
+  EXPECT_EQ(j["wrong_poses"]["total"], 2);
+  EXPECT_EQ(j["confidence"]["rejected_right_poses"], 1);  // c: right pose, 40 inliers, confidence 0.2
+  EXPECT_EQ(j["confidence"]["rejected_wrong_poses"], 1);  // n2
+  EXPECT_DOUBLE_EQ(j["uncertainty"]["within_1_sigma"].get<double>(), 0.5);  // a within 0.1, b not
+
+  const auto dir = std::filesystem::temp_directory_path() / ("visloc_eval_conf_" + std::to_string(::getpid()));
+  write_report(dir, rep, results, {});
+  EXPECT_TRUE(std::filesystem::exists(dir / "precision_recall.png"));
+  const auto samples = read_confidence_samples(dir / "report.json", WrongPoseRule{});
+  ASSERT_EQ(samples.size(), 5u);  // a, b, c and the two negatives (d has no pose)
+  size_t right = 0;
+  for (const auto& s : samples) right += s.right;
+  EXPECT_EQ(right, 2u);  // a and c
+  write_file_atomic(dir / "bad.json", "{\"per_query\": 3}");
+  EXPECT_THROW(read_confidence_samples(dir / "bad.json", WrongPoseRule{}), Error);
+  std::filesystem::remove_all(dir);
+}
+
+}  // namespace
+}  // namespace visloc

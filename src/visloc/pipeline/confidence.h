@@ -1,0 +1,96 @@
+// Confidence of a localization: an estimate of the probability that the
+// reported pose is right (within 5 m and 10° of the truth), computed from
+// what the localizer already knows about the pose:
+//   * the inliers, and the inlier ratio among the 1-1 matches;
+//   * how much of the image the inliers cover (cells of an 8×8 grid);
+//   * the residuals (median reprojection error over the RANSAC threshold);
+//   * the margin: the support of the strongest rival, relative to this
+//     pose's: another segment's pose, or a different pose of the same
+//     segment that RANSAC verified (a repeated facade, a symmetric scene);
+//   * retrieval: the share of the votes that went to the pose's segment;
+//   * plausibility against the map: distance to the nearest map camera,
+//     height outside the map cameras' range, tilt beyond theirs.
+// A logistic model, confidence = σ(b + Σ_k w_k x_k), on transformed inputs
+// x_k (confidence_inputs). Its coefficients are fitted once, on synthetic
+// positives and negatives, by `visloc bench confidence` (eval/
+// confidence_fit.h), and live here, in the library (ConfidenceModel::
+// builtin): never per evaluation set.
+#pragma once
+
+#include <array>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+#include <nlohmann/json.hpp>
+
+#include "visloc/geometry/pose.h"
+#include "visloc/map/segment_file.h"
+
+namespace visloc {
+
+struct ConfidenceFeatures {
+  double inliers = 0;
+  double inlier_ratio = 0;       // 1-1 matches that fit the pose / 1-1 matches
+  double coverage = 0;           // fraction of 8×8 image cells with an inlier
+  double residual = 0;           // median inlier reprojection error / RANSAC threshold
+  double margin = 0;             // the strongest rival's support / this pose's (0: none)
+  double vote_share = 0;         // retrieval votes of the pose's segment / all votes
+                                 // (kVoteShareWithoutRetrieval for a map without retrieval)
+  double camera_distance = 0;    // to the nearest map camera of the segment / the segments' camera extent
+  double height_excess = 0;      // above or below the map cameras' heights / extent (0 within)
+  double tilt_excess_deg = 0;    // |tilt| beyond the map cameras' largest |tilt| (0 within)
+  nlohmann::json to_json() const;
+  static ConfidenceFeatures from_json(const nlohmann::json& j);  // throws Error(kFormat) on a bad object
+};
+
+inline constexpr int kConfidenceInputs = 9;
+// A map without retrieval gives no evidence through votes: its poses get the
+// median share of the right poses of the fit's data, so that the term
+// neither raises nor lowers their confidence against a typical right pose.
+inline constexpr double kVoteShareWithoutRetrieval = 0.4;
+// The builtin model's threshold (ConfidenceModel::builtin().threshold), the
+// localizer's default min_confidence.
+extern const double kDefaultMinConfidence;
+// The model's inputs: log inliers, the ratios as they are, plausibility
+// terms clamped (a pose 100 extents away is as implausible as one at 10),
+// the tilt beyond a tolerance of 10°.
+std::array<double, kConfidenceInputs> confidence_inputs(const ConfidenceFeatures& f);
+const std::array<const char*, kConfidenceInputs>& confidence_input_names();
+// The sign each weight must have (+1: more is more confident, −1: less):
+// the fit keeps the model monotone in every input.
+const std::array<int, kConfidenceInputs>& confidence_input_signs();
+
+struct ConfidenceModel {
+  double bias = 0;
+  std::array<double, kConfidenceInputs> weights{};
+  // The threshold chosen on the fit's data for a precision of ≥ 99.5%.
+  double threshold = 0.5;
+  double evaluate(const ConfidenceFeatures& f) const;  // in [0, 1]
+  nlohmann::json to_json() const;
+  static ConfidenceModel from_json(const nlohmann::json& j);  // throws Error(kFormat)
+  // The coefficients fitted by `visloc bench confidence` (see confidence.cc
+  // for the data and the command).
+  static const ConfidenceModel& builtin();
+};
+
+// The map's own cameras in one segment, for the plausibility terms: their
+// centres, the up direction (the ENU up through enu_from_segment, else the
+// mean of the cameras' up axes), their height range and tilt range.
+class MapCameraRange {
+ public:
+  // `up` in the segment frame (unit), when the segment is geo-registered.
+  MapCameraRange(const std::vector<SegmentImage>& images, const std::optional<Eigen::Vector3d>& up);
+  bool valid() const { return !centers_.empty(); }
+  // Fills camera_distance, height_excess and tilt_excess_deg for a pose in
+  // the segment's frame (left at 0 when the segment has no cameras).
+  void assess(const CameraPose& cam_from_segment, ConfidenceFeatures* f) const;
+
+ private:
+  std::vector<Eigen::Vector3d> centers_;
+  Eigen::Vector3d up_ = Eigen::Vector3d::UnitZ();
+  double height_min_ = 0, height_max_ = 0, extent_ = 1, max_abs_tilt_deg_ = 0;
+};
+
+}  // namespace visloc

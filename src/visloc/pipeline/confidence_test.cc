@@ -1,0 +1,147 @@
+// The confidence model's inputs, evaluation and the map-camera plausibility terms.
+#include <gtest/gtest.h>
+
+#include <Eigen/Geometry>
+#include <cmath>
+
+#include "visloc/pipeline/confidence.h"
+#include "visloc/util/error.h"
+
+namespace visloc {
+namespace {
+
+ConfidenceFeatures strong_pose() {
+  ConfidenceFeatures f;
+  f.inliers = 150;
+  f.inlier_ratio = 0.6;
+  f.coverage = 0.5;
+  f.residual = 0.25;
+  f.margin = 0.05;
+  f.vote_share = 0.6;
+  return f;
+}
+
+TEST(ConfidenceModel, BuiltinIsMonotoneInEveryInput) {
+  const ConfidenceModel& m = ConfidenceModel::builtin();
+  const auto& signs = confidence_input_signs();
+  for (int k = 0; k < kConfidenceInputs; ++k) {
+    SCOPED_TRACE(confidence_input_names()[k]);
+    EXPECT_GE(signs[k] * m.weights[k], 0.0);
+  }
+  EXPECT_GT(m.threshold, 0.0);
+  EXPECT_LE(m.threshold, 1.0);
+  EXPECT_EQ(kDefaultMinConfidence, m.threshold);
+}
+
+TEST(ConfidenceModel, StrongPosesAreConfidentWeakOnesAreNot) {
+  const ConfidenceModel& m = ConfidenceModel::builtin();
+  const ConfidenceFeatures strong = strong_pose();
+  EXPECT_GE(m.evaluate(strong), m.threshold);
+  // 12 inliers in one corner, half of them off, far from every map camera.
+  ConfidenceFeatures weak;
+  weak.inliers = 12;
+  weak.inlier_ratio = 0.02;
+  weak.coverage = 2.0 / 64;
+  weak.residual = 0.7;
+  weak.margin = 0.9;
+  weak.vote_share = 0.1;
+  weak.camera_distance = 4;
+  weak.height_excess = 1;
+  weak.tilt_excess_deg = 40;
+  EXPECT_LT(m.evaluate(weak), m.threshold);
+  EXPECT_LT(m.evaluate(weak), m.evaluate(strong));
+}
+
+TEST(ConfidenceModel, EvaluateIsAProbabilityAndJsonRoundTrips) {
+  ConfidenceModel m;
+  m.bias = -3;
+  m.weights[0] = 1;
+  m.threshold = 0.7;
+  ConfidenceFeatures f = strong_pose();
+  const double c = m.evaluate(f);
+  EXPECT_NEAR(c, 1 / (1 + std::exp(3 - std::log(150.0))), 1e-12);
+  const ConfidenceModel back = ConfidenceModel::from_json(m.to_json());
+  EXPECT_EQ(back.evaluate(f), c);
+  EXPECT_EQ(back.threshold, 0.7);
+  EXPECT_EQ(ConfidenceFeatures::from_json(f.to_json()).inliers, 150);
+  // Huge inputs stay in [0, 1].
+  m.weights[6] = -1e300;
+  f.camera_distance = 1e300;
+  EXPECT_GE(m.evaluate(f), 0.0);
+  EXPECT_LE(m.evaluate(f), 1.0);
+}
+
+TEST(ConfidenceModel, BadJsonIsRejectedNamingTheField) {
+  nlohmann::json j = ConfidenceModel::builtin().to_json();
+  j["weights"]["coverage"] = "x";
+  try {
+    ConfidenceModel::from_json(j);
+    FAIL() << "accepted";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("coverage"), std::string::npos) << e.what();
+  }
+  nlohmann::json f = strong_pose().to_json();
+  f.erase("residual");
+  EXPECT_THROW(ConfidenceFeatures::from_json(f), Error);
+  EXPECT_THROW(ConfidenceFeatures::from_json(nlohmann::json::array()), Error);
+}
+
+// Map cameras along a street (x), 2 m high (z up), looking along +y, level.
+std::vector<SegmentImage> street_cameras() {
+  std::vector<SegmentImage> images;
+  for (int i = 0; i < 8; ++i) {
+    // Camera axes in the world: x → +x, y (down) → −z, z (forward) → +y.
+    Eigen::Matrix3d world_from_cam;
+    world_from_cam.col(0) = Eigen::Vector3d::UnitX();
+    world_from_cam.col(1) = -Eigen::Vector3d::UnitZ();
+    world_from_cam.col(2) = Eigen::Vector3d::UnitY();
+    const Eigen::Matrix3d R = world_from_cam.transpose();
+    const Eigen::Vector3d c(5.0 * i, 0, 2);
+    const Eigen::Vector3d t = -R * c;
+    const Eigen::Quaterniond q(R);
+    SegmentImage im;
+    im.name = "m" + std::to_string(i);
+    im.cam_from_world_q_wxyz = {q.w(), q.x(), q.y(), q.z()};
+    im.cam_from_world_t = {t.x(), t.y(), t.z()};
+    images.push_back(im);
+  }
+  return images;
+}
+
+CameraPose pose_at(const Eigen::Vector3d& centre, double pitch_deg) {
+  Eigen::Matrix3d world_from_cam;
+  world_from_cam.col(0) = Eigen::Vector3d::UnitX();
+  world_from_cam.col(1) = -Eigen::Vector3d::UnitZ();
+  world_from_cam.col(2) = Eigen::Vector3d::UnitY();
+  world_from_cam = Eigen::AngleAxisd(pitch_deg * M_PI / 180, Eigen::Vector3d::UnitX()).toRotationMatrix() *
+                   world_from_cam;
+  const Eigen::Matrix3d R = world_from_cam.transpose();
+  return CameraPose::from_matrix(R, -R * centre);
+}
+
+TEST(MapCameraRange, PlausibilityOfPosesAgainstTheMapCameras) {
+  for (const bool with_up : {false, true}) {
+    SCOPED_TRACE(with_up ? "ENU up given" : "up from the cameras");
+    const MapCameraRange range(street_cameras(), with_up ? std::optional<Eigen::Vector3d>(Eigen::Vector3d::UnitZ()) : std::nullopt);
+    ASSERT_TRUE(range.valid());
+    ConfidenceFeatures near;
+    range.assess(pose_at({12, 1, 2}, 0), &near);
+    EXPECT_NEAR(near.camera_distance, std::hypot(2.0, 1.0) / 17.5, 1e-9);  // extent: 17.5 m from the mean
+    EXPECT_NEAR(near.height_excess, 0, 1e-12);
+    EXPECT_NEAR(near.tilt_excess_deg, 0, 1e-9);
+    ConfidenceFeatures far;
+    range.assess(pose_at({17.5, 35, 12}, 30), &far);
+    EXPECT_NEAR(far.height_excess, 10 / 17.5, 1e-9);
+    EXPECT_NEAR(far.tilt_excess_deg, 30, 1e-6);
+    EXPECT_GT(far.camera_distance, 2.0);
+  }
+  // Fewer than two cameras: nothing to compare with, the terms stay 0.
+  const MapCameraRange none({}, std::nullopt);
+  EXPECT_FALSE(none.valid());
+  ConfidenceFeatures f;
+  none.assess(pose_at({100, 100, 100}, 80), &f);
+  EXPECT_EQ(f.camera_distance, 0);
+}
+
+}  // namespace
+}  // namespace visloc
