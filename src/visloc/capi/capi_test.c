@@ -270,7 +270,7 @@ static void test_fountain(const char* scene, const char* map_dir) {
         o.min_confidence);
   CHECK(r.has_sigma == 1 && r.position_sigma > 0 && r.position_sigma < 0.25 && r.rotation_sigma_deg > 0,
         "sigma %d position %f rotation %f", r.has_sigma, r.position_sigma, r.rotation_sigma_deg);
-  CHECK(r.position_sigma_m == 0 && r.heading_sigma_deg == 0, "metric sigmas need a geo-registered map");
+  CHECK(r.position_sigma_m == 0 && r.has_heading_sigma == 0, "metric sigmas need a geo-registered map");
   CHECK(r.features > 1000 && r.features <= o.max_features, "features %d", r.features);
   CHECK(r.times.total_ms > 0 && r.times.total_ms >= r.times.features_ms && r.times.features_ms > 0,
         "times total %.1f features %.1f", r.times.total_ms, r.times.features_ms);

@@ -147,6 +147,8 @@ void fill(const visloc::LocalizationResult& l, visloc_result* r) {
   }
   r->focal_px = l.focal_px;
   r->focal_estimated = l.focal_estimated ? 1 : 0;
+  r->principal_point_offset[0] = l.principal_point_offset.x();
+  r->principal_point_offset[1] = l.principal_point_offset.y();
   if (l.center_enu) {
     r->has_enu = 1;
     for (int i = 0; i < 3; ++i) r->enu[i] = (*l.center_enu)[i];
@@ -170,6 +172,7 @@ void fill(const visloc::LocalizationResult& l, visloc_result* r) {
     r->position_sigma_m = u.position_sigma_m.value_or(0);
     r->horizontal_sigma_m = u.horizontal_sigma_m.value_or(0);
     r->vertical_sigma_m = u.vertical_sigma_m.value_or(0);
+    r->has_heading_sigma = u.heading_sigma_deg ? 1 : 0;
     r->heading_sigma_deg = u.heading_sigma_deg.value_or(0);
   }
   r->times.features_ms = l.times.features;

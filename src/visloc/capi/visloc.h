@@ -100,19 +100,24 @@ typedef struct visloc_result {
   double center[3];        /* camera centre in the segment frame, -R^T t */
   double focal_px;         /* the focal length used or estimated */
   int focal_estimated;     /* 1: the focal length was estimated (no intrinsics, no EXIF) */
+  double principal_point_offset[2]; /* focal_estimated: estimated principal point minus the image centre, px */
   int has_enu;             /* the segment is geo-registered: */
   double enu[3];           /*   camera centre, metres east, north, up of the map's origin */
   int has_geo;             /* WGS84 position known: */
   double latitude_deg, longitude_deg, altitude_m; /* altitude above the ellipsoid */
   int has_heading;
   double heading_deg;      /* viewing direction, degrees clockwise from north */
-  double confidence;       /* probability that the pose is right (within 5 m, 10 deg), 0 without a pose */
+  double confidence;       /* 0-1 score that the pose is right (within 5 m, 10 deg; higher is surer; not a
+                              calibrated probability), 0 without a pose */
   /* 1-sigma uncertainty from the pose refinement's covariance (has_sigma):
    * centre (sqrt of the covariance's trace) in segment units and rotation;
-   * with has_enu also in metres (3D, horizontal, vertical) and the heading. */
+   * with has_enu also in metres (3D, horizontal, vertical), and with
+   * has_heading_sigma the heading's. */
   int has_sigma;
   double position_sigma, rotation_sigma_deg;
-  double position_sigma_m, horizontal_sigma_m, vertical_sigma_m, heading_sigma_deg;
+  double position_sigma_m, horizontal_sigma_m, vertical_sigma_m;
+  int has_heading_sigma;
+  double heading_sigma_deg;
   visloc_stage_times times;
   char error[256];         /* empty on VISLOC_OK; otherwise the message (truncated) */
 } visloc_result;

@@ -101,7 +101,7 @@ void add_bench_end_to_end(CLI::App& bench) {
         ransac.push_back(r.times.ransac);
         results.push_back(std::move(r));
       }
-      const EvaluationReport rep = evaluate(results, truth);
+      const EvaluationReport rep = evaluate(results, truth, {}, o);
       const nlohmann::json j = rep.to_json(results, {});
       const double m = median(ms);
       if (std::isnan(baseline_ms)) baseline_ms = m;

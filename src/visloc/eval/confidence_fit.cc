@@ -31,6 +31,7 @@ std::vector<ConfidenceSample> read_confidence_samples(const std::filesystem::pat
   if (!report.is_object() || !report.contains("per_query") || !report["per_query"].is_array())
     throw_error(ErrorCode::kFormat, path.string(), ": no per_query array (a report.json of bench city or eval)");
   std::vector<ConfidenceSample> samples;
+  try {
   for (const auto& q : report["per_query"]) {
     if (!q.is_object() || !q.contains("confidence_features")) continue;  // no pose
     const std::string kind = q.value("kind", std::string(q.value("negative", false) ? "negative_listed" : "query"));
@@ -51,6 +52,9 @@ std::vector<ConfidenceSample> read_confidence_samples(const std::filesystem::pat
       s.right = pos->get<double>() <= rule.position_m && rot_err <= rule.rotation_deg;
     }
     samples.push_back(s);
+  }
+  } catch (const nlohmann::json::exception& e) {
+    throw_error(ErrorCode::kFormat, path.string(), ": bad per_query entry: ", e.what());
   }
   return samples;
 }

@@ -65,7 +65,8 @@ EvaluationReport evaluate(const std::vector<LocalizationResult>& results,
     q->registered = r.registered;
     q->inliers = r.inliers;
     q->confidence = r.confidence;
-    if (r.segment >= 0) q->confidence_features = r.confidence_features;
+    // (Peers' results, e.g. COLMAP's, have a pose but no confidence inputs.)
+    if (r.segment >= 0 && r.confidence_features.inliers > 0) q->confidence_features = r.confidence_features;
     q->uncertainty = r.uncertainty;
   };
   for (const auto& r : results) {

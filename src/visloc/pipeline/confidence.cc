@@ -89,6 +89,8 @@ ConfidenceModel ConfidenceModel::from_json(const nlohmann::json& j) {
   ConfidenceModel m;
   m.bias = number(j, "bias");
   m.threshold = number(j, "threshold");
+  if (m.threshold < 0 || m.threshold > 1)
+    throw_error(ErrorCode::kFormat, "confidence model: threshold must be in [0, 1], got ", m.threshold);
   for (int k = 0; k < kConfidenceInputs; ++k) m.weights[k] = number(j["weights"], kNames[k]);
   return m;
 }

@@ -1,6 +1,7 @@
-// Confidence of a localization: an estimate of the probability that the
-// reported pose is right (within 5 m and 10° of the truth), computed from
-// what the localizer already knows about the pose:
+// Confidence of a localization: a score in [0, 1] that the reported pose is
+// right (within 5 m and 10° of the truth), computed from what the localizer
+// already knows about the pose (higher is surer; the fit weighs right and
+// wrong poses equally, so it is not a calibrated probability):
 //   * the inliers, and the inlier ratio among the 1-1 matches;
 //   * how much of the image the inliers cover (cells of an 8×8 grid);
 //   * the residuals (median reprojection error over the RANSAC threshold);

@@ -135,6 +135,33 @@ TEST(MapCameraRange, PlausibilityOfPosesAgainstTheMapCameras) {
     EXPECT_NEAR(far.tilt_excess_deg, 30, 1e-6);
     EXPECT_GT(far.camera_distance, 2.0);
   }
+  // The same scene turned (a segment frame that is not ENU-aligned), with the
+  // up direction given: the same terms.
+  {
+    const Eigen::Matrix3d turn =
+        (Eigen::AngleAxisd(0.5, Eigen::Vector3d::UnitX()) * Eigen::AngleAxisd(-0.3, Eigen::Vector3d::UnitY()))
+            .toRotationMatrix();
+    auto turned = [&](const CameraPose& p) {  // world' = turn · world
+      const Eigen::Matrix3d R = p.rotation_matrix() * turn.transpose();
+      return CameraPose::from_matrix(R, p.translation);
+    };
+    std::vector<SegmentImage> images = street_cameras();
+    for (auto& im : images) {
+      const auto& q = im.cam_from_world_q_wxyz;
+      const CameraPose p = CameraPose::from_matrix(
+          Eigen::Quaterniond(q[0], q[1], q[2], q[3]).toRotationMatrix(),
+          Eigen::Vector3d(im.cam_from_world_t[0], im.cam_from_world_t[1], im.cam_from_world_t[2]));
+      const CameraPose t = turned(p);
+      const auto tq = t.q_wxyz();
+      im.cam_from_world_q_wxyz = {tq[0], tq[1], tq[2], tq[3]};
+      im.cam_from_world_t = {t.translation.x(), t.translation.y(), t.translation.z()};
+    }
+    const MapCameraRange range(images, std::optional<Eigen::Vector3d>(turn * Eigen::Vector3d::UnitZ()));
+    ConfidenceFeatures far;
+    range.assess(turned(pose_at({17.5, 35, 12}, 30)), &far);
+    EXPECT_NEAR(far.height_excess, 10 / 17.5, 1e-9);
+    EXPECT_NEAR(far.tilt_excess_deg, 30, 1e-6);
+  }
   // Fewer than two cameras: nothing to compare with, the terms stay 0.
   const MapCameraRange none({}, std::nullopt);
   EXPECT_FALSE(none.valid());

@@ -27,6 +27,8 @@ nlohmann::json to_json(const LocalizationResult& r) {
     j["t"] = {t.x(), t.y(), t.z()};
     j["focal_px"] = r.focal_px;
     j["focal_estimated"] = r.focal_estimated;
+    if (r.focal_estimated)
+      j["principal_point_offset_px"] = {r.principal_point_offset.x(), r.principal_point_offset.y()};
   }
   if (r.center_enu) j["center_enu"] = {r.center_enu->x(), r.center_enu->y(), r.center_enu->z()};
   if (r.position) {

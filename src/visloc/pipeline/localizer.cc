@@ -234,55 +234,6 @@ LocalizationResult Localizer::localize_features(const FeatureSet& f, const Pinho
   PoseQuality best_quality;
   std::shared_ptr<const Segment> best_segment;
   std::map<int, size_t> inliers_per_segment;  // best inliers of each segment searched (the margin)
-  // One pass over the candidates with the given search; the best pose wins.
-  auto search_candidates = [&](const CascadeSearchOptions& search) {
-    for (size_t index : candidates) {
-      // Candidates come best-voted first; a pose this well supported ends
-      // the search (RANSAC on a wrong segment runs to its iteration cap).
-      if (options_.accept_inliers > 0 && best_has_enough_inliers &&
-          best_inliers >= static_cast<size_t>(options_.accept_inliers))
-        break;
-      std::shared_ptr<const Segment> seg = impl_->cache->get(index);
-      res.candidates.push_back(static_cast<int>(seg->id()));
-      t.reset();
-      CascadeMatcher matcher(seg->index(), impl_->map.codebook());
-      matcher.match(f.descriptors, search, matches);
-      CorrespondenceArrays arrays = make_correspondence_arrays(matches, f.keypoints, seg->xyz());
-      set.clear();
-      set.points2d.reserve(arrays.points2d.size());
-      for (const auto& p : arrays.points2d) set.points2d.emplace_back(p[0], p[1]);
-      set.candidate_offsets = arrays.candidate_offsets;
-      set.candidates.reserve(arrays.candidates.size());
-      for (const auto& c : arrays.candidates) set.candidates.emplace_back(c[0], c[1], c[2]);
-      set.in_hypothesis_set = arrays.in_hypothesis_set;
-      set.candidate_point_ids = arrays.candidate_point_ids;
-      res.times.matching += t.elapsed_ms();
-      t.reset();
-      PoseEstimate pose;
-      // Inliers are counted per query feature, so a segment with no more
-      // matched features than the best pose's inliers cannot win: skip it.
-      const bool can_win = set.points2d.size() > best_inliers;
-      if (can_win && (set.num_hypothesis_features() >= 6 || (camera.has_focal && set.num_hypothesis_features() >= 3)))
-        pose = estimate_pose(set, camera, impl_->ransac);
-      res.times.ransac += t.elapsed_ms();
-      if (pose.has_pose) {
-        size_t& seen = inliers_per_segment[static_cast<int>(seg->id())];
-        seen = std::max(seen, pose.num_inliers);
-      }
-      if (pose.has_pose && pose.num_inliers > best_inliers) {
-        best_inliers = pose.num_inliers;
-        best_has_enough_inliers = pose.registered;
-        best_quality = pose.quality;
-        best_segment = seg;
-        res.segment = static_cast<int>(seg->id());
-        res.inliers = pose.num_inliers;
-        res.cam_from_segment = pose.cam_from_world;
-        res.focal_px = pose.focal;
-        res.focal_estimated = !camera.has_focal;
-        res.matches_one_to_one = matches.query.size();
-      }
-    }
-  };
   // Confidence, uncertainty and the geographic pose of the best pose so far.
   auto assess_best = [&] {
     res.registered = false;
@@ -355,6 +306,58 @@ LocalizationResult Localizer::localize_features(const FeatureSet& f, const Pinho
       const Eigen::Vector3d dir = frame.enu_from_segment.rotation * res.cam_from_segment.viewing_direction();
       res.heading_deg = heading_deg_from_enu(dir);
       if (impl_->frame) res.position = impl_->frame->to_geo(c);
+    }
+  };
+  // One pass over the candidates with the given search; the best pose wins.
+  auto search_candidates = [&](const CascadeSearchOptions& search) {
+    for (size_t index : candidates) {
+      // Candidates come best-voted first; a pose this well supported ends
+      // the search (RANSAC on a wrong segment runs to its iteration cap).
+      // (registered: enough inliers and confidence; a rejected pose, e.g. the
+      // first pass's before the fallback, does not end it).
+      if (options_.accept_inliers > 0 && res.registered && best_inliers >= static_cast<size_t>(options_.accept_inliers))
+        break;
+      std::shared_ptr<const Segment> seg = impl_->cache->get(index);
+      res.candidates.push_back(static_cast<int>(seg->id()));
+      t.reset();
+      CascadeMatcher matcher(seg->index(), impl_->map.codebook());
+      matcher.match(f.descriptors, search, matches);
+      CorrespondenceArrays arrays = make_correspondence_arrays(matches, f.keypoints, seg->xyz());
+      set.clear();
+      set.points2d.reserve(arrays.points2d.size());
+      for (const auto& p : arrays.points2d) set.points2d.emplace_back(p[0], p[1]);
+      set.candidate_offsets = arrays.candidate_offsets;
+      set.candidates.reserve(arrays.candidates.size());
+      for (const auto& c : arrays.candidates) set.candidates.emplace_back(c[0], c[1], c[2]);
+      set.in_hypothesis_set = arrays.in_hypothesis_set;
+      set.candidate_point_ids = arrays.candidate_point_ids;
+      res.times.matching += t.elapsed_ms();
+      t.reset();
+      PoseEstimate pose;
+      // Inliers are counted per query feature, so a segment with no more
+      // matched features than the best pose's inliers cannot win: skip it.
+      const bool can_win = set.points2d.size() > best_inliers;
+      if (can_win && (set.num_hypothesis_features() >= 6 || (camera.has_focal && set.num_hypothesis_features() >= 3)))
+        pose = estimate_pose(set, camera, impl_->ransac);
+      res.times.ransac += t.elapsed_ms();
+      if (pose.has_pose) {
+        size_t& seen = inliers_per_segment[static_cast<int>(seg->id())];
+        seen = std::max(seen, pose.num_inliers);
+      }
+      if (pose.has_pose && pose.num_inliers > best_inliers) {
+        best_inliers = pose.num_inliers;
+        best_has_enough_inliers = pose.registered;
+        best_quality = pose.quality;
+        best_segment = seg;
+        res.segment = static_cast<int>(seg->id());
+        res.inliers = pose.num_inliers;
+        res.cam_from_segment = pose.cam_from_world;
+        res.focal_px = pose.focal;
+        res.focal_estimated = !camera.has_focal;
+        res.principal_point_offset = pose.principal_point_offset;
+        res.matches_one_to_one = matches.query.size();
+        assess_best();  // for the early stop; assessed again once every candidate is searched
+      }
     }
   };
   if (!candidates.empty()) {

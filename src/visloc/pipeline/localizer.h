@@ -84,7 +84,7 @@ struct LocalizationResult {
   std::string error;                 // a bad image: the reason (the rest go on)
   int segment = -1;                  // segment id of the best pose
   size_t inliers = 0;
-  // Probability that the pose is right (confidence.h), 0 without a pose;
+  // Score in [0, 1] that the pose is right (confidence.h), 0 without a pose;
   // registered = inliers ≥ min_inliers and confidence ≥ min_confidence.
   double confidence = 0;
   ConfidenceFeatures confidence_features;  // what it was computed from (segment ≥ 0)
@@ -92,6 +92,9 @@ struct LocalizationResult {
   CameraPose cam_from_segment;       // world-to-camera in the segment frame
   double focal_px = 0;
   bool focal_estimated = false;
+  // With an estimated focal: the estimated principal point minus the assumed
+  // one (the image centre), pixels; the pose reprojects with both.
+  Eigen::Vector2d principal_point_offset = Eigen::Vector2d::Zero();
   std::optional<Eigen::Vector3d> center_enu;
   std::optional<GeoPosition> position;   // WGS84
   std::optional<double> heading_deg;

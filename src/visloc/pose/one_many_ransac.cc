@@ -449,9 +449,17 @@ PoseEstimate estimate_pose(const CorrespondenceSet& corr, const PinholeCamera& c
       depth = std::abs(depths[depths.size() / 2]);
     }
     const double cos_limit = std::cos(10.0 * M_PI / 180.0);
+    auto differs = [&](const ModelSummary& m, const Eigen::Vector3d& centre, const Eigen::Vector3d& axis) {
+      return (m.center - centre).norm() > 0.1 * depth || m.axis.dot(axis) < cos_limit;
+    };
+    // A rival differs from the refined pose and from the best model itself
+    // (6-point DLT models scatter: a copy of the best one is no rival).
+    ModelSummary best_summary;
+    const bool have_best = summarize(best_model, best_score, &best_summary);
     size_t rival = 0;
     for (const ModelSummary& m : verified)
-      if ((m.center - c).norm() > 0.1 * depth || m.axis.dot(a) < cos_limit) rival = std::max(rival, m.score);
+      if (differs(m, c, a) && (!have_best || differs(m, best_summary.center, best_summary.axis)))
+        rival = std::max(rival, m.score);
     result.quality.rival_score = rival;
     result.quality.best_score = best_score;
   }

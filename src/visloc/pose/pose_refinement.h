@@ -56,7 +56,7 @@ RefinementResult refine_pose(const Eigen::Vector2d* points2d_centered, const Eig
 // intrinsics' uncertainty is marginalized, not ignored.
 struct PoseCovariance {
   bool valid = false;                  // n large enough and H invertible
-  Eigen::Matrix<double, 6, 6> omega_t; // covariance of (ω, t): ω in radians, t in world units
+  Eigen::Matrix<double, 6, 6> omega_t = Eigen::Matrix<double, 6, 6>::Zero();  // of (ω, t): ω radians, t world units
   double residual_sigma_px = 0;        // σ
   double focal_sigma_relative = 0;     // σ of log f (0 when the focal was known)
   // The camera centre c = −Rᵀ t: its 3×3 covariance (world units²).

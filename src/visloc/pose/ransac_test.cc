@@ -267,6 +267,8 @@ void check_covariance_calibration(SyntheticFamily family, size_t trials) {
     EXPECT_GT(r.quality.coverage, 0.5);
     EXPECT_LT(r.quality.median_residual_px, 2.5);
     EXPECT_GT(r.quality.hypothesis_inliers, r.quality.hypothesis_features / 3);
+    // A clean scene has no rival pose near the best one's support.
+    EXPECT_LT(r.quality.rival_score, r.quality.best_score / 2) << r.quality.rival_score << " of " << r.quality.best_score;
   }
   // A 3-D Gaussian: P(|e| ≤ sqrt(trace Σ)) ≈ 0.61 (isotropic), ≤ 2σ ≈ 0.99.
   EXPECT_GE(in1, trials * 4 / 10) << in1 << " of " << trials << " within 1σ";
