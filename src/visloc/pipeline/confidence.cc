@@ -156,7 +156,7 @@ void MapCameraRange::assess(const CameraPose& pose, ConfidenceFeatures* f) const
   f->tilt_excess_deg = std::max(0.0, std::abs(tilt) - max_abs_tilt_deg_);
 }
 
-const double kDefaultMinConfidence = 0.64796657053984896;
+const double kDefaultMinConfidence = 0.64036051120557025;
 
 const ConfidenceModel& ConfidenceModel::builtin() {
   static const ConfidenceModel model = [] {
@@ -170,16 +170,16 @@ const ConfidenceModel& ConfidenceModel::builtin() {
     // dropped (their weights came out with the wrong sign): vote_share, camera_distance.
     // Threshold: precision >= 99.5% on the 291 poses with >= 12 inliers
     // (282 right kept, 4 right lost, 1 wrong kept).
-    m.bias = 6.3829599315253382;
-    m.weights[0] = 2.3501416587153336;  // log_inliers
-    m.weights[1] = 0.88317919092179176;  // inlier_ratio
-    m.weights[2] = 5.2015912265353839;  // coverage
-    m.weights[3] = -4.330305756980807;  // residual
-    m.weights[4] = -15.682364643672038;  // margin
+    m.bias = 6.4785717576325714;
+    m.weights[0] = 2.2982289746609421;  // log_inliers
+    m.weights[1] = 0.87985842627878863;  // inlier_ratio
+    m.weights[2] = 4.3682405653359861;  // coverage
+    m.weights[3] = -4.2548471647335937;  // residual
+    m.weights[4] = -15.609155935609168;  // margin
     m.weights[5] = 0;  // vote_share
     m.weights[6] = 0;  // camera_distance
-    m.weights[7] = -2.4498040358557645;  // height_excess
-    m.weights[8] = -1.7429728524026928;  // tilt_excess_beyond_10deg
+    m.weights[7] = -2.4492118734726498;  // height_excess
+    m.weights[8] = -1.7647481475415481;  // tilt_excess_beyond_10deg
     m.threshold = kDefaultMinConfidence;
     return m;
   }();
