@@ -34,6 +34,12 @@ nlohmann::json stats(const std::vector<double>& v) {
 }
 
 
+// The query's pose, registered or not, is within the rule (never for a negative).
+bool pose_is_right(const QueryEvaluation& q, const WrongPoseRule& rule) {
+  return !q.negative && q.pose_position_error >= 0 && q.pose_position_error <= rule.position_m &&
+         q.pose_rotation_error <= rule.rotation_deg;
+}
+
 }  // namespace
 
 uint64_t peak_memory_bytes() {
@@ -115,8 +121,7 @@ std::vector<PrecisionRecallPoint> EvaluationReport::confidence_curve() const {
   for (const auto& q : per_query) {
     if (!q.confidence_features || q.inliers < min_inliers) continue;
     scores.push_back(q.confidence);
-    right.push_back(!q.negative && q.pose_position_error >= 0 && q.pose_position_error <= rule.position_m &&
-                    q.pose_rotation_error <= rule.rotation_deg);
+    right.push_back(pose_is_right(q, rule));
   }
   return precision_recall_curve(scores, right, queries);
 }
@@ -178,9 +183,7 @@ nlohmann::json EvaluationReport::to_json(const std::vector<LocalizationResult>& 
     size_t gated_right = 0, gated_wrong = 0;
     for (const auto& q : per_query) {
       if (!q.confidence_features || q.inliers < min_inliers || q.registered) continue;
-      const bool right = !q.negative && q.pose_position_error >= 0 && q.pose_position_error <= rule.position_m &&
-                         q.pose_rotation_error <= rule.rotation_deg;
-      (right ? gated_right : gated_wrong)++;
+      (pose_is_right(q, rule) ? gated_right : gated_wrong)++;
     }
     j["confidence"] = {{"min_confidence", min_confidence},
                        {"min_inliers", min_inliers},

@@ -54,6 +54,31 @@ Eigen::Matrix3d exp_so3(const Eigen::Vector3d& w) {
   return Eigen::AngleAxisd(a, w / a).toRotationMatrix();
 }
 
+// Residual r = f π(R X + t) + o − x of one correspondence and its Jacobian
+// over (ω, t, log f, o): d r/dp = f [[1/z, 0, −x/z²], [0, 1/z, −y/z²]],
+// dp/dω = −[R X]×, dp/dt = I. False when X is behind the camera.
+bool residual_and_jacobian(const Eigen::Matrix3d& R, const Eigen::Vector3d& t, double focal,
+                           const Eigen::Vector2d& pp, const Eigen::Vector3d& X, const Eigen::Vector2d& x,
+                           Eigen::Vector2d* r, Eigen::Matrix<double, 2, 9>* J) {
+  const Eigen::Vector3d RX = R * X;
+  const Eigen::Vector3d p = RX + t;
+  if (p.z() <= 0) return false;
+  const double iz = 1.0 / p.z();
+  const Eigen::Vector2d proj(p.x() * iz, p.y() * iz);
+  *r = focal * proj + pp - x;
+  Eigen::Matrix<double, 2, 3> dr_dp;
+  dr_dp << focal * iz, 0, -focal * proj.x() * iz, 0, focal * iz, -focal * proj.y() * iz;
+  Eigen::Matrix3d skew;
+  skew << 0, -RX.z(), RX.y(), RX.z(), 0, -RX.x(), -RX.y(), RX.x(), 0;
+  J->setZero();
+  J->leftCols<3>() = -dr_dp * skew;
+  J->block<2, 3>(0, 3) = dr_dp;
+  J->col(6) = focal * proj;  // d r / d(log f)
+  (*J)(0, 7) = 1;            // d r / d o
+  (*J)(1, 8) = 1;
+  return true;
+}
+
 }  // namespace
 
 RefinementResult refine_pose(const Eigen::Vector2d* x, const Eigen::Vector3d* X, size_t n, const CameraPose& initial,
@@ -89,25 +114,10 @@ RefinementResult refine_pose(const Eigen::Vector2d* x, const Eigen::Vector3d* X,
     Mat7 H = Mat7::Zero();
     Vec7 g = Vec7::Zero();
     for (size_t i = 0; i < n; ++i) {
-      const Eigen::Vector3d RX = s.R * X[i];
-      const Eigen::Vector3d p = RX + s.t;
-      if (p.z() <= 0) continue;
-      const double iz = 1.0 / p.z();
-      const Eigen::Vector2d proj(p.x() * iz, p.y() * iz);
-      const Eigen::Vector2d r = s.focal * proj + s.pp - x[i];
+      Eigen::Vector2d r;
+      Eigen::Matrix<double, 2, 9> J;
+      if (!residual_and_jacobian(s.R, s.t, s.focal, s.pp, X[i], x[i], &r, &J)) continue;
       const double w = 1.0 / (1.0 + r.squaredNorm() / c2);  // IRLS weight of the Cauchy loss
-      // d(residual)/dp = f [[1/z, 0, −x/z²], [0, 1/z, −y/z²]].
-      Eigen::Matrix<double, 2, 3> dr_dp;
-      dr_dp << s.focal * iz, 0, -s.focal * proj.x() * iz, 0, s.focal * iz, -s.focal * proj.y() * iz;
-      Eigen::Matrix<double, 2, 9> J = Eigen::Matrix<double, 2, 9>::Zero();
-      // dp/dω = −[R X]×, dp/dt = I.
-      Eigen::Matrix3d skew;
-      skew << 0, -RX.z(), RX.y(), RX.z(), 0, -RX.x(), -RX.y(), RX.x(), 0;
-      J.leftCols<3>() = -dr_dp * skew;
-      J.block<2, 3>(0, 3) = dr_dp;
-      J.col(6) = s.focal * proj;  // d(residual)/d(log f)
-      J(0, 7) = 1;                // d(residual)/d(o)
-      J(1, 8) = 1;
       H.noalias() += w * J.transpose() * J;
       g.noalias() += w * J.transpose() * r;
     }
@@ -177,23 +187,10 @@ PoseCovariance pose_covariance(const Eigen::Vector2d* x, const Eigen::Vector3d* 
   std::vector<double> norms;
   norms.reserve(n);
   for (size_t i = 0; i < n; ++i) {
-    const Eigen::Vector3d RX = R * X[i];
-    const Eigen::Vector3d p = RX + pose.translation;
-    if (p.z() <= 0) continue;
-    const double iz = 1.0 / p.z();
-    const Eigen::Vector2d proj(p.x() * iz, p.y() * iz);
-    const Eigen::Vector2d r = focal * proj + pp - x[i];
+    Eigen::Vector2d r;
+    Eigen::Matrix<double, 2, 9> J;
+    if (!residual_and_jacobian(R, pose.translation, focal, pp, X[i], x[i], &r, &J)) continue;
     const double w = 1.0 / (1.0 + r.squaredNorm() / c2);
-    Eigen::Matrix<double, 2, 3> dr_dp;
-    dr_dp << focal * iz, 0, -focal * proj.x() * iz, 0, focal * iz, -focal * proj.y() * iz;
-    Eigen::Matrix3d skew;
-    skew << 0, -RX.z(), RX.y(), RX.z(), 0, -RX.x(), -RX.y(), RX.x(), 0;
-    Eigen::Matrix<double, 2, 9> J = Eigen::Matrix<double, 2, 9>::Zero();
-    J.leftCols<3>() = -dr_dp * skew;
-    J.block<2, 3>(0, 3) = dr_dp;
-    J.col(6) = focal * proj;
-    J(0, 7) = 1;
-    J(1, 8) = 1;
     H.noalias() += w * J.transpose() * J;
     weighted_sq += w * r.squaredNorm();
     norms.push_back(r.norm());
