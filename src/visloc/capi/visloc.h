@@ -63,7 +63,7 @@ typedef struct visloc_options {
   int max_segments;       /* candidate segments searched per photo (default 4) */
   int top_images;         /* retrieval: most similar map images voting for segments (default 20) */
   visloc_setting setting; /* default VISLOC_SETTING_3_PLUS */
-  int max_image_side;     /* larger images are downscaled before SIFT (default 1600; 0: never) */
+  int max_image_side;     /* larger images are downscaled before SIFT (default 800; 0: never) */
   int max_features;       /* strongest SIFT features kept (default 8192) */
   int threads;            /* threads for feature extraction per call (default 1) */
   int use_exif_focal;     /* visloc_localize_file: EXIF focal length when no intrinsics (default 1) */

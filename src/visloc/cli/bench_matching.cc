@@ -300,12 +300,11 @@ SceneResult run_scene(const Args& a, const std::string& map_dir, const std::stri
   std::vector<HashCode> lsh_codes(np);
   std::vector<float> ws;
   encode_hash(lsh.view(), dbf.data(), np, lsh_codes.data(), ws);
-  CascadeTables lsh_tables = build_cascade_tables(lsh_codes);
+  CascadeLookup lsh_lookup(lsh_codes);
   CascadeIndexView lsh_view = seg->index();
   lsh_view.hasher = lsh.view();
   lsh_view.codes = lsh_codes.data();
-  lsh_view.lut_offsets = lsh_tables.offsets.data();
-  lsh_view.lut_ids = lsh_tables.ids.data();
+  lsh_view.lookup = &lsh_lookup;
   CascadeMatcher ccs(seg->index(), map.codebook());
   CascadeMatcher lsh_matcher(lsh_view, map.codebook());
 
@@ -330,6 +329,12 @@ SceneResult run_scene(const Args& a, const std::string& map_dir, const std::stri
   cascade_configs.push_back({"ccs-no-refined-r1", false, opts(1, false, false, best)});
   cascade_configs.push_back({"ccs-full-r0", false, opts(0, true, false, best)});
   cascade_configs.push_back({"ccs-full-r1", false, opts(1, true, false, best)});
+  {
+    // The same search with the portable scalar kernels (the SIMD reference).
+    CascadeConfig scalar{"ccs-full-r1-scalar", false, opts(1, true, false, best)};
+    scalar.options.simd = SimdLevel::kScalar;
+    cascade_configs.push_back(scalar);
+  }
   cascade_configs.push_back({"ccs-full-r1-group1M", false, opts(1, true, false, group)});
   cascade_configs.push_back({"ccs-prioritized-r0", false, opts(0, true, true, best)});
   cascade_configs.push_back({"ccs-prioritized-r1", false, opts(1, true, true, best)});

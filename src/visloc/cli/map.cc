@@ -56,6 +56,11 @@ void add_import(CLI::App& map) {
                   "instead of a sample of the map's own point descriptors");
   cmd->add_option("--pq-train-images", args->pq_images, "File listing the images of --pq-train-database to use");
   cmd->add_option("--itq-iterations", args->options.itq.iterations, "ITQ iterations")->capture_default_str();
+  cmd->add_option_function<std::string>(
+         "--hash-rotation",
+         [args](const std::string& v) { args->options.hash_rotation = hash_rotation_scope_from_string(v); },
+         "ITQ hash rotation stored in the segment ('segment') or in MAP/hash_rotation.vlitq ('map') [segment]")
+      ->check(CLI::IsMember({"segment", "map"}));
   cmd->add_option("--seed", args->options.itq.seed, "Seed of ITQ's initial rotation and of PQ training")
       ->capture_default_str();
   cmd->add_flag("--no-descriptors", [args](int64_t) { args->options.keep_descriptors = false; },
@@ -180,9 +185,13 @@ void add_info(CLI::App& map) {
                 << s.bytes.file_bytes_per_point(s.points) << "\n";
     const double n = info.total_points ? double(info.total_points) : 1.0;
     std::cout << std::fixed << std::setprecision(1) << "total: " << double(info.total_per_point_bytes) / n
-              << " bytes/point in per-point sections (xyz 12 + hash 16 + PQ 16 + 8 LUT ids × 4); "
-              << double(info.total_bytes) / n << " bytes/point with the per-segment tables (8 × 65537 offsets, "
-              << "ITQ) and the shared PQ codebook (" << info.codebook_bytes << " bytes)\n";
+              << " bytes/point in per-point sections (xyz 12 + hash 16 + PQ 16); " << double(info.total_bytes) / n
+              << " bytes/point in all files: segments (images, metadata"
+              << (info.hash_rotation_bytes ? "" : ", a hash rotation each") << "), the shared PQ codebook ("
+              << info.codebook_bytes << " bytes)"
+              << (info.hash_rotation_bytes ? " and the shared hash rotation (" + std::to_string(info.hash_rotation_bytes) + " bytes)"
+                                           : std::string())
+              << "\n";
   });
 }
 

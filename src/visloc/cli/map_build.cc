@@ -91,6 +91,12 @@ void bind_build_options(CLI::App* cmd, MapBuildArgs& a, bool update) {
                   "The PQ codebook trains on at most this many images, spread over the map (with --executor slurm "
                   "only their features are extracted before the array; each task extracts its segment's)")
       ->capture_default_str();
+  cmd->add_option_function<std::string>(
+         "--hash-rotation",
+         [&a](const std::string& v) { a.options.hash_rotation = hash_rotation_scope_from_string(v); },
+         "ITQ hash rotation: 'segment' (one per segment, in its file) or 'map' (one for the map, "
+         "MAP/hash_rotation.vlitq: 64 KiB less per segment, a query hashed once) [segment]")
+      ->check(CLI::IsMember({"segment", "map"}));
   add_sift_options(cmd, a.options.sift);
   if (update) cmd->add_option("--segment", a.segment, "The segment to rebuild")->required();
 }

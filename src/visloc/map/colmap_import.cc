@@ -1,4 +1,6 @@
 #include "visloc/map/colmap_import.h"
+
+#include <optional>
 #include "visloc/map/segment_builder.h"
 
 #include <iomanip>
@@ -122,7 +124,17 @@ void import_model_map(ColmapModel model, const ModelSource& source, const fs::pa
 
   t.reset();
   SegmentBuildStats seg_stats;
-  SegmentData seg = make_segment_data(model, desc, codebook, options.itq, 0, &seg_stats);
+  // A map rotation is learned on the same descriptors as a segment's would be
+  // (an imported map has one segment), and stored beside the codebook.
+  std::optional<BinaryHasher> map_hasher;
+  if (options.hash_rotation == HashRotationScope::kMap) {
+    ItqResult itq = train_itq(desc.mean.data(), desc.num_points, options.itq);
+    seg_stats.itq_final_error = itq.quantization_error.empty() ? 0 : itq.quantization_error.back();
+    seg_stats.ms_itq = t.elapsed_ms();
+    map_hasher = std::move(itq.hasher);
+  }
+  SegmentData seg = make_segment_data(model, desc, codebook, options.itq, 0, &seg_stats,
+                                      map_hasher ? &*map_hasher : nullptr);
   res.itq_final_error = seg_stats.itq_final_error;
   res.ms_itq = seg_stats.ms_itq;
   seg.extra_meta["source"] = source.segment_source;
@@ -146,6 +158,15 @@ void import_model_map(ColmapModel model, const ModelSource& source, const fs::pa
                             {"training_source", res.pq_training_source},
                             {"seed", options.pq.seed}};
   codebook.write(out_dir / man.pq_codebook_file, pq_meta.dump());
+  if (map_hasher) {
+    man.hash_rotation_file = kHashRotationFileName;
+    write_hash_rotation_file(out_dir / man.hash_rotation_file, *map_hasher,
+                             nlohmann::json{{"training_descriptors", desc.num_points},
+                                            {"training_source", "map point descriptors"},
+                                            {"itq_iterations", options.itq.iterations},
+                                            {"seed", options.itq.seed}}
+                                 .dump());
+  }
   if (!held_out.empty()) {
     std::ostringstream s;
     s << std::setprecision(17) << "# held-out images: name qw qx qy qz tx ty tz (world-to-camera, SfM pose)\n";

@@ -31,6 +31,7 @@ struct ColmapImportOptions {
   std::filesystem::path pq_training_database;   // empty: train on the map's own point descriptors
   std::vector<std::string> pq_training_images;  // names in that database; empty: all its images
   ItqOptions itq;
+  HashRotationScope hash_rotation = HashRotationScope::kSegment;  // kMap: MAP/hash_rotation.vlitq
   PqTrainingOptions pq;
   bool keep_descriptors = true;  // write descriptors/NNNN.vldesc
   bool overwrite = false;        // replace an existing map in the output directory

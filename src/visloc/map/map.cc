@@ -23,6 +23,7 @@ nlohmann::json MapManifest::to_json() const {
                       {"format_version", format_version},
                       {"parameters", parameters},
                       {"pq_codebook_file", pq_codebook_file},
+                      {"hash_rotation_file", hash_rotation_file},
                       {"segments", segs},
                       {"source", source},
                       {"holdout_images", holdout_images},
@@ -46,6 +47,7 @@ MapManifest MapManifest::from_json(const nlohmann::json& j, const std::string& w
                   " is not supported (this build reads 1..", kMapFormatVersion, ")");
     m.parameters = j.value("parameters", nlohmann::json::object());
     m.pq_codebook_file = j.at("pq_codebook_file").get<std::string>();
+    m.hash_rotation_file = j.value("hash_rotation_file", "");
     for (const auto& s : j.at("segments")) {
       MapSegmentEntry e;
       e.id = s.at("id").get<uint32_t>();
@@ -107,13 +109,15 @@ Map Map::open(const fs::path& dir) {
   m.dir_ = dir;
   m.manifest_ = read_manifest(dir);
   m.codebook_ = PqCodebook::read(dir / m.manifest_.pq_codebook_file);
+  if (!m.manifest_.hash_rotation_file.empty())
+    m.hasher_ = std::make_shared<const BinaryHasher>(read_hash_rotation_file(dir / m.manifest_.hash_rotation_file));
   return m;
 }
 
 std::unique_ptr<Segment> Map::open_segment(size_t index) const {
   VISLOC_CHECK(index < manifest_.segments.size());
   const auto& e = manifest_.segments[index];
-  auto s = Segment::open(dir_ / e.file);
+  auto s = Segment::open(dir_ / e.file, hasher_);
   if (s->bytes().file != e.file_bytes || s->num_points() != e.points || s->id() != e.id)
     throw_error(ErrorCode::kFormat, (dir_ / e.file).string(), ": segment does not match the manifest (",
                 s->bytes().file, " bytes, ", s->num_points(), " points, id ", s->id(), "; manifest says ",
@@ -127,9 +131,13 @@ MapInfo map_info(const fs::path& dir) {
   info.manifest = map.manifest();
   info.codebook_bytes = fs::file_size(dir / map.manifest().pq_codebook_file);
   info.total_bytes = info.codebook_bytes;
+  if (!map.manifest().hash_rotation_file.empty()) {
+    info.hash_rotation_bytes = fs::file_size(dir / map.manifest().hash_rotation_file);
+    info.total_bytes += info.hash_rotation_bytes;
+  }
   for (size_t i = 0; i < map.manifest().segments.size(); ++i) {
     auto s = map.open_segment(i);
-    MapSegmentInfo si{s->id(), s->num_points(), s->images().size(), s->bytes()};
+    MapSegmentInfo si{s->id(), s->num_points(), s->images().size(), s->format_version(), s->bytes()};
     info.total_points += si.points;
     info.total_per_point_bytes += si.bytes.per_point;
     info.total_bytes += si.bytes.file;
@@ -146,7 +154,9 @@ nlohmann::json MapInfo::to_json() const {
                     {"images", s.images},
                     {"file_bytes", s.bytes.file},
                     {"per_point_section_bytes", s.bytes.per_point},
-                    {"lut_offset_bytes", s.bytes.lut_offsets},
+                    {"format_version", s.format_version},
+                    {"lookup_table_file_bytes", s.bytes.lookup_tables},
+                    {"lookup_table_memory_bytes", s.bytes.lookup_memory},
                     {"hasher_bytes", s.bytes.hasher},
                     {"other_bytes", s.bytes.other},
                     {"bytes_per_point", s.bytes.per_point_bytes_per_point(s.points)},
@@ -158,8 +168,10 @@ nlohmann::json MapInfo::to_json() const {
             {"points", total_points},
             {"bytes_per_point", double(total_per_point_bytes) / n},
             {"bytes_per_point_including_tables_and_codebook", double(total_bytes) / n},
+            {"file_bytes_per_point", double(total_bytes) / n},
             {"bytes", total_bytes},
-            {"pq_codebook_bytes", codebook_bytes}}},
+            {"pq_codebook_bytes", codebook_bytes},
+            {"hash_rotation_bytes", hash_rotation_bytes}}},
           {"holdout_images", manifest.holdout_images}};
 }
 

@@ -4,6 +4,8 @@
 //                              PQ codebook, source, held-out images
 //   MAP/segments/NNNN.vlseg    segment files (segment_file.h)
 //   MAP/pq_codebook.vlpq       the PQ codebook shared by every segment
+//   MAP/hash_rotation.vlitq    the ITQ hash rotation shared by the segments
+//                              that have none of their own (optional)
 //   MAP/descriptors/NNNN.vldesc  mean SIFT per point (uint8), kind "PDSC":
 //                              not used on the device; kept for rebuilding
 //                              segments and for the raw-SIFT baselines
@@ -45,6 +47,7 @@ struct MapManifest {
   std::optional<std::array<double, 3>> enu_origin_lat_lon_alt;
   nlohmann::json parameters = nlohmann::json::object();
   std::string pq_codebook_file = "pq_codebook.vlpq";
+  std::string hash_rotation_file;  // relative; empty: every segment has its own
   std::vector<MapSegmentEntry> segments;
   nlohmann::json source = nlohmann::json::object();   // e.g. {"colmap": ..., "database": ...}
   std::vector<std::string> holdout_images;
@@ -69,6 +72,8 @@ class Map {
   static Map open(const std::filesystem::path& dir);
   const MapManifest& manifest() const { return manifest_; }
   const PqCodebook& codebook() const { return codebook_; }
+  // The map's hash rotation, or null when every segment has its own.
+  const std::shared_ptr<const BinaryHasher>& hasher() const { return hasher_; }
   const std::filesystem::path& dir() const { return dir_; }
   // Maps segment `index` (position in manifest().segments) and checks that
   // its size matches the manifest.
@@ -78,18 +83,21 @@ class Map {
   std::filesystem::path dir_;
   MapManifest manifest_;
   PqCodebook codebook_;
+  std::shared_ptr<const BinaryHasher> hasher_;
 };
 
 // What `visloc map info` prints.
 struct MapSegmentInfo {
   uint32_t id = 0;
   size_t points = 0, images = 0;
+  uint32_t format_version = 0;
   SegmentBytes bytes;
 };
 struct MapInfo {
   MapManifest manifest;
   std::vector<MapSegmentInfo> segments;
   uint64_t codebook_bytes = 0;
+  uint64_t hash_rotation_bytes = 0;
   size_t total_points = 0;
   uint64_t total_per_point_bytes = 0;  // Σ per-point sections
   uint64_t total_bytes = 0;            // Σ segment files + codebook

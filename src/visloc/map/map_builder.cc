@@ -279,6 +279,7 @@ struct BuildContext {
   std::optional<ColmapModel> known;
   Similarity3d enu_from_known;  // kKnown: the known frame → ENU (one transform for the map)
   PqCodebook codebook;
+  std::shared_ptr<const BinaryHasher> map_hasher;  // kMap: the map's rotation
 };
 
 fs::path feature_path(const BuildContext& ctx, const std::string& image) {
@@ -692,7 +693,8 @@ SegmentBuildResult build_segment(const BuildContext& ctx, int id, const SegmentP
   const double ms_descriptors = t_part.elapsed_ms();
   SegmentBuildStats compression_stats;
   SegmentData data =
-      make_segment_data(model, desc, ctx.codebook, opt.itq, static_cast<uint32_t>(id), &compression_stats);
+      make_segment_data(model, desc, ctx.codebook, opt.itq, static_cast<uint32_t>(id), &compression_stats,
+                        ctx.map_hasher.get());
   std::vector<int> placemark_ids;
   for (int pm : ctx.plan.segments[id]) placemark_ids.push_back(ctx.plan.placemarks[pm].id);
   data.extra_meta["enu_from_segment"] = similarity_json(enu_from_segment);
@@ -817,6 +819,12 @@ SegmentBuildResult build_planned_segment(const fs::path& map_dir, const MapBuild
                   plan_file.string(), " (inputs changed since 'map build' started?); run 'map build' again");
   }
   ctx.codebook = PqCodebook::read(codebook_path);
+  if (opt.hash_rotation == HashRotationScope::kMap) {
+    const fs::path rotation_path = map_dir / kHashRotationFileName;
+    if (!fs::exists(rotation_path))
+      throw_error(ErrorCode::kNotFound, rotation_path.string(), ": the map's hash rotation is missing; run 'map build'");
+    ctx.map_hasher = std::make_shared<const BinaryHasher>(read_hash_rotation_file(rotation_path));
+  }
   // Progress for the coordinator, which polls it: a file rewritten on every stage change.
   std::string last_stage;
   Timer since_write;
@@ -899,11 +907,15 @@ MapBuildResult build_map(const fs::path& map_dir, const MapBuildOptions& opt,
   }
   result.seconds_features = t_features.elapsed_ms() / 1000;
 
-  // The PQ codebook: trained once per map on descriptors sampled across all images.
+  // The PQ codebook (and, with a map rotation, the ITQ rotation): trained
+  // once per map on descriptors sampled across all images.
   const fs::path codebook_path = map_dir / "pq_codebook.vlpq";
-  if (fs::exists(codebook_path)) {
-    ctx.codebook = PqCodebook::read(codebook_path);
-  } else {
+  const fs::path rotation_path = map_dir / kHashRotationFileName;
+  const bool map_rotation = opt.hash_rotation == HashRotationScope::kMap;
+  if (fs::exists(codebook_path)) ctx.codebook = PqCodebook::read(codebook_path);
+  if (map_rotation && fs::exists(rotation_path))
+    ctx.map_hasher = std::make_shared<const BinaryHasher>(read_hash_rotation_file(rotation_path));
+  if (ctx.codebook.empty() || (map_rotation && !ctx.map_hasher)) {
     const std::vector<size_t> training = pq_training_records(ctx);
     const size_t per_image = (opt.pq_training_descriptors + training.size() - 1) / training.size();
     std::vector<float> sample;
@@ -917,13 +929,25 @@ MapBuildResult build_map(const fs::path& map_dir, const MapBuildOptions& opt,
       for (size_t k : rows)
         for (int d = 0; d < kDescriptorDim; ++d) sample.push_back(f.descriptors.row(k)[d]);
     }
-    const size_t pq_training = sample.size() / kDescriptorDim;
-    ctx.codebook = PqCodebook::train(sample.data(), pq_training, opt.pq);
-    nlohmann::json pq_meta = {{"dimension", kDescriptorDim}, {"subvectors", kPqSubvectors}, {"bits", 8},
-                              {"training_descriptors", pq_training},
-                              {"training_source", "image descriptors sampled across the map"},
-                              {"seed", opt.pq.seed}};
-    ctx.codebook.write(codebook_path, pq_meta.dump());
+    const size_t training_count = sample.size() / kDescriptorDim;
+    if (ctx.codebook.empty()) {
+      ctx.codebook = PqCodebook::train(sample.data(), training_count, opt.pq);
+      nlohmann::json pq_meta = {{"dimension", kDescriptorDim}, {"subvectors", kPqSubvectors}, {"bits", 8},
+                                {"training_descriptors", training_count},
+                                {"training_source", "image descriptors sampled across the map"},
+                                {"seed", opt.pq.seed}};
+      ctx.codebook.write(codebook_path, pq_meta.dump());
+    }
+    if (map_rotation && !ctx.map_hasher) {
+      ItqResult itq = train_itq(sample.data(), training_count, opt.itq);
+      write_hash_rotation_file(rotation_path, itq.hasher,
+                               nlohmann::json{{"training_descriptors", training_count},
+                                              {"training_source", "image descriptors sampled across the map"},
+                                              {"itq_iterations", opt.itq.iterations},
+                                              {"seed", opt.itq.seed}}
+                                   .dump());
+      ctx.map_hasher = std::make_shared<const BinaryHasher>(std::move(itq.hasher));
+    }
   }
 
   // Segments; each one's outcome is recorded as soon as it ends.
@@ -952,9 +976,11 @@ MapBuildResult build_map(const fs::path& map_dir, const MapBuildOptions& opt,
     nlohmann::json failed = nlohmann::json::array();
     for (const auto& r : result.segments)
       if (!r.ok && !r.error.empty() && r.error != "not built") failed.push_back({{"id", r.id}, {"error", r.error}});
+    // Segments of an earlier run with a map rotation keep needing it.
+    if (fs::exists(rotation_path)) man.hash_rotation_file = kHashRotationFileName;
     man.parameters = {{"hash", {{"method", "itq"}, {"bits", kHashBits}, {"tables", kHashTables},
                                 {"table_bits", kHashTableBits}, {"itq_iterations", opt.itq.iterations},
-                                {"seed", opt.itq.seed}}},
+                                {"seed", opt.itq.seed}, {"rotation", to_string(opt.hash_rotation)}}},
                       {"pq", {{"subvectors", kPqSubvectors}, {"bits", 8}, {"seed", opt.pq.seed}}},
                       {"point_descriptor", "mean of track"},
                       {"sift", nlohmann::json::parse(opt.sift.to_json())},

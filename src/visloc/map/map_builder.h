@@ -81,6 +81,10 @@ struct MapBuildOptions {
   double pair_max_angle_deg = 60;           //   and looking within this angle of each other;
                                             //   SfM: COLMAP's spatial matcher on the GPS priors
   ItqOptions itq;
+  // kMap: one ITQ rotation for the map (MAP/hash_rotation.vlitq), learned on
+  // the PQ codebook's training sample; kSegment: one per segment, learned on
+  // its points' descriptors.
+  HashRotationScope hash_rotation = HashRotationScope::kSegment;
   PqTrainingOptions pq;
   size_t pq_training_descriptors = 100000;  // sampled across the training images:
   size_t pq_training_images = 1000;         // at most this many images, spread evenly over the map

@@ -38,7 +38,6 @@ SegmentData random_segment(size_t n, uint64_t seed) {
   for (int i = 0; i < 128; ++i) s.hasher.projection[i * 128 + i] = 1.0f;
   for (size_t i = 0; i < n; ++i) s.codes.push_back({{rng(), rng()}});
   for (size_t i = 0; i < n * 16; ++i) s.pq_codes.push_back(static_cast<uint8_t>(rng()));
-  s.tables = build_cascade_tables(s.codes);
   s.images.push_back({"a.jpg", 1, 640, 480, {500, 500, 320, 240}, {1, 0, 0, 0}, {0, 0, 1}});
   s.extra_meta["enu_from_segment"] = {{"scale", 1.0}};
   return s;
@@ -69,7 +68,16 @@ TEST(SegmentFile, RoundTripIsMappedAndMeasured) {
     ASSERT_EQ(v.codes[i].w[1], s.codes[i].w[1]);
   }
   EXPECT_EQ(0, std::memcmp(v.pq_codes, s.pq_codes.data(), s.pq_codes.size()));
-  EXPECT_EQ(0, std::memcmp(v.lut_ids, s.tables.ids.data(), s.tables.ids.size() * 4));
+  // The lookup tables are built from the codes at open: every point once per table.
+  ASSERT_NE(v.lookup, nullptr);
+  EXPECT_TRUE(v.lookup->uses_16bit_ids());
+  for (int k = 0; k < 8; ++k) {
+    size_t total = 0;
+    for (size_t i = 0; i < 3000; i += 97) EXPECT_GE(v.lookup->bucket_size(k, hash_subcode(s.codes[i], k)), 1u);
+    for (uint32_t b = 0; b < kHashBuckets; ++b) total += v.lookup->bucket_size(k, b);
+    EXPECT_EQ(total, 3000u);
+  }
+  EXPECT_EQ(seg->format_version(), kSegmentFileVersion);
   EXPECT_EQ(v.hasher.projection[129], 1.0f);
   // Arrays are views into the mapping, 64-byte aligned.
   EXPECT_EQ(reinterpret_cast<uintptr_t>(v.codes) % 64, 0u);
@@ -78,10 +86,39 @@ TEST(SegmentFile, RoundTripIsMappedAndMeasured) {
   EXPECT_EQ(seg->images()[0].name, "a.jpg");
   EXPECT_EQ(seg->images()[0].camera_params[2], 320.0);
   EXPECT_EQ(seg->meta()["enu_from_segment"]["scale"], 1.0);
-  // 12 + 16 + 16 + 8 × 4 bytes per point, measured from the sections.
-  EXPECT_DOUBLE_EQ(seg->bytes().per_point_bytes_per_point(3000), 76.0);
-  EXPECT_EQ(seg->bytes().lut_offsets, 8u * 65537 * 4);
+  // 12 + 16 + 16 bytes per point, measured from the sections; no tables on disk.
+  EXPECT_DOUBLE_EQ(seg->bytes().per_point_bytes_per_point(3000), 44.0);
+  EXPECT_EQ(seg->bytes().lookup_tables, 0u);
+  EXPECT_EQ(seg->bytes().hasher, (128u + 128u * 128u) * 4u);
+  EXPECT_GT(seg->bytes().lookup_memory, 3000u * 16);
   EXPECT_EQ(seg->bytes().file, fs::file_size(dir / "s.vlseg"));
+}
+
+TEST(SegmentFile, ReadsVersionOneAndRebuildsItsTables) {
+  auto dir = temp_dir("v1");
+  const fs::path p = dir / "s.vlseg";
+  SegmentData s = random_segment(700, 5);
+  {
+    // Version 1 as it was written: the ITQ rotation and the stored tables.
+    SectionFileWriter w(p, "SEGM", 1);
+    w.add_text("META", R"({"segment_id": 7, "points": 700, "images": 0})");
+    w.add_array<float>("XYZ", s.xyz);
+    w.add_array<HashCode>("CODE", s.codes);
+    w.add_array<uint8_t>("PQ", s.pq_codes);
+    w.add_array<float>("ITQMEAN", s.hasher.mean);
+    w.add_array<float>("ITQW", s.hasher.projection);
+    w.add_array<uint32_t>("LUTOFF", std::vector<uint32_t>(8 * 65537, 0));
+    w.add_array<uint32_t>("LUTIDS", std::vector<uint32_t>(8 * 700, 0));
+    w.add_text("IMAGES", "[]");
+    w.commit();
+  }
+  auto seg = Segment::open(p);
+  EXPECT_EQ(seg->format_version(), 1u);
+  EXPECT_EQ(seg->bytes().lookup_tables, (8u * 65537 + 8u * 700) * 4);
+  EXPECT_DOUBLE_EQ(seg->bytes().per_point_bytes_per_point(700), 44.0);
+  size_t total = 0;
+  for (uint32_t b = 0; b < kHashBuckets; ++b) total += seg->index().lookup->bucket_size(3, b);
+  EXPECT_EQ(total, 700u);
 }
 
 TEST(SegmentFile, RejectsTruncatedCorruptedAndWrongVersion) {
@@ -108,11 +145,29 @@ TEST(SegmentFile, RejectsTruncatedCorruptedAndWrongVersion) {
     w.commit();
   }
   EXPECT_FALSE(error_of([&] { Segment::open(p); }).empty());
-  // Structurally wrong tables (valid CRCs) are caught by the index check.
-  SegmentData bad = random_segment(500, 3);
-  bad.tables.ids[10] = 100000;
-  write_segment_file(p, bad);
-  EXPECT_NE(error_of([&] { Segment::open(p); }).find("out of range"), std::string::npos);
+  // Sections of the wrong size (valid CRCs) are caught.
+  {
+    SegmentData bad = random_segment(500, 3);
+    bad.extra_meta["points"] = 1;  // overridden by the writer; write a lying META by hand instead
+    SectionFileWriter w(p, "SEGM", kSegmentFileVersion);
+    w.add_text("META", R"({"segment_id": 1, "points": 501})");
+    w.add_array<float>("XYZ", bad.xyz);
+    w.add_array<HashCode>("CODE", bad.codes);
+    w.add_array<uint8_t>("PQ", bad.pq_codes);
+    w.add_text("IMAGES", "[]");
+    w.commit();
+  }
+  EXPECT_NE(error_of([&] { Segment::open(p); }).find("expected"), std::string::npos);
+  // A segment without its own rotation opens only with its map's.
+  SegmentData shared = random_segment(300, 4);
+  const BinaryHasher rotation = shared.hasher;
+  shared.hasher = {};
+  write_segment_file(p, shared);
+  EXPECT_NE(error_of([&] { Segment::open(p); }).find("map's hash rotation"), std::string::npos);
+  auto opened = Segment::open(p, std::make_shared<const BinaryHasher>(rotation));
+  EXPECT_TRUE(opened->uses_map_hasher());
+  EXPECT_EQ(opened->index().hasher.projection[129], 1.0f);
+  EXPECT_EQ(opened->bytes().hasher, 0u);
 }
 
 TEST(MapImport, FountainWithHoldout) {
@@ -135,7 +190,7 @@ TEST(MapImport, FountainWithHoldout) {
   ASSERT_EQ(info.segments.size(), 1u);
   EXPECT_EQ(info.segments[0].points, r.points);
   EXPECT_EQ(info.segments[0].images, 8u);
-  EXPECT_DOUBLE_EQ(info.segments[0].bytes.per_point_bytes_per_point(r.points), 76.0);
+  EXPECT_DOUBLE_EQ(info.segments[0].bytes.per_point_bytes_per_point(r.points), 44.0);
   EXPECT_EQ(info.manifest.holdout_images, o.holdout_images);
   EXPECT_TRUE(fs::exists(out / "holdout.txt"));
   DescriptorMatrix d = read_point_descriptor_file(out / info.manifest.segments[0].descriptors_file);
@@ -147,4 +202,42 @@ TEST(MapImport, FountainWithHoldout) {
   m.segments[0].file_bytes += 1;
   write_manifest(out, m);
   EXPECT_THROW(map_info(out), Error);
+}
+
+// A map whose segments share the map's hash rotation (MAP/hash_rotation.vlitq).
+TEST(Map, SharedHashRotationOpensSegmentsWithoutTheirOwn) {
+  auto dir = temp_dir("shared_rotation");
+  fs::create_directories(dir / "segments");
+  SegmentData s = random_segment(400, 9);
+  const BinaryHasher rotation = s.hasher;
+  s.hasher = {};
+  write_segment_file(dir / "segments" / "0000.vlseg", s);
+  std::vector<float> centroids(size_t(kPqTableSize) * kPqSubDim, 1.0f);
+  PqCodebook(centroids).write(dir / "pq_codebook.vlpq", "{}");
+  write_hash_rotation_file(dir / kHashRotationFileName, rotation, "{}");
+  MapManifest m;
+  m.hash_rotation_file = kHashRotationFileName;
+  m.segments.push_back({7, "segments/0000.vlseg", "", 400, 1, fs::file_size(dir / "segments" / "0000.vlseg"), 0});
+  write_manifest(dir, m);
+  Map map = Map::open(dir);
+  ASSERT_NE(map.hasher(), nullptr);
+  auto seg = map.open_segment(0);
+  EXPECT_TRUE(seg->uses_map_hasher());
+  EXPECT_EQ(seg->index().hasher.projection, map.hasher()->projection.data());
+  const MapInfo info = map_info(dir);
+  EXPECT_EQ(info.hash_rotation_bytes, fs::file_size(dir / kHashRotationFileName));
+  EXPECT_EQ(info.segments[0].bytes.hasher, 0u);
+  // Without the manifest's entry the segment cannot be hashed: a clear error.
+  m.hash_rotation_file.clear();
+  write_manifest(dir, m);
+  EXPECT_NE(error_of([&] { Map::open(dir).open_segment(0); }).find("hash rotation"), std::string::npos);
+  // A rotation that is not orthonormal, or not finite, is rejected naming the file.
+  BinaryHasher bad = rotation;
+  bad.projection[5] = 3.0f;
+  write_hash_rotation_file(dir / "bad.vlitq", bad, "{}");
+  EXPECT_NE(error_of([&] { read_hash_rotation_file(dir / "bad.vlitq"); }).find("bad.vlitq"), std::string::npos);
+  bad = rotation;
+  bad.mean[0] = std::nanf("");
+  write_hash_rotation_file(dir / "bad.vlitq", bad, "{}");
+  EXPECT_NE(error_of([&] { read_hash_rotation_file(dir / "bad.vlitq"); }).find("not finite"), std::string::npos);
 }

@@ -6,13 +6,17 @@
 namespace visloc {
 
 SegmentData make_segment_data(const ColmapModel& model, const PointDescriptors& desc, const PqCodebook& codebook,
-                              const ItqOptions& itq_options, uint32_t segment_id, SegmentBuildStats* stats) {
+                              const ItqOptions& itq_options, uint32_t segment_id, SegmentBuildStats* stats,
+                              const BinaryHasher* map_hasher) {
   VISLOC_CHECK(desc.num_points == model.points.size(), "descriptors and points differ in count");
   Timer t;
-  ItqResult itq = train_itq(desc.mean.data(), desc.num_points, itq_options);
-  if (stats) {
-    stats->itq_final_error = itq.quantization_error.empty() ? 0 : itq.quantization_error.back();
-    stats->ms_itq = t.elapsed_ms();
+  ItqResult itq;
+  if (!map_hasher) {
+    itq = train_itq(desc.mean.data(), desc.num_points, itq_options);
+    if (stats) {
+      stats->itq_final_error = itq.quantization_error.empty() ? 0 : itq.quantization_error.back();
+      stats->ms_itq = t.elapsed_ms();
+    }
   }
   t.reset();
   SegmentData seg;
@@ -20,13 +24,16 @@ SegmentData make_segment_data(const ColmapModel& model, const PointDescriptors& 
   seg.xyz.resize(3 * desc.num_points);
   for (size_t p = 0; p < model.points.size(); ++p)
     for (int k = 0; k < 3; ++k) seg.xyz[3 * p + k] = static_cast<float>(model.points[p].xyz[k]);
-  seg.hasher = std::move(itq.hasher);
   seg.codes.resize(desc.num_points);
   std::vector<float> workspace;
-  encode_hash(seg.hasher.view(), desc.mean.data(), desc.num_points, seg.codes.data(), workspace);
+  if (map_hasher) {
+    encode_hash(map_hasher->view(), desc.mean.data(), desc.num_points, seg.codes.data(), workspace);
+  } else {
+    seg.hasher = std::move(itq.hasher);
+    encode_hash(seg.hasher.view(), desc.mean.data(), desc.num_points, seg.codes.data(), workspace);
+  }
   seg.pq_codes.resize(desc.num_points * kPqCodeBytes);
   codebook.encode(desc.mean.data(), desc.num_points, seg.pq_codes.data());
-  seg.tables = build_cascade_tables(seg.codes);
   for (const auto& im : model.images) {
     const auto& cam = model.cameras[model.camera_index(im.camera_id)];
     seg.images.push_back({im.name, cam.model_id, cam.width, cam.height, cam.params, im.cam_from_world_q_wxyz,

@@ -1,6 +1,6 @@
 // From a reconstructed COLMAP model and the mean SIFT of its points to the
 // compressed segment (paper section III-B): ITQ learned on the segment's
-// descriptors → 128-bit codes and the 8 LUTs; PQ codes with the map's shared
+// descriptors (or the map's rotation) → 128-bit codes; PQ codes with the map's shared
 // codebook; XYZ; the images' poses and cameras. Used by `map import` (one
 // segment) and `map build` (many).
 #pragma once
@@ -20,8 +20,9 @@ struct SegmentBuildStats {
   double ms_itq = 0, ms_encode = 0;
 };
 
+// `map_hasher`: the map's hash rotation; null: ITQ learned on this segment.
 SegmentData make_segment_data(const ColmapModel& model, const PointDescriptors& descriptors,
                               const PqCodebook& codebook, const ItqOptions& itq, uint32_t segment_id,
-                              SegmentBuildStats* stats = nullptr);
+                              SegmentBuildStats* stats = nullptr, const BinaryHasher* map_hasher = nullptr);
 
 }  // namespace visloc

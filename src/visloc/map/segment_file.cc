@@ -30,14 +30,15 @@ void write_segment_file(const std::filesystem::path& path, const SegmentData& s)
   VISLOC_CHECK(s.xyz.size() == 3 * n);
   VISLOC_CHECK(s.codes.size() == n, "codes");
   VISLOC_CHECK(s.pq_codes.size() == n * kPqCodeBytes, "pq codes");
-  VISLOC_CHECK(s.tables.offsets.size() == kHashTables * kLutOffsetsPerTable, "lut offsets");
-  VISLOC_CHECK(s.tables.ids.size() == kHashTables * n, "lut ids");
-  VISLOC_CHECK(s.hasher.mean.size() == kDescriptorDim && s.hasher.projection.size() == kHashBits * kDescriptorDim);
+  const bool own_hasher = !s.hasher.mean.empty();
+  if (own_hasher)
+    VISLOC_CHECK(s.hasher.mean.size() == kDescriptorDim && s.hasher.projection.size() == kHashBits * kDescriptorDim);
   nlohmann::json meta = s.extra_meta;
   meta["segment_id"] = s.segment_id;
   meta["points"] = n;
   meta["images"] = s.images.size();
   meta["hash"] = {{"bits", kHashBits}, {"tables", kHashTables}, {"table_bits", kHashTableBits}, {"method", "itq"}};
+  meta["hash_rotation"] = own_hasher ? "segment" : "map";
   meta["pq"] = {{"subvectors", kPqSubvectors}, {"bits", 8}};
   nlohmann::json images = nlohmann::json::array();
   for (const auto& im : s.images) images.push_back(to_json(im));
@@ -46,18 +47,19 @@ void write_segment_file(const std::filesystem::path& path, const SegmentData& s)
   w.add_array<float>("XYZ", s.xyz);
   w.add_array<HashCode>("CODE", s.codes);
   w.add_array<uint8_t>("PQ", s.pq_codes);
-  w.add_array<float>("ITQMEAN", s.hasher.mean);
-  w.add_array<float>("ITQW", s.hasher.projection);
-  w.add_array<uint32_t>("LUTOFF", s.tables.offsets);
-  w.add_array<uint32_t>("LUTIDS", s.tables.ids);
+  if (own_hasher) {
+    w.add_array<float>("ITQMEAN", s.hasher.mean);
+    w.add_array<float>("ITQW", s.hasher.projection);
+  }
   w.add_text("IMAGES", images.dump());
   w.commit();
 }
 
 Segment::Segment(const std::filesystem::path& path)
-    : reader_(path, "SEGM", kSegmentFileVersion, kSegmentFileVersion) {}
+    : reader_(path, "SEGM", kOldestSegmentFileVersion, kSegmentFileVersion) {}
 
-std::unique_ptr<Segment> Segment::open(const std::filesystem::path& path) {
+std::unique_ptr<Segment> Segment::open(const std::filesystem::path& path,
+                                       std::shared_ptr<const BinaryHasher> map_hasher) {
   std::unique_ptr<Segment> s(new Segment(path));
   const SectionFileReader& r = s->reader_;
   const std::string name = path.string();
@@ -69,23 +71,36 @@ std::unique_ptr<Segment> Segment::open(const std::filesystem::path& path) {
   } catch (const nlohmann::json::exception& e) {
     throw_error(ErrorCode::kFormat, name, ": bad segment metadata: ", e.what());
   }
+  if (s->num_points_ > CascadeLookup::kMaxPoints)
+    throw_error(ErrorCode::kFormat, name, ": ", s->num_points_, " points, at most ", CascadeLookup::kMaxPoints);
   const int64_t n = static_cast<int64_t>(s->num_points_);
   s->xyz_ = r.array<float>("XYZ", 3 * n);
   CascadeIndexView& v = s->index_;
   v.num_points = s->num_points_;
-  v.codes = r.array<HashCode>("CODE", n).data();
+  auto codes = r.array<HashCode>("CODE", n);
+  v.codes = codes.data();
   v.pq_codes = r.array<uint8_t>("PQ", n * kPqCodeBytes).data();
-  v.hasher.mean = r.array<float>("ITQMEAN", kDescriptorDim).data();
-  v.hasher.projection = r.array<float>("ITQW", kHashBits * kDescriptorDim).data();
-  v.lut_offsets = r.array<uint32_t>("LUTOFF", int64_t(kHashTables) * int64_t(kLutOffsetsPerTable)).data();
-  v.lut_ids = r.array<uint32_t>("LUTIDS", int64_t(kHashTables) * n).data();
-  v.validate(name);
   SegmentBytes& b = s->bytes_;
+  if (r.has("ITQMEAN") || r.has("ITQW")) {
+    v.hasher.mean = r.array<float>("ITQMEAN", kDescriptorDim).data();
+    v.hasher.projection = r.array<float>("ITQW", kHashBits * kDescriptorDim).data();
+    b.hasher = r.bytes("ITQMEAN").size() + r.bytes("ITQW").size();
+  } else {
+    if (!map_hasher)
+      throw_error(ErrorCode::kFormat, name,
+                  ": the segment uses its map's hash rotation (no ITQ sections); open it through its map");
+    s->map_hasher_ = std::move(map_hasher);
+    v.hasher = s->map_hasher_->view();
+  }
+  s->lookup_ = CascadeLookup(codes);
+  v.lookup = &s->lookup_;
+  v.validate(name);
   b.file = r.file_size();
-  for (const char* t : {"XYZ", "CODE", "PQ", "LUTIDS"}) b.per_point += r.bytes(t).size();
-  b.lut_offsets = r.bytes("LUTOFF").size();
-  b.hasher = r.bytes("ITQMEAN").size() + r.bytes("ITQW").size();
-  b.other = b.file - b.per_point - b.lut_offsets - b.hasher;
+  for (const char* t : {"XYZ", "CODE", "PQ"}) b.per_point += r.bytes(t).size();
+  for (const char* t : {"LUTOFF", "LUTIDS"})
+    if (r.has(t)) b.lookup_tables += r.bytes(t).size();
+  b.other = b.file - b.per_point - b.lookup_tables - b.hasher;
+  b.lookup_memory = s->lookup_.memory_bytes();
   return s;
 }
 

@@ -7,7 +7,9 @@
 #include <numeric>
 #include <random>
 
+#include "visloc/matching/search_kernels.h"
 #include "visloc/util/error.h"
+#include "visloc/util/section_file.h"
 
 namespace visloc {
 namespace {
@@ -15,31 +17,26 @@ namespace {
 using RowMatrixF = Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
 using ConstRowMapF = Eigen::Map<const RowMatrixF>;
 
+// Centres a block of rows, then the kernel (search_kernels.h; the best SIMD
+// level, bit-identical to the scalar reference) takes the projection's signs.
 template <typename T>
 void encode_impl(BinaryHasherView h, const T* x, size_t n, HashCode* codes, std::vector<float>& ws) {
   if (n == 0) return;
-  constexpr size_t kBlock = 1024;  // rows per GEMM block: bounded workspace
-  ws.resize(kBlock * kHashBits * 2);
-  ConstRowMapF w(h.projection, kHashBits, kDescriptorDim);
+  constexpr size_t kBlock = 256;  // rows per block: bounded workspace
+  ws.resize(kHashBits * kDescriptorDim + kBlock * kDescriptorDim);
+  float* wt = ws.data();
+  for (int i = 0; i < kHashBits; ++i)
+    for (int j = 0; j < kDescriptorDim; ++j) wt[j * kHashBits + i] = h.projection[i * kDescriptorDim + j];
+  float* centred = ws.data() + kHashBits * kDescriptorDim;
+  const SearchKernels& kernels = search_kernels();
   for (size_t start = 0; start < n; start += kBlock) {
     const size_t rows = std::min(kBlock, n - start);
-    float* centred = ws.data();
-    float* projected = ws.data() + kBlock * kHashBits;
     for (size_t i = 0; i < rows; ++i) {
       const T* r = x + (start + i) * kDescriptorDim;
       float* c = centred + i * kDescriptorDim;
       for (int j = 0; j < kDescriptorDim; ++j) c[j] = static_cast<float>(r[j]) - h.mean[j];
     }
-    Eigen::Map<RowMatrixF> cm(centred, rows, kDescriptorDim);
-    Eigen::Map<RowMatrixF> pm(projected, rows, kHashBits);
-    pm.noalias() = cm * w.transpose();
-    for (size_t i = 0; i < rows; ++i) {
-      const float* p = projected + i * kHashBits;
-      HashCode code{{0, 0}};
-      for (int b = 0; b < kHashBits; ++b)
-        code.w[b >> 6] |= static_cast<uint64_t>(p[b] > 0.0f) << (b & 63);
-      codes[start + i] = code;
-    }
+    kernels.hash_codes(wt, centred, rows, codes + start);
   }
 }
 
@@ -173,6 +170,41 @@ double hash_quantization_error(BinaryHasherView h, const float* x, size_t n) {
   for (int i = 0; i < kHashBits; ++i)
     for (int j = 0; j < kDescriptorDim; ++j) w(j, i) = h.projection[i * kDescriptorDim + j];
   return objective(c * w);
+}
+
+const char* to_string(HashRotationScope scope) { return scope == HashRotationScope::kMap ? "map" : "segment"; }
+
+HashRotationScope hash_rotation_scope_from_string(const std::string& name) {
+  if (name == "segment") return HashRotationScope::kSegment;
+  if (name == "map") return HashRotationScope::kMap;
+  throw_error(ErrorCode::kInvalidArgument, "unknown hash rotation scope '", name, "' (segment or map)");
+}
+
+void write_hash_rotation_file(const std::filesystem::path& path, const BinaryHasher& h, const std::string& meta_json) {
+  VISLOC_CHECK(h.mean.size() == size_t(kDescriptorDim) && h.projection.size() == size_t(kHashBits) * kDescriptorDim);
+  SectionFileWriter w(path, "ITQR", kHashRotationFileVersion);
+  w.add_text("META", meta_json);
+  w.add_array<float>("MEAN", h.mean);
+  w.add_array<float>("W", h.projection);
+  w.commit();
+}
+
+BinaryHasher read_hash_rotation_file(const std::filesystem::path& path) {
+  SectionFileReader r(path, "ITQR", kHashRotationFileVersion, kHashRotationFileVersion);
+  auto mean = r.array<float>("MEAN", kDescriptorDim);
+  auto w = r.array<float>("W", int64_t(kHashBits) * kDescriptorDim);
+  BinaryHasher h;
+  h.mean.assign(mean.begin(), mean.end());
+  h.projection.assign(w.begin(), w.end());
+  for (float x : h.mean)
+    if (!std::isfinite(x)) throw_error(ErrorCode::kFormat, path.string(), ": hash rotation mean is not finite");
+  // ITQ's projection is a rotation of the PCA basis: rows orthonormal.
+  Eigen::Map<const RowMatrixF> p(h.projection.data(), kHashBits, kDescriptorDim);
+  if (!p.allFinite()) throw_error(ErrorCode::kFormat, path.string(), ": hash rotation is not finite");
+  const double off = ((p * p.transpose()).cast<double>() - Eigen::MatrixXd::Identity(kHashBits, kHashBits)).cwiseAbs().maxCoeff();
+  if (off > 1e-3)
+    throw_error(ErrorCode::kFormat, path.string(), ": hash rotation is not orthonormal (|W Wᵀ − I| up to ", off, ")");
+  return h;
 }
 
 }  // namespace visloc

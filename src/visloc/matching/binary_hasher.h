@@ -12,6 +12,8 @@
 
 #include <bit>
 #include <cstdint>
+#include <filesystem>
+#include <string>
 #include <span>
 #include <vector>
 
@@ -50,8 +52,9 @@ struct BinaryHasher {
   BinaryHasherView view() const { return {mean.data(), projection.data()}; }
 };
 
-// Encodes n descriptors (uint8 or float rows of 128) into codes. `workspace`
-// is reused between calls (n × 256 floats).
+// Encodes n descriptors (uint8 or float rows of 128) into codes with the best
+// kernel for this CPU (search_kernels.h). `workspace` is reused between calls
+// (48K floats).
 void encode_hash(BinaryHasherView hasher, const uint8_t* descriptors, size_t n, HashCode* codes,
                  std::vector<float>& workspace);
 void encode_hash(BinaryHasherView hasher, const float* descriptors, size_t n, HashCode* codes,
@@ -80,6 +83,24 @@ BinaryHasher make_lsh_hasher(const float* descriptors, size_t n, uint64_t seed);
 // A random orthogonal rotation of the PCA basis (the ITQ initialisation;
 // the reference that ITQ must improve on).
 BinaryHasher make_random_rotation_hasher(const float* descriptors, size_t n, uint64_t seed);
+
+// Where a map's hash rotation lives: learned per segment on its points'
+// descriptors and stored in the segment (64.5 KiB each), or learned once per
+// map and stored beside the PQ codebook (a query is then hashed once for all
+// the segments it searches).
+enum class HashRotationScope { kSegment, kMap };
+const char* to_string(HashRotationScope scope);
+HashRotationScope hash_rotation_scope_from_string(const std::string& name);  // "segment" | "map"
+inline constexpr const char* kHashRotationFileName = "hash_rotation.vlitq";
+
+// Hash rotation files (.vlitq): SectionFile kind "ITQR", version 1, sections
+// META (JSON: training count and source), MEAN (128 float32), W (128 × 128
+// float32, row-major). Written atomically; the reader checks sizes, CRCs,
+// finite values and a near-orthonormal projection.
+inline constexpr uint32_t kHashRotationFileVersion = 1;
+void write_hash_rotation_file(const std::filesystem::path& path, const BinaryHasher& hasher,
+                              const std::string& meta_json);
+BinaryHasher read_hash_rotation_file(const std::filesystem::path& path);
 
 // Mean over the descriptors of ||sign(W(x−μ)) − W(x−μ)||² (the ITQ objective).
 double hash_quantization_error(BinaryHasherView hasher, const float* descriptors, size_t n);

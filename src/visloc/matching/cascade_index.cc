@@ -11,36 +11,59 @@
 namespace visloc {
 
 void CascadeIndexView::validate(const std::string& what) const {
-  if (num_points > 0 && (!codes || !pq_codes || !lut_offsets || !lut_ids || !hasher.mean || !hasher.projection))
+  if (num_points > 0 && (!codes || !pq_codes || !lookup || !hasher.mean || !hasher.projection))
     throw_error(ErrorCode::kFormat, what, ": cascade index has missing arrays");
-  if (num_points >= std::numeric_limits<uint32_t>::max())
-    throw_error(ErrorCode::kFormat, what, ": too many points (", num_points, ")");
-  for (int k = 0; k < kHashTables; ++k) {
-    const uint32_t* off = lut_offsets + k * kLutOffsetsPerTable;
-    if (off[0] != 0 || off[kHashBuckets] != num_points)
-      throw_error(ErrorCode::kFormat, what, ": lookup table ", k, " offsets do not span 0..", num_points);
-    for (uint32_t v = 0; v < kHashBuckets; ++v)
-      if (off[v] > off[v + 1]) throw_error(ErrorCode::kFormat, what, ": lookup table ", k, " offsets decrease at ", v);
-  }
-  for (size_t i = 0; i < size_t(kHashTables) * num_points; ++i)
-    if (lut_ids[i] >= num_points) throw_error(ErrorCode::kFormat, what, ": lookup table id out of range at ", i);
+  if (num_points > CascadeLookup::kMaxPoints)
+    throw_error(ErrorCode::kFormat, what, ": too many points (", num_points, ", at most ", CascadeLookup::kMaxPoints,
+                ")");
+  if (lookup && lookup->num_points() != num_points)
+    throw_error(ErrorCode::kFormat, what, ": lookup tables of ", lookup->num_points(), " points for ", num_points,
+                " codes");
 }
 
-CascadeTables build_cascade_tables(std::span<const HashCode> codes) {
+CascadeLookup::CascadeLookup(std::span<const HashCode> codes) : num_points_(codes.size()) {
   const size_t n = codes.size();
-  VISLOC_CHECK(n < std::numeric_limits<uint32_t>::max());
-  CascadeTables t;
-  t.offsets.assign(size_t(kHashTables) * kLutOffsetsPerTable, 0);
-  t.ids.resize(size_t(kHashTables) * n);
+  if (n > kMaxPoints)
+    throw_error(ErrorCode::kInvalidArgument, "a segment holds at most ", kMaxPoints, " points, got ", n);
+  bitmap_.assign(kHashTables * kBitmapWords, 0);
+  rank_.assign(kHashTables * kBitmapWords, 0);
+  const bool small = n <= 65536;
+  (small ? ids16_.resize(kHashTables * n) : ids32_.resize(kHashTables * n));
+  std::vector<uint32_t> count(kHashBuckets + 1);
+  offsets_.clear();
   for (int k = 0; k < kHashTables; ++k) {
-    uint32_t* off = t.offsets.data() + k * kLutOffsetsPerTable;
-    for (size_t i = 0; i < n; ++i) ++off[hash_subcode(codes[i], k) + 1];
-    for (uint32_t v = 0; v < kHashBuckets; ++v) off[v + 1] += off[v];
-    std::vector<uint32_t> fill(off, off + kHashBuckets);
-    uint32_t* ids = t.ids.data() + k * n;
-    for (size_t i = 0; i < n; ++i) ids[fill[hash_subcode(codes[i], k)]++] = static_cast<uint32_t>(i);
+    // Counting sort: bucket sizes, then exclusive prefix sums as fill positions.
+    std::fill(count.begin(), count.end(), 0u);
+    for (size_t i = 0; i < n; ++i) ++count[hash_subcode(codes[i], k) + 1];
+    table_start_[k] = offsets_.size();
+    uint64_t* bits = bitmap_.data() + k * kBitmapWords;
+    uint32_t* rank = rank_.data() + k * kBitmapWords;
+    uint32_t non_empty = 0;
+    for (uint32_t v = 0; v < kHashBuckets; ++v) {
+      if ((v & 63) == 0) rank[v >> 6] = non_empty;
+      if (count[v + 1] > 0) {
+        bits[v >> 6] |= uint64_t(1) << (v & 63);
+        offsets_.push_back(count[v]);  // start, as a running sum below
+        ++non_empty;
+      }
+      count[v + 1] += count[v];
+    }
+    offsets_.push_back(static_cast<uint32_t>(n));
+    // offsets_ now holds, per non-empty bucket in order, count[v] = the number
+    // of points in buckets before v: exactly the CSR start of bucket v.
+    for (size_t i = 0; i < n; ++i) {
+      const uint32_t slot = count[hash_subcode(codes[i], k)]++;
+      if (small) ids16_[k * n + slot] = static_cast<uint16_t>(i);
+      else ids32_[k * n + slot] = static_cast<uint32_t>(i);
+    }
   }
-  return t;
+  table_start_[kHashTables] = offsets_.size();
+  offsets_.shrink_to_fit();
+}
+
+size_t CascadeLookup::memory_bytes() const {
+  return bitmap_.size() * sizeof(uint64_t) + rank_.size() * sizeof(uint32_t) + offsets_.size() * sizeof(uint32_t) +
+         ids16_.size() * sizeof(uint16_t) + ids32_.size() * sizeof(uint32_t);
 }
 
 void CascadeSearchOptions::validate() const {
@@ -60,6 +83,8 @@ void CascadeSearchOptions::validate() const {
                 max_one_to_many);
   if (early_stop < 0)
     throw_error(ErrorCode::kInvalidArgument, "CascadeSearchOptions.early_stop must be >= 0, got ", early_stop);
+  if (!cpu_supports(simd))
+    throw_error(ErrorCode::kInvalidArgument, "CascadeSearchOptions.simd: this CPU does not support ", to_string(simd));
 }
 
 void CascadeMatches::clear() {
@@ -73,27 +98,100 @@ void CascadeMatches::clear() {
   stats = {};
 }
 
-CascadeMatcher::CascadeMatcher(CascadeIndexView index, const PqCodebook& codebook)
-    : index_(index), codebook_(&codebook), stamp_(index.num_points, 0), table_(kPqTableSize) {
-  VISLOC_CHECK(!codebook.empty());
+size_t CascadeWorkspace::capacity_bytes() const {
+  return stamp.capacity() * 4 + query_codes.capacity() * sizeof(HashCode) + sizes.capacity() * 4 +
+         order.capacity() * 8 + candidates.capacity() * 4 + hamming.capacity() + shortlist.capacity() * 4 +
+         ranked_distances.capacity() * 4 + encode.capacity() * 4 + table.capacity() * 4;
 }
 
-void CascadeMatcher::coarse_sizes(std::span<const HashCode> codes, int radius, std::vector<uint32_t>& sizes) const {
-  sizes.resize(codes.size());
-  for (size_t f = 0; f < codes.size(); ++f) {
+CascadeMatcher::CascadeMatcher(CascadeIndexView index, const PqCodebook& codebook)
+    : index_(index), codebook_(&codebook), own_workspace_(std::make_unique<CascadeWorkspace>()),
+      ws_(own_workspace_.get()) {
+  VISLOC_CHECK(!codebook.empty());
+  VISLOC_CHECK(index.num_points == 0 || index.lookup != nullptr);
+}
+
+CascadeMatcher::CascadeMatcher(CascadeIndexView index, const PqCodebook& codebook, CascadeWorkspace& workspace)
+    : index_(index), codebook_(&codebook), ws_(&workspace) {
+  VISLOC_CHECK(!codebook.empty());
+  VISLOC_CHECK(index.num_points == 0 || index.lookup != nullptr);
+}
+
+namespace {
+
+// The probes of one table: the exact bucket, then (radius 1) the 16 buckets
+// one bit away, in that order.
+inline uint32_t probe_bucket(uint32_t key, int b) { return b == 0 ? key : key ^ (1u << (b - 1)); }
+
+// The rank in CascadeLookup uses std::popcount: the x86-64 clone compiled with
+// POPCNT makes it one instruction (chosen at run time by the loader).
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#define VISLOC_POPCNT_CLONES __attribute__((target_clones("popcnt", "default")))
+#else
+#define VISLOC_POPCNT_CLONES
+#endif
+
+VISLOC_POPCNT_CLONES
+void coarse_sizes_impl(const CascadeLookup& lookup, const HashCode* codes, size_t n, int radius, uint32_t* sizes) {
+  const int probes = radius == 1 ? kHashTableBits + 1 : 1;
+  for (size_t f = 0; f < n; ++f) {
     uint32_t s = 0;
     for (int k = 0; k < kHashTables; ++k) {
-      const uint32_t* off = index_.lut_offsets + k * kLutOffsetsPerTable;
       const uint32_t key = hash_subcode(codes[f], k);
-      s += off[key + 1] - off[key];
-      if (radius == 1)
-        for (int b = 0; b < kHashTableBits; ++b) {
-          const uint32_t nb = key ^ (1u << b);
-          s += off[nb + 1] - off[nb];
-        }
+      for (int b = 0; b < probes; ++b) {
+        uint32_t begin, end;
+        lookup.bucket_range(k, probe_bucket(key, b), begin, end);
+        s += end - begin;
+      }
     }
     sizes[f] = s;
   }
+}
+
+// Coarse: the union of the probed buckets, deduplicated by a per-point stamp.
+template <typename Id>
+inline void collect_candidates(const CascadeLookup& lookup, const Id* const* ids, const HashCode& code, int probes,
+                               uint32_t* stamp, uint32_t s, std::vector<uint32_t>& candidates) {
+  for (int k = 0; k < kHashTables; ++k) {
+    const uint32_t key = hash_subcode(code, k);
+    const Id* table_ids = ids[k];
+    for (int b = 0; b < probes; ++b) {
+      uint32_t begin, end;
+      lookup.bucket_range(k, probe_bucket(key, b), begin, end);
+      for (uint32_t i = begin; i < end; ++i) {
+        const uint32_t id = table_ids[i];
+        if (stamp[id] != s) {
+          stamp[id] = s;
+          candidates.push_back(id);
+        }
+      }
+    }
+  }
+}
+
+VISLOC_POPCNT_CLONES
+void collect_all(const CascadeLookup& lookup, const HashCode& code, int probes, uint32_t* stamp, uint32_t s,
+                 std::vector<uint32_t>& candidates) {
+  if (lookup.uses_16bit_ids()) {
+    const uint16_t* ids[kHashTables];
+    for (int k = 0; k < kHashTables; ++k) ids[k] = lookup.ids16(k);
+    collect_candidates(lookup, ids, code, probes, stamp, s, candidates);
+  } else {
+    const uint32_t* ids[kHashTables];
+    for (int k = 0; k < kHashTables; ++k) ids[k] = lookup.ids32(k);
+    collect_candidates(lookup, ids, code, probes, stamp, s, candidates);
+  }
+}
+
+}  // namespace
+
+void CascadeMatcher::coarse_sizes(std::span<const HashCode> codes, int radius, std::vector<uint32_t>& sizes) const {
+  sizes.resize(codes.size());
+  if (index_.num_points == 0) {
+    std::fill(sizes.begin(), sizes.end(), 0u);
+    return;
+  }
+  coarse_sizes_impl(*index_.lookup, codes.data(), codes.size(), radius, sizes.data());
 }
 
 CascadeMatches CascadeMatcher::match(const DescriptorMatrix& queries, const CascadeSearchOptions& options) {
@@ -104,105 +202,105 @@ CascadeMatches CascadeMatcher::match(const DescriptorMatrix& queries, const Casc
 
 void CascadeMatcher::match(const DescriptorMatrix& queries, const CascadeSearchOptions& options, CascadeMatches& out) {
   options.validate();
+  Timer t;
+  CascadeWorkspace& ws = *ws_;
+  ws.query_codes.resize(queries.rows());
+  if (index_.num_points > 0)
+    encode_hash(index_.hasher, queries.data(), queries.rows(), ws.query_codes.data(), ws.encode);
+  const double ms_hash = t.elapsed_ms();
+  // match_hashed reads the codes from the workspace it also uses: copy-free
+  // because it only reads ws.query_codes.
+  match_hashed(queries, ws.query_codes, options, out);
+  out.stats.ms_hash = ms_hash;
+  out.stats.ms_total += ms_hash;
+}
+
+void CascadeMatcher::match_hashed(const DescriptorMatrix& queries, std::span<const HashCode> codes,
+                                  const CascadeSearchOptions& options, CascadeMatches& out) {
+  options.validate();
   out.clear();
   Timer total;
   const size_t nq = queries.rows();
   const size_t np = index_.num_points;
   out.stats.features = nq;
   if (nq == 0 || np == 0) return;
+  VISLOC_CHECK(codes.size() == nq, "one hash code per query feature");
+  const SearchKernels& kernels = search_kernels(options.simd);
+  CascadeWorkspace& ws = *ws_;
+  const CascadeLookup& lookup = *index_.lookup;
 
-  // 1. Hash every query feature (one GEMM per block).
+  // 1. Search order: all features in index order, or by increasing coarse size.
   Timer t;
-  query_codes_.resize(nq);
-  encode_hash(index_.hasher, queries.data(), nq, query_codes_.data(), encode_ws_);
-  out.stats.ms_hash = t.elapsed_ms();
-
-  // 2. Search order: all features in index order, or by increasing coarse size.
-  t.reset();
-  coarse_sizes(query_codes_, options.lut_radius, sizes_);
-  order_.clear();
+  coarse_sizes(codes, options.lut_radius, ws.sizes);
+  ws.order.clear();
   for (size_t f = 0; f < nq; ++f)
-    if (sizes_[f] >= 2) order_.push_back((uint64_t(sizes_[f]) << 32) | f);
-  if (options.prioritize) std::sort(order_.begin(), order_.end());
+    if (ws.sizes[f] >= 2) ws.order.push_back((uint64_t(ws.sizes[f]) << 32) | f);
+  if (options.prioritize) std::sort(ws.order.begin(), ws.order.end());
   out.stats.ms_order = t.elapsed_ms();
 
-  // 3. Per feature: coarse → refined → precise.
+  // 2. Per feature: coarse → refined → precise.
   t.reset();
+  if (ws.stamp.size() < np) ws.stamp.resize(np, 0);  // new entries are 0: below every live stamp
+  ws.table.resize(kPqTableSize);
   const int keep = std::max(options.max_one_to_many, 1) + 1;  // ranks needed by both rules
-  std::vector<float> best_d(keep);                              // per query, not per feature
-  std::vector<uint32_t> best_id(keep);
+  float best_d[65];
+  uint32_t best_id[65];
   const float r11 = options.ratio_one_to_one * options.ratio_one_to_one;
   const float r1m = options.ratio_one_to_many * options.ratio_one_to_many;
   const size_t early = options.prioritize && options.early_stop > 0 ? size_t(options.early_stop) : SIZE_MAX;
+  const int probes = options.lut_radius == 1 ? kHashTableBits + 1 : 1;
   float qf[kDescriptorDim];
   uint32_t hist[kHashBits + 1];
 
-  for (uint64_t entry : order_) {
+  for (uint64_t entry : ws.order) {
     if (out.query.size() >= early) {
       out.stats.early_stopped = true;
       break;
     }
     const uint32_t f = static_cast<uint32_t>(entry & 0xffffffffu);
-    const HashCode code = query_codes_[f];
-    // Coarse: union of the probed buckets, deduplicated by a per-point stamp.
-    if (++stamp_value_ == 0) {  // wrapped: reset the stamps once every 2^32 features
-      std::fill(stamp_.begin(), stamp_.end(), 0);
-      stamp_value_ = 1;
+    const HashCode code = codes[f];
+    if (++ws.stamp_value == 0) {  // wrapped: reset the stamps once every 2^32 features
+      std::fill(ws.stamp.begin(), ws.stamp.end(), 0u);
+      ws.stamp_value = 1;
     }
-    const uint32_t s = stamp_value_;
-    candidates_.clear();
-    for (int k = 0; k < kHashTables; ++k) {
-      const uint32_t* off = index_.lut_offsets + k * kLutOffsetsPerTable;
-      const uint32_t* ids = index_.lut_ids + k * np;
-      const uint32_t key = hash_subcode(code, k);
-      const int probes = options.lut_radius == 1 ? kHashTableBits + 1 : 1;
-      for (int b = 0; b < probes; ++b) {
-        const uint32_t bucket = b == 0 ? key : key ^ (1u << (b - 1));
-        for (uint32_t i = off[bucket], e = off[bucket + 1]; i < e; ++i) {
-          const uint32_t id = ids[i];
-          if (stamp_[id] != s) {
-            stamp_[id] = s;
-            candidates_.push_back(id);
-          }
-        }
-      }
-    }
-    out.stats.coarse_candidates += candidates_.size();
+    ws.candidates.clear();
+    collect_all(lookup, code, probes, ws.stamp.data(), ws.stamp_value, ws.candidates);
+    out.stats.coarse_candidates += ws.candidates.size();
     ++out.stats.features_searched;
-    if (candidates_.size() < 2) continue;
+    if (ws.candidates.size() < 2) continue;
 
     // Refined: top L_R by Hamming distance, counting sort over 0..128.
-    const std::vector<uint32_t>* ranked = &candidates_;
-    if (options.refined && candidates_.size() > size_t(options.refined_list)) {
-      hamming_.resize(candidates_.size());
+    const std::vector<uint32_t>* ranked = &ws.candidates;
+    if (options.refined && ws.candidates.size() > size_t(options.refined_list)) {
+      ws.hamming.resize(ws.candidates.size());
       std::fill(std::begin(hist), std::end(hist), 0u);
-      for (size_t i = 0; i < candidates_.size(); ++i) {
-        const uint32_t d = hamming_distance(code, index_.codes[candidates_[i]]);
-        hamming_[i] = static_cast<uint8_t>(d);
-        ++hist[d];
-      }
+      kernels.hamming_distances(code, index_.codes, ws.candidates.data(), ws.candidates.size(), ws.hamming.data(),
+                                hist);
       uint32_t cut = 0, below = 0;  // distances < cut all fit; some of distance == cut
       while (below + hist[cut] < uint32_t(options.refined_list)) below += hist[cut++];
       uint32_t at_cut = uint32_t(options.refined_list) - below;
-      shortlist_.clear();
-      for (size_t i = 0; i < candidates_.size(); ++i) {
-        if (hamming_[i] < cut) shortlist_.push_back(candidates_[i]);
-        else if (hamming_[i] == cut && at_cut > 0) {
-          shortlist_.push_back(candidates_[i]);
+      ws.shortlist.clear();
+      for (size_t i = 0; i < ws.candidates.size(); ++i) {
+        if (ws.hamming[i] < cut) ws.shortlist.push_back(ws.candidates[i]);
+        else if (ws.hamming[i] == cut && at_cut > 0) {
+          ws.shortlist.push_back(ws.candidates[i]);
           --at_cut;
         }
       }
-      ranked = &shortlist_;
+      ranked = &ws.shortlist;
     }
     out.stats.ranked_candidates += ranked->size();
 
     // Precise: PQ asymmetric distances, the `keep` nearest by insertion.
     const uint8_t* q = queries.row(f);
     for (int j = 0; j < kDescriptorDim; ++j) qf[j] = q[j];
-    codebook_->distance_table(qf, table_.data());
+    kernels.adc_table(codebook_->centroids_transposed(), qf, ws.table.data());
+    ws.ranked_distances.resize(ranked->size());
+    kernels.adc_distances(ws.table.data(), index_.pq_codes, ranked->data(), ranked->size(), ws.ranked_distances.data());
     int filled = 0;
-    for (uint32_t id : *ranked) {
-      const float d = adc_distance(table_.data(), index_.pq_codes + size_t(id) * kPqCodeBytes);
+    for (size_t r = 0; r < ranked->size(); ++r) {
+      const float d = ws.ranked_distances[r];
+      const uint32_t id = (*ranked)[r];
       if (filled == keep && d >= best_d[keep - 1]) continue;
       int pos = filled < keep ? filled++ : keep - 1;
       while (pos > 0 && best_d[pos - 1] > d) {

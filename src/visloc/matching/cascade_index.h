@@ -28,44 +28,94 @@
 // known before deduplication), and the search stops once N_early = 100 1-1
 // matches are found. Without prioritization every feature is searched.
 //
-// Index layout (CascadeIndexView; arrays usually in a mapped segment file):
-//   codes        N × HashCode (16 bytes)
-//   pq_codes     N × 16 bytes
-//   lut_offsets  8 × (65536 + 1) uint32: table k's bucket v holds
-//                lut_ids[k·N + offsets[k·65537 + v] .. k·N + offsets[k·65537 + v + 1])
-//   lut_ids      8 × N uint32 point ids (CSR), each table a permutation of 0..N−1
+// Index layout (CascadeIndexView): codes (N × 16 bytes) and pq_codes
+// (N × 16 bytes), usually in a mapped segment file, and a CascadeLookup built
+// from the codes when the segment is opened (the lookup tables are not stored:
+// they are a function of the codes).
+//
+// Kernels (search_kernels.h): Hamming with hardware popcount, the ADC table and
+// lookups with SIMD, chosen at run time; the search runs in a CascadeWorkspace
+// reused across queries and segments, so a query allocates nothing once the
+// workspace has grown to the largest segment.
 #pragma once
 
+#include <bit>
 #include <cstdint>
+#include <memory>
 #include <span>
+#include <string>
 #include <vector>
 
 #include "visloc/features/feature_set.h"
 #include "visloc/matching/binary_hasher.h"
 #include "visloc/matching/pq_codebook.h"
+#include "visloc/matching/search_kernels.h"
 
 namespace visloc {
 
-inline constexpr size_t kLutOffsetsPerTable = size_t(kHashBuckets) + 1;
+// The 8 lookup tables of one segment, built from its codes by a counting sort
+// per table (ids within a bucket in increasing point order). Per table: a
+// bitmap of the non-empty buckets (8 KiB), the number of non-empty buckets
+// before each 64-bit bitmap word, CSR offsets of the non-empty buckets only,
+// and the point ids: uint16 when the segment has at most 65,536 points,
+// uint32 otherwise. For a 5K-point segment this is ~250 KiB (against 2 MiB
+// of full offset tables), so a probe of an empty bucket touches one bit.
+class CascadeLookup {
+ public:
+  static constexpr size_t kMaxPoints = size_t(1) << 28;
+  static constexpr size_t kBitmapWords = kHashBuckets / 64;
+
+  CascadeLookup() = default;
+  explicit CascadeLookup(std::span<const HashCode> codes);
+
+  size_t num_points() const { return num_points_; }
+  bool uses_16bit_ids() const { return !ids16_.empty() || num_points_ == 0; }
+  bool bucket_empty(int table, uint32_t key) const {
+    return ((bitmap_[table * kBitmapWords + (key >> 6)] >> (key & 63)) & 1u) == 0;
+  }
+  // [begin, end) of bucket `key` into ids16(table) / ids32(table); empty
+  // (begin == end) for an empty bucket. Branch-free: an empty bucket's rank
+  // is that of the next non-empty one (at most the table's last offset, N),
+  // and it reads o[r] twice.
+  void bucket_range(int table, uint32_t key, uint32_t& begin, uint32_t& end) const {
+    const size_t w = table * kBitmapWords + (key >> 6);
+    const uint64_t word = bitmap_[w];
+    const uint32_t bit = static_cast<uint32_t>((word >> (key & 63)) & 1u);
+    const uint32_t r = rank_[w] + static_cast<uint32_t>(std::popcount(word & ((uint64_t(1) << (key & 63)) - 1)));
+    const uint32_t* o = offsets_.data() + table_start_[table];
+    begin = o[r];
+    end = o[r + bit];
+  }
+  uint32_t bucket_size(int table, uint32_t key) const {
+    uint32_t b, e;
+    bucket_range(table, key, b, e);
+    return e - b;
+  }
+  const uint16_t* ids16(int table) const { return ids16_.data() + size_t(table) * num_points_; }
+  const uint32_t* ids32(int table) const { return ids32_.data() + size_t(table) * num_points_; }
+  // Resident bytes of the tables.
+  size_t memory_bytes() const;
+
+ private:
+  size_t num_points_ = 0;
+  std::vector<uint64_t> bitmap_;  // 8 × 1024
+  std::vector<uint32_t> rank_;    // 8 × 1024: non-empty buckets before the word
+  std::vector<uint32_t> offsets_; // per table: non-empty buckets + 1
+  size_t table_start_[kHashTables + 1] = {};
+  std::vector<uint16_t> ids16_;   // 8 × N (N ≤ 65,536)
+  std::vector<uint32_t> ids32_;   // 8 × N otherwise
+};
 
 struct CascadeIndexView {
   size_t num_points = 0;
   BinaryHasherView hasher;
   const HashCode* codes = nullptr;
   const uint8_t* pq_codes = nullptr;
-  const uint32_t* lut_offsets = nullptr;
-  const uint32_t* lut_ids = nullptr;
-  // Full structural check (offsets monotone, ending at N, ids < N); O(8·2^16 + 8·N).
+  const CascadeLookup* lookup = nullptr;  // built from `codes`
+  // Checks that the arrays are present and the lookup matches the codes' count.
   // Throws Error(kFormat) with `what` (e.g. a file name) in the message.
   void validate(const std::string& what) const;
 };
-
-// Owning lookup tables built from codes by a counting sort per table.
-struct CascadeTables {
-  std::vector<uint32_t> offsets;  // 8 × 65537
-  std::vector<uint32_t> ids;      // 8 × N
-};
-CascadeTables build_cascade_tables(std::span<const HashCode> codes);
 
 enum class OneToManyRule {
   kBestRatio,   // top M when d0/d1 < ν (default)
@@ -82,6 +132,7 @@ struct CascadeSearchOptions {
   OneToManyRule one_to_many_rule = OneToManyRule::kBestRatio;
   bool prioritize = true;           // shortest coarse lists first + early stop
   int early_stop = 100;             // N_early: stop at this many 1-1 matches (prioritized only)
+  SimdLevel simd = SimdLevel::kBest;  // kernels (search_kernels.h); every level gives the same matches
   void validate() const;
 };
 
@@ -111,30 +162,46 @@ struct CascadeMatches {
   void clear();
 };
 
-// Searches one segment. Holds a workspace sized to the segment (a stamp per
-// point for deduplication, candidate buffers, the ADC table), so nothing is
-// allocated per feature; not thread-safe: one matcher per thread.
+// Reusable buffers of the search: grown to the largest segment and query
+// seen, then reused, so a search allocates nothing. One per thread.
+struct CascadeWorkspace {
+  std::vector<uint32_t> stamp;  // per point: the last feature (stamp value) that listed it
+  uint32_t stamp_value = 0;
+  std::vector<HashCode> query_codes;
+  std::vector<uint32_t> sizes;
+  std::vector<uint64_t> order;
+  std::vector<uint32_t> candidates;
+  std::vector<uint8_t> hamming;
+  std::vector<uint32_t> shortlist;
+  std::vector<float> ranked_distances;
+  std::vector<float> encode;
+  std::vector<float> table;
+  size_t capacity_bytes() const;
+};
+
+// Searches one segment. Not thread-safe: one matcher (or workspace) per thread.
 class CascadeMatcher {
  public:
+  // With its own workspace.
   CascadeMatcher(CascadeIndexView index, const PqCodebook& codebook);
+  // With a caller's workspace, e.g. one per thread reused across segments.
+  CascadeMatcher(CascadeIndexView index, const PqCodebook& codebook, CascadeWorkspace& workspace);
+
+  // Hashes the queries with the index's hasher, then searches.
   void match(const DescriptorMatrix& queries, const CascadeSearchOptions& options, CascadeMatches& out);
   CascadeMatches match(const DescriptorMatrix& queries, const CascadeSearchOptions& options = {});
+  // Searches with codes already computed by the same hasher (a map with one
+  // hash rotation hashes a query once for all its segments).
+  void match_hashed(const DescriptorMatrix& queries, std::span<const HashCode> codes,
+                    const CascadeSearchOptions& options, CascadeMatches& out);
   // Coarse list sizes (Σ bucket sizes) of already-encoded codes; exposed for tests.
   void coarse_sizes(std::span<const HashCode> codes, int lut_radius, std::vector<uint32_t>& sizes) const;
 
  private:
   CascadeIndexView index_;
   const PqCodebook* codebook_;
-  std::vector<uint32_t> stamp_;
-  uint32_t stamp_value_ = 0;
-  std::vector<HashCode> query_codes_;
-  std::vector<uint32_t> sizes_;
-  std::vector<uint64_t> order_;
-  std::vector<uint32_t> candidates_;
-  std::vector<uint8_t> hamming_;
-  std::vector<uint32_t> shortlist_;
-  std::vector<float> encode_ws_;
-  std::vector<float> table_;
+  std::unique_ptr<CascadeWorkspace> own_workspace_;
+  CascadeWorkspace* ws_;
 };
 
 }  // namespace visloc

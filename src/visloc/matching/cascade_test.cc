@@ -58,10 +58,8 @@ struct TestIndex {
   PqCodebook codebook;
   std::vector<HashCode> codes;
   std::vector<uint8_t> pq;
-  CascadeTables tables;
-  CascadeIndexView view() const {
-    return {codes.size(), hasher.view(), codes.data(), pq.data(), tables.offsets.data(), tables.ids.data()};
-  }
+  CascadeLookup lookup;
+  CascadeIndexView view() const { return {codes.size(), hasher.view(), codes.data(), pq.data(), &lookup}; }
 };
 
 TestIndex make_index(const DescriptorMatrix& db, bool lsh = false) {
@@ -74,7 +72,7 @@ TestIndex make_index(const DescriptorMatrix& db, bool lsh = false) {
   encode_hash(t.hasher.view(), db.data(), db.rows(), t.codes.data(), ws);
   t.pq.resize(db.rows() * kPqCodeBytes);
   t.codebook.encode(f.data(), db.rows(), t.pq.data());
-  t.tables = build_cascade_tables(t.codes);
+  t.lookup = CascadeLookup(t.codes);
   return t;
 }
 
@@ -174,25 +172,50 @@ TEST(ProductQuantizer, AdcEqualsBruteForceDistanceAndFileRoundTrips) {
   EXPECT_THROW(PqCodebook::read(path), Error);
 }
 
+// Every point once per table, in the bucket of its sub-code, ids increasing
+// within a bucket (the counting sort's order, which fixes the search order).
+template <typename Id>
+void expect_csr_of_subcodes(const CascadeLookup& lookup, const std::vector<HashCode>& codes,
+                            const Id* (CascadeLookup::*ids)(int) const) {
+  for (int k = 0; k < 8; ++k) {
+    std::vector<int> seen(codes.size(), 0);
+    for (uint32_t b = 0; b < kHashBuckets; ++b) {
+      uint32_t begin, end;
+      lookup.bucket_range(k, b, begin, end);
+      ASSERT_EQ(lookup.bucket_empty(k, b), begin == end);
+      for (uint32_t i = begin; i < end; ++i) {
+        const uint32_t id = (lookup.*ids)(k)[i];
+        ASSERT_EQ(hash_subcode(codes[id], k), b);
+        if (i > begin) ASSERT_LT((lookup.*ids)(k)[i - 1], id);
+        ++seen[id];
+      }
+    }
+    ASSERT_TRUE(std::all_of(seen.begin(), seen.end(), [](int s) { return s == 1; }));
+  }
+}
+
 TEST(CascadeIndex, TablesAreCsrOfSubcodes) {
   DescriptorMatrix d = clustered_descriptors(2000, 4);
   TestIndex t = make_index(d);
   CascadeIndexView v = t.view();
   v.validate("test");
-  for (int k = 0; k < 8; ++k) {
-    std::vector<int> seen(d.rows(), 0);
-    const uint32_t* off = v.lut_offsets + k * kLutOffsetsPerTable;
-    for (uint32_t b = 0; b < kHashBuckets; ++b)
-      for (uint32_t i = off[b]; i < off[b + 1]; ++i) {
-        const uint32_t id = v.lut_ids[k * d.rows() + i];
-        ASSERT_EQ(hash_subcode(t.codes[id], k), b);
-        ++seen[id];
-      }
-    EXPECT_TRUE(std::all_of(seen.begin(), seen.end(), [](int s) { return s == 1; }));
-  }
-  // A corrupted offset is caught.
-  t.tables.offsets[5] = 1000000;
-  EXPECT_THROW(t.view().validate("test"), Error);
+  ASSERT_TRUE(t.lookup.uses_16bit_ids());
+  expect_csr_of_subcodes(t.lookup, t.codes, &CascadeLookup::ids16);
+  // The compact tables take far less than the 2 MiB of full offset tables.
+  EXPECT_LT(t.lookup.memory_bytes(), size_t(8 * 65537 * 4) / 4);
+  // A lookup of another size is caught.
+  CascadeLookup other(std::span<const HashCode>(t.codes.data(), 10));
+  v.lookup = &other;
+  EXPECT_THROW(v.validate("test"), Error);
+}
+
+TEST(CascadeIndex, LargeSegmentsUse32BitIds) {
+  std::mt19937_64 rng(3);
+  std::vector<HashCode> codes(70000);
+  for (auto& c : codes) c = {{rng(), rng() & 0xFFFF00FF00FFull}};  // some tables crowded, some sparse
+  CascadeLookup lookup(codes);
+  ASSERT_FALSE(lookup.uses_16bit_ids());
+  expect_csr_of_subcodes(lookup, codes, &CascadeLookup::ids32);
 }
 
 TEST(CascadeSearch, FindsPlantedMatches) {
@@ -317,6 +340,54 @@ TEST(CascadeSearch, OneToManyRulesAndCorrespondenceArrays) {
     hyp += c.in_hypothesis_set[r];
   }
   EXPECT_EQ(hyp, best.query.size());
+}
+
+// The search gives the same matches, distances and statistics with every
+// kernel level this CPU supports, and with a workspace reused across two
+// segments of different sizes and across calls.
+TEST(CascadeSearch, EveryKernelLevelAndAReusedWorkspaceGiveTheSameMatches) {
+  DescriptorMatrix db = clustered_descriptors(5000, 21);
+  DescriptorMatrix small_db = clustered_descriptors(700, 22);
+  TestIndex t = make_index(db), small = make_index(small_db);
+  std::vector<size_t> rows;
+  for (size_t i = 0; i < 600; ++i) rows.push_back(i * 7 % db.rows());
+  DescriptorMatrix q = perturbed(db, rows, 6, 23);
+  for (bool prioritize : {false, true}) {
+    CascadeSearchOptions o;
+    o.prioritize = prioritize;
+    o.simd = SimdLevel::kScalar;
+    const CascadeMatches ref = CascadeMatcher(t.view(), t.codebook).match(q, o);
+    ASSERT_GT(ref.query.size(), 50u);
+    CascadeWorkspace shared;
+    for (SimdLevel level : supported_simd_levels()) {
+      o.simd = level;
+      CascadeMatches m, other;
+      // The shared workspace saw a smaller and a larger segment before.
+      CascadeMatcher(small.view(), small.codebook, shared).match(q, o, other);
+      CascadeMatcher(t.view(), t.codebook, shared).match(q, o, m);
+      EXPECT_EQ(m.query, ref.query) << to_string(level);
+      EXPECT_EQ(m.point, ref.point) << to_string(level);
+      EXPECT_EQ(m.distance, ref.distance) << to_string(level);
+      EXPECT_EQ(m.many_query, ref.many_query) << to_string(level);
+      EXPECT_EQ(m.many_offsets, ref.many_offsets) << to_string(level);
+      EXPECT_EQ(m.many_points, ref.many_points) << to_string(level);
+      EXPECT_EQ(m.many_distances, ref.many_distances) << to_string(level);
+      EXPECT_EQ(m.stats.coarse_candidates, ref.stats.coarse_candidates);
+      EXPECT_EQ(m.stats.ranked_candidates, ref.stats.ranked_candidates);
+      // Codes hashed once by the caller give the same result.
+      std::vector<HashCode> codes(q.rows());
+      std::vector<float> ws;
+      encode_hash(t.hasher.view(), q.data(), q.rows(), codes.data(), ws);
+      CascadeMatcher(t.view(), t.codebook, shared).match_hashed(q, codes, o, other);
+      EXPECT_EQ(other.point, ref.point);
+      EXPECT_EQ(other.many_points, ref.many_points);
+    }
+    // Once grown, the workspace does not grow for the same segments.
+    const size_t bytes = shared.capacity_bytes();
+    CascadeMatches again;
+    CascadeMatcher(t.view(), t.codebook, shared).match(q, o, again);
+    EXPECT_EQ(shared.capacity_bytes(), bytes);
+  }
 }
 
 TEST(FaissBaselines, IvfAdcAndImiFindPlantedMatches) {

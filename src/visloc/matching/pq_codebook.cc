@@ -31,6 +31,11 @@ void PqTrainingOptions::validate() const {
 PqCodebook::PqCodebook(std::vector<float> centroids) : centroids_(std::move(centroids)) {
   if (centroids_.size() != size_t(kPqTableSize) * kPqSubDim)
     throw_error(ErrorCode::kFormat, "a PQ codebook has ", kPqTableSize * kPqSubDim, " floats, got ", centroids_.size());
+  transposed_.resize(centroids_.size());
+  for (int m = 0; m < kPqSubvectors; ++m)
+    for (int k = 0; k < kPqCentroids; ++k)
+      for (int j = 0; j < kPqSubDim; ++j)
+        transposed_[(size_t(m) * kPqSubDim + j) * kPqCentroids + k] = centroids_[(size_t(m) * kPqCentroids + k) * kPqSubDim + j];
 }
 
 PqCodebook PqCodebook::train(const float* x, size_t n, const PqTrainingOptions& options) {

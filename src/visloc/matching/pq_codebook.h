@@ -44,9 +44,12 @@ class PqCodebook {
 
   bool empty() const { return centroids_.empty(); }
   std::span<const float> centroids() const { return centroids_; }
+  // The centroids as [m][j][k] (16 × 8 × 256): the layout of the SIMD ADC table kernel.
+  const float* centroids_transposed() const { return transposed_.data(); }
   // Nearest centroid per sub-vector: n × 16 bytes.
   void encode(const float* descriptors, size_t n, uint8_t* codes) const;
-  // The query's 16 × 256 table of squared sub-distances (table[m·256 + k]).
+  // The query's 16 × 256 table of squared sub-distances (table[m·256 + k]);
+  // the scalar reference of the search kernels' adc_table.
   void distance_table(const float* query, float* table) const;
   // Squared distance between a code's reconstruction and x (reference, slow).
   double reconstruction_sqdist(const uint8_t* code, const float* x) const;
@@ -57,6 +60,7 @@ class PqCodebook {
 
  private:
   std::vector<float> centroids_;  // 16 × 256 × 8
+  std::vector<float> transposed_; // 16 × 8 × 256
 };
 
 // ADC distance of one code: the sum of 16 table entries.

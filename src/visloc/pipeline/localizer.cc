@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <map>
+#include <mutex>
 
 #include "visloc/map/map.h"
 #include "visloc/matching/correspondence_arrays.h"
@@ -72,8 +73,36 @@ SegmentFrame segment_frame(const Segment& seg) {
 
 }  // namespace
 
+// The per-query buffers of the search, reused across queries: a query takes
+// one from the pool (one per concurrent query) and gives it back.
+struct QueryWorkspace {
+  CascadeWorkspace cascade;
+  std::vector<HashCode> map_codes;  // the query hashed once with the map's rotation
+  std::vector<float> encode;
+};
+
+class WorkspacePool {
+ public:
+  std::unique_ptr<QueryWorkspace> take() {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (free_.empty()) return std::make_unique<QueryWorkspace>();
+    auto w = std::move(free_.back());
+    free_.pop_back();
+    return w;
+  }
+  void give_back(std::unique_ptr<QueryWorkspace> w) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    free_.push_back(std::move(w));
+  }
+
+ private:
+  std::mutex mutex_;
+  std::vector<std::unique_ptr<QueryWorkspace>> free_;
+};
+
 struct Localizer::Impl {
   Map map;
+  mutable WorkspacePool workspaces;
   std::unique_ptr<SegmentCache> cache;
   std::unique_ptr<RetrievalMap> retrieval;  // null when the map has none
   SegmentVoterOptions voting;
@@ -227,6 +256,13 @@ LocalizationResult Localizer::localize_features(const FeatureSet& f, const Pinho
   }
   res.times.retrieval = t.elapsed_ms();
 
+  struct Lease {
+    WorkspacePool& pool;
+    std::unique_ptr<QueryWorkspace> w;
+    ~Lease() { pool.give_back(std::move(w)); }
+  } lease{impl_->workspaces, impl_->workspaces.take()};
+  QueryWorkspace& ws = *lease.w;
+  bool map_codes_ready = false;
   CascadeMatches matches;
   CorrespondenceSet set;
   size_t best_inliers = 0;
@@ -320,8 +356,19 @@ LocalizationResult Localizer::localize_features(const FeatureSet& f, const Pinho
       std::shared_ptr<const Segment> seg = impl_->cache->get(index);
       res.candidates.push_back(static_cast<int>(seg->id()));
       t.reset();
-      CascadeMatcher matcher(seg->index(), impl_->map.codebook());
-      matcher.match(f.descriptors, search, matches);
+      CascadeMatcher matcher(seg->index(), impl_->map.codebook(), ws.cascade);
+      if (seg->uses_map_hasher()) {
+        // One hash of the query for every segment that shares the map's rotation.
+        if (!map_codes_ready) {
+          ws.map_codes.resize(f.descriptors.rows());
+          encode_hash(impl_->map.hasher()->view(), f.descriptors.data(), f.descriptors.rows(), ws.map_codes.data(),
+                      ws.encode);
+          map_codes_ready = true;
+        }
+        matcher.match_hashed(f.descriptors, ws.map_codes, search, matches);
+      } else {
+        matcher.match(f.descriptors, search, matches);
+      }
       CorrespondenceArrays arrays = make_correspondence_arrays(matches, f.keypoints, seg->xyz());
       set.clear();
       set.points2d.reserve(arrays.points2d.size());

@@ -1,0 +1,287 @@
+#include "visloc/matching/search_kernels.h"
+
+#include <bit>
+
+#include "visloc/features/feature_set.h"
+#include "visloc/matching/pq_codebook.h"
+#include "visloc/util/error.h"
+
+#if defined(__x86_64__) && defined(__GNUC__)
+#define VISLOC_X86_KERNELS 1
+#include <immintrin.h>
+#endif
+
+namespace visloc {
+namespace {
+
+// ---- Scalar reference --------------------------------------------------------
+
+void hamming_scalar(const HashCode& q, const HashCode* codes, const uint32_t* ids, size_t n, uint8_t* out,
+                    uint32_t* hist) {
+  for (size_t i = 0; i < n; ++i) {
+    const HashCode& c = codes[ids[i]];
+    const uint32_t d = static_cast<uint32_t>(std::popcount(q.w[0] ^ c.w[0]) + std::popcount(q.w[1] ^ c.w[1]));
+    out[i] = static_cast<uint8_t>(d);
+    ++hist[d];
+  }
+}
+
+void adc_table_scalar(const float* ct, const float* q, float* table) {
+  for (int m = 0; m < kPqSubvectors; ++m)
+    for (int k = 0; k < kPqCentroids; ++k) {
+      float d = 0;
+      for (int j = 0; j < kPqSubDim; ++j) {
+        const float e = q[m * kPqSubDim + j] - ct[(m * kPqSubDim + j) * kPqCentroids + k];
+        d += e * e;
+      }
+      table[m * kPqCentroids + k] = d;
+    }
+}
+
+void adc_distances_scalar(const float* table, const uint8_t* pq, const uint32_t* ids, size_t n, float* out) {
+  for (size_t i = 0; i < n; ++i) out[i] = adc_distance(table, pq + size_t(ids[i]) * kPqCodeBytes);
+}
+
+void hash_codes_scalar(const float* wt, const float* x, size_t n, HashCode* codes) {
+  float p[kHashBits];
+  for (size_t r = 0; r < n; ++r) {
+    const float* xr = x + r * kDescriptorDim;
+    for (int i = 0; i < kHashBits; ++i) p[i] = 0;
+    for (int j = 0; j < kDescriptorDim; ++j) {
+      const float xj = xr[j];
+      const float* w = wt + j * kHashBits;
+      for (int i = 0; i < kHashBits; ++i) p[i] += w[i] * xj;
+    }
+    HashCode c{{0, 0}};
+    for (int i = 0; i < kHashBits; ++i) c.w[i >> 6] |= static_cast<uint64_t>(p[i] > 0.0f) << (i & 63);
+    codes[r] = c;
+  }
+}
+
+#ifdef VISLOC_X86_KERNELS
+
+// ---- x86-64: POPCNT + AVX2 -----------------------------------------------------
+
+__attribute__((target("popcnt"))) void hamming_popcnt(const HashCode& q, const HashCode* codes, const uint32_t* ids,
+                                                       size_t n, uint8_t* out, uint32_t* hist) {
+  const uint64_t q0 = q.w[0], q1 = q.w[1];
+  for (size_t i = 0; i < n; ++i) {
+    const HashCode& c = codes[ids[i]];
+    const uint32_t d = static_cast<uint32_t>(__builtin_popcountll(q0 ^ c.w[0]) + __builtin_popcountll(q1 ^ c.w[1]));
+    out[i] = static_cast<uint8_t>(d);
+    ++hist[d];
+  }
+}
+
+// Four blocks of 8 centroids at a time: independent sums, so the adds of
+// different blocks overlap (one block alone waits on its add chain).
+__attribute__((target("avx2"))) void adc_table_avx2(const float* ct, const float* q, float* table) {
+  for (int m = 0; m < kPqSubvectors; ++m) {
+    __m256 qj[kPqSubDim];
+    for (int j = 0; j < kPqSubDim; ++j) qj[j] = _mm256_set1_ps(q[m * kPqSubDim + j]);
+    for (int k = 0; k < kPqCentroids; k += 32) {
+      __m256 acc[4];
+      for (auto& a : acc) a = _mm256_setzero_ps();
+      for (int j = 0; j < kPqSubDim; ++j) {
+        const float* c = ct + (m * kPqSubDim + j) * kPqCentroids + k;
+        for (int u = 0; u < 4; ++u) {
+          const __m256 e = _mm256_sub_ps(qj[j], _mm256_loadu_ps(c + 8 * u));
+          acc[u] = _mm256_add_ps(acc[u], _mm256_mul_ps(e, e));
+        }
+      }
+      for (int u = 0; u < 4; ++u) _mm256_storeu_ps(table + m * kPqCentroids + k + 8 * u, acc[u]);
+    }
+  }
+}
+
+// Eight candidates at a time: their codes' 32-bit words and then the table
+// entries are gathered; the sum runs over m = 0..15 in order, as the reference.
+__attribute__((target("avx2"))) void adc_distances_avx2(const float* table, const uint8_t* pq, const uint32_t* ids,
+                                                        size_t n, float* out) {
+  const int* words = reinterpret_cast<const int*>(pq);
+  const __m256i byte_mask = _mm256_set1_epi32(0xFF);
+  size_t i = 0;
+  for (; i + 8 <= n; i += 8) {
+    const __m256i base = _mm256_slli_epi32(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(ids + i)), 2);
+    __m256 acc = _mm256_setzero_ps();
+    for (int w = 0; w < kPqCodeBytes / 4; ++w) {
+      const __m256i code_word = _mm256_i32gather_epi32(words, _mm256_add_epi32(base, _mm256_set1_epi32(w)), 4);
+      for (int b = 0; b < 4; ++b) {
+        const int m = 4 * w + b;
+        const __m256i idx = _mm256_add_epi32(_mm256_and_si256(_mm256_srli_epi32(code_word, 8 * b), byte_mask),
+                                             _mm256_set1_epi32(m * kPqCentroids));
+        acc = _mm256_add_ps(acc, _mm256_i32gather_ps(table, idx, 4));
+      }
+    }
+    _mm256_storeu_ps(out + i, acc);
+  }
+  adc_distances_scalar(table, pq, ids + i, n - i, out + i);
+}
+
+// One row at a time: 16 accumulators of 8 outputs, the sum over j in order.
+__attribute__((target("avx2"))) void hash_codes_avx2(const float* wt, const float* x, size_t n, HashCode* codes) {
+  for (size_t r = 0; r < n; ++r) {
+    const float* xr = x + r * kDescriptorDim;
+    __m256 acc[16];
+    for (auto& a : acc) a = _mm256_setzero_ps();
+    for (int j = 0; j < kDescriptorDim; ++j) {
+      const __m256 xj = _mm256_set1_ps(xr[j]);
+      const float* w = wt + j * kHashBits;
+      for (int t = 0; t < 16; ++t) acc[t] = _mm256_add_ps(acc[t], _mm256_mul_ps(_mm256_loadu_ps(w + 8 * t), xj));
+    }
+    HashCode c{{0, 0}};
+    const __m256 zero = _mm256_setzero_ps();
+    for (int t = 0; t < 16; ++t) {
+      const uint64_t bits = static_cast<uint32_t>(_mm256_movemask_ps(_mm256_cmp_ps(acc[t], zero, _CMP_GT_OQ)));
+      c.w[t >> 3] |= bits << (8 * (t & 7));
+    }
+    codes[r] = c;
+  }
+}
+
+// ---- x86-64: AVX-512F ------------------------------------------------------------
+
+__attribute__((target("avx512f"))) void adc_table_avx512(const float* ct, const float* q, float* table) {
+  for (int m = 0; m < kPqSubvectors; ++m) {
+    __m512 qj[kPqSubDim];
+    for (int j = 0; j < kPqSubDim; ++j) qj[j] = _mm512_set1_ps(q[m * kPqSubDim + j]);
+    for (int k = 0; k < kPqCentroids; k += 64) {
+      __m512 acc[4];
+      for (auto& a : acc) a = _mm512_setzero_ps();
+      for (int j = 0; j < kPqSubDim; ++j) {
+        const float* c = ct + (m * kPqSubDim + j) * kPqCentroids + k;
+        for (int u = 0; u < 4; ++u) {
+          const __m512 e = _mm512_sub_ps(qj[j], _mm512_loadu_ps(c + 16 * u));
+          acc[u] = _mm512_add_ps(acc[u], _mm512_mul_ps(e, e));
+        }
+      }
+      for (int u = 0; u < 4; ++u) _mm512_storeu_ps(table + m * kPqCentroids + k + 16 * u, acc[u]);
+    }
+  }
+}
+
+__attribute__((target("avx512f"))) void adc_distances_avx512(const float* table, const uint8_t* pq,
+                                                              const uint32_t* ids, size_t n, float* out) {
+  const __m512i byte_mask = _mm512_set1_epi32(0xFF);
+  size_t i = 0;
+  for (; i + 16 <= n; i += 16) {
+    const __m512i base = _mm512_slli_epi32(_mm512_loadu_si512(ids + i), 2);
+    __m512 acc = _mm512_setzero_ps();
+    for (int w = 0; w < kPqCodeBytes / 4; ++w) {
+      const __m512i code_word = _mm512_i32gather_epi32(_mm512_add_epi32(base, _mm512_set1_epi32(w)), pq, 4);
+      for (int b = 0; b < 4; ++b) {
+        const int m = 4 * w + b;
+        const __m512i idx = _mm512_add_epi32(_mm512_and_si512(_mm512_srli_epi32(code_word, 8 * b), byte_mask),
+                                             _mm512_set1_epi32(m * kPqCentroids));
+        acc = _mm512_add_ps(acc, _mm512_i32gather_ps(idx, table, 4));
+      }
+    }
+    _mm512_storeu_ps(out + i, acc);
+  }
+  adc_distances_avx2(table, pq, ids + i, n - i, out + i);
+}
+
+// Two rows at a time (16 accumulators of 16 outputs), each W row loaded once for both.
+__attribute__((target("avx512f"))) void hash_codes_avx512(const float* wt, const float* x, size_t n,
+                                                           HashCode* codes) {
+  size_t r = 0;
+  for (; r + 2 <= n; r += 2) {
+    const float* x0 = x + r * kDescriptorDim;
+    const float* x1 = x0 + kDescriptorDim;
+    __m512 a0[8], a1[8];
+    for (int t = 0; t < 8; ++t) a0[t] = a1[t] = _mm512_setzero_ps();
+    for (int j = 0; j < kDescriptorDim; ++j) {
+      const __m512 b0 = _mm512_set1_ps(x0[j]), b1 = _mm512_set1_ps(x1[j]);
+      const float* w = wt + j * kHashBits;
+      for (int t = 0; t < 8; ++t) {
+        const __m512 wv = _mm512_loadu_ps(w + 16 * t);
+        a0[t] = _mm512_add_ps(a0[t], _mm512_mul_ps(wv, b0));
+        a1[t] = _mm512_add_ps(a1[t], _mm512_mul_ps(wv, b1));
+      }
+    }
+    HashCode c0{{0, 0}}, c1{{0, 0}};
+    const __m512 zero = _mm512_setzero_ps();
+    for (int t = 0; t < 8; ++t) {
+      c0.w[t >> 2] |= uint64_t(_mm512_cmp_ps_mask(a0[t], zero, _CMP_GT_OQ)) << (16 * (t & 3));
+      c1.w[t >> 2] |= uint64_t(_mm512_cmp_ps_mask(a1[t], zero, _CMP_GT_OQ)) << (16 * (t & 3));
+    }
+    codes[r] = c0;
+    codes[r + 1] = c1;
+  }
+  hash_codes_avx2(wt, x + r * kDescriptorDim, n - r, codes + r);
+}
+
+#endif  // VISLOC_X86_KERNELS
+
+constexpr SearchKernels kScalarKernels{SimdLevel::kScalar, hamming_scalar, adc_table_scalar, adc_distances_scalar,
+                                       hash_codes_scalar};
+#ifdef VISLOC_X86_KERNELS
+constexpr SearchKernels kAvx2Kernels{SimdLevel::kAvx2, hamming_popcnt, adc_table_avx2, adc_distances_avx2,
+                                     hash_codes_avx2};
+constexpr SearchKernels kAvx512Kernels{SimdLevel::kAvx512, hamming_popcnt, adc_table_avx512, adc_distances_avx512,
+                                       hash_codes_avx512};
+#endif
+
+SimdLevel best_level() {
+  if (cpu_supports(SimdLevel::kAvx512)) return SimdLevel::kAvx512;
+  if (cpu_supports(SimdLevel::kAvx2)) return SimdLevel::kAvx2;
+  return SimdLevel::kScalar;
+}
+
+}  // namespace
+
+const char* to_string(SimdLevel level) {
+  switch (level) {
+    case SimdLevel::kBest: return "best";
+    case SimdLevel::kScalar: return "scalar";
+    case SimdLevel::kAvx2: return "avx2";
+    case SimdLevel::kAvx512: return "avx512";
+  }
+  return "?";
+}
+
+SimdLevel simd_level_from_string(const std::string& name) {
+  for (SimdLevel l : {SimdLevel::kBest, SimdLevel::kScalar, SimdLevel::kAvx2, SimdLevel::kAvx512})
+    if (name == to_string(l)) return l;
+  throw_error(ErrorCode::kInvalidArgument, "unknown SIMD level '", name, "' (best, scalar, avx2, avx512)");
+}
+
+bool cpu_supports(SimdLevel level) {
+  switch (level) {
+    case SimdLevel::kBest:
+    case SimdLevel::kScalar: return true;
+#ifdef VISLOC_X86_KERNELS
+    case SimdLevel::kAvx2: return __builtin_cpu_supports("popcnt") && __builtin_cpu_supports("avx2");
+    case SimdLevel::kAvx512:
+      return __builtin_cpu_supports("popcnt") && __builtin_cpu_supports("avx2") && __builtin_cpu_supports("avx512f");
+#else
+    default: return false;
+#endif
+  }
+  return false;
+}
+
+std::vector<SimdLevel> supported_simd_levels() {
+  std::vector<SimdLevel> out;
+  for (SimdLevel l : {SimdLevel::kScalar, SimdLevel::kAvx2, SimdLevel::kAvx512})
+    if (cpu_supports(l)) out.push_back(l);
+  return out;
+}
+
+const SearchKernels& search_kernels(SimdLevel level) {
+  if (level == SimdLevel::kBest) {
+    static const SimdLevel best = best_level();  // a CPU property, decided once
+    level = best;
+  }
+  if (!cpu_supports(level))
+    throw_error(ErrorCode::kInvalidArgument, "this CPU does not support the ", to_string(level), " search kernels");
+  switch (level) {
+#ifdef VISLOC_X86_KERNELS
+    case SimdLevel::kAvx2: return kAvx2Kernels;
+    case SimdLevel::kAvx512: return kAvx512Kernels;
+#endif
+    default: return kScalarKernels;
+  }
+}
+
+}  // namespace visloc

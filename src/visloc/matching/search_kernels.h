@@ -1,0 +1,59 @@
+// The per-candidate kernels of the cascade search, each in a portable scalar
+// reference and in SIMD variants chosen at run time from what the CPU has
+// (x86-64: POPCNT + AVX2, AVX-512F; any other CPU, e.g. aarch64: the
+// reference, whose std::popcount is already a hardware instruction there).
+// The default build targets baseline x86-64, so only the variant functions
+// are compiled for the newer instruction sets (GCC target attributes).
+//
+// Every variant returns bit-identical results to the reference: the ADC sums
+// are accumulated in the same order (sub-vector 0..15, dimension 0..7) with
+// separate multiplies and adds (no fused multiply-add), so a SIMD search
+// returns the same matches as the scalar one.
+//
+//   hamming_distances  d_i = popcount(q ⊕ codes[ids_i]) over 2 × 64-bit words,
+//                      and a histogram of d over 0..128 (the refined step's
+//                      counting sort)
+//   adc_table          the query's 16 × 256 table of squared sub-distances,
+//                      from centroids transposed to [m][j][k] (PqCodebook)
+//   adc_distances      d_i = Σ_m table[m·256 + pq_codes[ids_i·16 + m]]
+//   hash_codes         bit i of row r = [Σ_j Wᵀ[j][i] · x_rj > 0] over j = 0..127
+//                      in order (x centred): the ITQ/LSH projection's signs
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "visloc/matching/binary_hasher.h"
+
+namespace visloc {
+
+enum class SimdLevel {
+  kBest,    // the best level this CPU supports (chosen once, at first use)
+  kScalar,  // portable reference
+  kAvx2,    // x86-64 with POPCNT, AVX2
+  kAvx512,  // x86-64 with POPCNT, AVX-512F
+};
+const char* to_string(SimdLevel level);
+// Parses "best", "scalar", "avx2", "avx512"; throws kInvalidArgument.
+SimdLevel simd_level_from_string(const std::string& name);
+bool cpu_supports(SimdLevel level);
+// kScalar first, then every SIMD level this CPU supports, in increasing order.
+std::vector<SimdLevel> supported_simd_levels();
+
+struct SearchKernels {
+  SimdLevel level = SimdLevel::kScalar;
+  void (*hamming_distances)(const HashCode& query, const HashCode* codes, const uint32_t* ids, size_t n,
+                            uint8_t* distances, uint32_t* histogram /* 129 bins, added to */) = nullptr;
+  void (*adc_table)(const float* centroids_transposed, const float* query, float* table) = nullptr;
+  void (*adc_distances)(const float* table, const uint8_t* pq_codes, const uint32_t* ids, size_t n,
+                        float* distances) = nullptr;
+  void (*hash_codes)(const float* projection_transposed /* [j][i], 128 × 128 */, const float* centred /* n × 128 */,
+                     size_t n, HashCode* codes) = nullptr;
+};
+
+// The kernels of one level; throws kInvalidArgument when the CPU lacks it.
+const SearchKernels& search_kernels(SimdLevel level = SimdLevel::kBest);
+
+}  // namespace visloc

@@ -1,0 +1,146 @@
+// The SIMD search kernels against their scalar reference: bit-identical
+// results for every level this CPU supports, at every tail length.
+#include <gtest/gtest.h>
+
+#include <cstring>
+#include <random>
+#include <vector>
+
+#include "visloc/matching/pq_codebook.h"
+#include "visloc/matching/search_kernels.h"
+#include "visloc/util/error.h"
+
+using namespace visloc;
+
+namespace {
+
+PqCodebook random_codebook(uint32_t seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<float> u(0, 120);
+  std::vector<float> c(size_t(kPqTableSize) * kPqSubDim);
+  for (auto& x : c) x = u(rng);
+  return PqCodebook(c);
+}
+
+const size_t kLengths[] = {0, 1, 7, 8, 9, 15, 16, 17, 31, 40, 100, 257};
+
+}  // namespace
+
+TEST(SearchKernels, LevelsAreNamedAndTheScalarOneAlwaysExists) {
+  EXPECT_EQ(simd_level_from_string("avx512"), SimdLevel::kAvx512);
+  EXPECT_EQ(simd_level_from_string("scalar"), SimdLevel::kScalar);
+  EXPECT_THROW(simd_level_from_string("sse9"), Error);
+  const auto levels = supported_simd_levels();
+  ASSERT_FALSE(levels.empty());
+  EXPECT_EQ(levels.front(), SimdLevel::kScalar);
+  EXPECT_EQ(search_kernels(SimdLevel::kScalar).level, SimdLevel::kScalar);
+  // The best level is one of the supported ones.
+  const SimdLevel best = search_kernels(SimdLevel::kBest).level;
+  EXPECT_NE(std::find(levels.begin(), levels.end(), best), levels.end());
+  for (SimdLevel l : {SimdLevel::kAvx2, SimdLevel::kAvx512})
+    if (!cpu_supports(l)) {
+      EXPECT_THROW(search_kernels(l), Error);
+    }
+  std::cout << "[          ] best search kernels on this CPU: " << to_string(best) << "\n";
+}
+
+TEST(SearchKernels, HammingMatchesTheReference) {
+  std::mt19937_64 rng(1);
+  std::vector<HashCode> codes(500);
+  for (auto& c : codes) c = {{rng(), rng()}};
+  codes[3] = {{~0ull, ~0ull}};  // distance 128 from the zero code
+  const HashCode q{{0, 0}};
+  std::vector<uint32_t> ids(300);
+  for (auto& i : ids) i = static_cast<uint32_t>(rng() % codes.size());
+  ids[0] = 3;
+  const SearchKernels& ref = search_kernels(SimdLevel::kScalar);
+  for (SimdLevel level : supported_simd_levels()) {
+    const SearchKernels& k = search_kernels(level);
+    for (size_t n : kLengths) {
+      n = std::min(n, ids.size());
+      std::vector<uint8_t> a(n + 1, 0xAB), b(n + 1, 0xAB);
+      uint32_t ha[129] = {}, hb[129] = {};
+      ref.hamming_distances(q, codes.data(), ids.data(), n, a.data(), ha);
+      k.hamming_distances(q, codes.data(), ids.data(), n, b.data(), hb);
+      ASSERT_EQ(a, b) << to_string(level) << " n=" << n;
+      ASSERT_EQ(0, std::memcmp(ha, hb, sizeof ha)) << to_string(level);
+      if (n > 0) EXPECT_EQ(a[0], 128);
+      EXPECT_EQ(b[n], 0xAB) << "wrote past the end";
+      for (size_t i = 0; i < n; ++i) ASSERT_EQ(a[i], hamming_distance(q, codes[ids[i]]));
+    }
+  }
+}
+
+TEST(SearchKernels, AdcTableIsBitIdenticalToTheCodebooksTable) {
+  const PqCodebook cb = random_codebook(2);
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<float> u(0, 160);
+  std::vector<float> q(128), reference(kPqTableSize), table(kPqTableSize);
+  for (int trial = 0; trial < 5; ++trial) {
+    for (auto& x : q) x = std::round(u(rng));  // SIFT is integer-valued
+    if (trial == 4) q.assign(128, 0.37f);
+    cb.distance_table(q.data(), reference.data());
+    for (SimdLevel level : supported_simd_levels()) {
+      std::fill(table.begin(), table.end(), -1.f);
+      search_kernels(level).adc_table(cb.centroids_transposed(), q.data(), table.data());
+      ASSERT_EQ(0, std::memcmp(reference.data(), table.data(), table.size() * 4)) << to_string(level);
+    }
+  }
+}
+
+TEST(SearchKernels, AdcDistancesAreBitIdenticalToTheReference) {
+  std::mt19937 rng(4);
+  std::uniform_real_distribution<float> u(0, 1e4f);
+  std::vector<float> table(kPqTableSize);
+  for (auto& t : table) t = u(rng);
+  const size_t points = 1000;
+  std::vector<uint8_t> pq(points * kPqCodeBytes);
+  for (auto& b : pq) b = static_cast<uint8_t>(rng());
+  std::vector<uint32_t> ids(300);
+  for (auto& i : ids) i = rng() % points;
+  ids[1] = points - 1;  // the last code: no read past the array
+  for (SimdLevel level : supported_simd_levels()) {
+    for (size_t n : kLengths) {
+      n = std::min(n, ids.size());
+      std::vector<float> out(n + 1, -7.f);
+      search_kernels(level).adc_distances(table.data(), pq.data(), ids.data(), n, out.data());
+      for (size_t i = 0; i < n; ++i) {
+        const float ref = adc_distance(table.data(), pq.data() + size_t(ids[i]) * kPqCodeBytes);
+        ASSERT_EQ(0, std::memcmp(&ref, &out[i], 4)) << to_string(level) << " n=" << n << " i=" << i;
+      }
+      EXPECT_EQ(out[n], -7.f) << "wrote past the end";
+    }
+  }
+}
+
+TEST(SearchKernels, HashCodesMatchTheReference) {
+  std::mt19937 rng(5);
+  std::normal_distribution<float> g(0, 1);
+  std::vector<float> wt(128 * 128), x(37 * 128);
+  for (auto& w : wt) w = g(rng);
+  for (auto& v : x) v = std::round(g(rng) * 40);
+  for (int j = 0; j < 128; ++j) x[5 * 128 + j] = 0;  // all projections exactly 0: every bit 0
+  const SearchKernels& ref = search_kernels(SimdLevel::kScalar);
+  std::vector<HashCode> a(37), b(37);
+  ref.hash_codes(wt.data(), x.data(), 37, a.data());
+  EXPECT_EQ(a[5].w[0], 0u);
+  EXPECT_EQ(a[5].w[1], 0u);
+  // The reference is the sign of the projection (checked in double away from 0).
+  for (size_t r = 0; r < 37; ++r)
+    for (int i = 0; i < 128; ++i) {
+      double p = 0;
+      for (int j = 0; j < 128; ++j) p += double(wt[j * 128 + i]) * x[r * 128 + j];
+      if (std::abs(p) > 1e-3) ASSERT_EQ(((a[r].w[i / 64] >> (i % 64)) & 1) != 0, p > 0) << r << " " << i;
+    }
+  for (SimdLevel level : supported_simd_levels())
+    for (size_t n : kLengths) {
+      n = std::min<size_t>(n, 37);
+      std::fill(b.begin(), b.end(), HashCode{{7, 7}});
+      search_kernels(level).hash_codes(wt.data(), x.data(), n, b.data());
+      for (size_t r = 0; r < n; ++r) {
+        ASSERT_EQ(a[r].w[0], b[r].w[0]) << to_string(level) << " row " << r;
+        ASSERT_EQ(a[r].w[1], b[r].w[1]) << to_string(level) << " row " << r;
+      }
+      if (n < 37) EXPECT_EQ(b[n].w[0], 7u) << "wrote past the end";
+    }
+}
