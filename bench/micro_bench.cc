@@ -128,7 +128,7 @@ void BM_KernelHamming(benchmark::State& state) {
   std::mt19937 rng(2);
   for (auto& i : ids) i = rng() % kPoints;
   std::vector<uint8_t> out(kPoints);
-  uint32_t hist[129];
+  uint32_t hist[129] = {};
   for (auto _ : state) {
     k->hamming_distances(codes[7], codes, ids.data(), kPoints, out.data(), hist);
     benchmark::DoNotOptimize(out.data());

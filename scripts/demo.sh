@@ -2,7 +2,7 @@
 # End-to-end demo, from nothing but this repository (run after scripts/setup.sh):
 #   1. render a small synthetic street (exact poses, GPS, queries from other cameras);
 #   2. build a map: segments of placemarks reconstructed by COLMAP from the known
-#      poses, compressed (ITQ codes, LUTs, PQ), geo-registered, plus retrieval;
+#      poses, compressed (ITQ codes, PQ codes: 44 bytes per point), geo-registered, plus retrieval;
 #   3. localize the queries and print the evaluation report;
 #   4. if ../shared/data is present: import a real COLMAP model with held-out
 #      images and localize those photos with our SIFT.

@@ -347,6 +347,7 @@ SceneResult run_scene(const Args& a, const std::string& map_dir, const std::stri
     mt.has_many = true;
     mt.bytes_per_point = seg->bytes().per_point_bytes_per_point(np);
     mt.bytes_per_point_total = seg->bytes().file_bytes_per_point(np) + double(map.codebook().centroids().size_bytes()) / double(np);
+    mt.extra["lookup_memory_bytes_per_point"] = double(seg->bytes().lookup_memory) / double(np);
     matcher.match(queries[0].features.descriptors, c.options, m);  // warm-up
     double ms_hash = 0, ms_order = 0, ms_search = 0;
     for (size_t qi = 0; qi < queries.size(); ++qi) {
@@ -373,7 +374,9 @@ SceneResult run_scene(const Args& a, const std::string& map_dir, const std::stri
       ++mt.queries;
     }
     const double nq = double(mt.queries);
-    mt.extra = {{"ms_hash", ms_hash / nq}, {"ms_order", ms_order / nq}, {"ms_search", ms_search / nq}};
+    mt.extra["ms_hash"] = ms_hash / nq;
+    mt.extra["ms_order"] = ms_order / nq;
+    mt.extra["ms_search"] = ms_search / nq;
     res.methods.push_back(mt);
   }
   return res;

@@ -10,7 +10,8 @@
 //   3. PQ codebook (16 × 8 bits), trained once per map on a sample across
 //      the whole map's point descriptors, or on another database's image
 //      descriptors (an independent set, as the paper trains its codebook);
-//   4. ITQ learned on the segment's descriptors; codes, LUTs, PQ codes;
+//   4. ITQ learned on the segment's descriptors (stored in the segment or,
+//      with --hash-rotation map, in MAP/hash_rotation.vlitq); codes, PQ codes;
 //   5. segment file, descriptor file, codebook, holdout poses, manifest.
 #pragma once
 

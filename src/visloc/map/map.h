@@ -100,7 +100,7 @@ struct MapInfo {
   uint64_t hash_rotation_bytes = 0;
   size_t total_points = 0;
   uint64_t total_per_point_bytes = 0;  // Σ per-point sections
-  uint64_t total_bytes = 0;            // Σ segment files + codebook
+  uint64_t total_bytes = 0;            // Σ segment files + codebook + shared hash rotation
   nlohmann::json to_json() const;
 };
 MapInfo map_info(const std::filesystem::path& dir);

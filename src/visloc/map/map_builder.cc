@@ -686,7 +686,7 @@ SegmentBuildResult build_segment(const BuildContext& ctx, int id, const SegmentP
     res.registration_max_m = e.max_residual;
   }
 
-  // 4. Compress: mean SIFT per point, ITQ, LUTs, PQ with the map's codebook.
+  // 4. Compress: mean SIFT per point, ITQ codes (the segment's rotation or the map's), PQ with the map's codebook.
   Timer t_part;
   ColmapDatabase db(db_path);
   PointDescriptors desc = compute_point_descriptors(model, db);
@@ -753,12 +753,18 @@ SegmentBuildResult build_and_record_segment(const BuildContext& ctx, int id, con
 
 // A finished segment from an earlier run (or another process): its
 // result.json records success and its segment file exists.
-std::optional<SegmentBuildResult> finished_segment(const fs::path& map_dir, int id) {
+// A segment finished by an earlier run, reused only if its codes were made
+// with the rotation this build uses (`map_hasher`, or its own when null).
+std::optional<SegmentBuildResult> finished_segment(const fs::path& map_dir, int id,
+                                                   const std::shared_ptr<const BinaryHasher>& map_hasher) {
   const fs::path result_file = segment_result_file(map_dir, id);
   if (!fs::exists(result_file) || !fs::exists(segment_file(map_dir, id))) return std::nullopt;
   try {
     SegmentBuildResult r = segment_result_from_json(nlohmann::json::parse(read_file(result_file)));
-    if (r.ok && r.id == id) return r;
+    if (!r.ok || r.id != id) return std::nullopt;
+    auto seg = Segment::open(segment_file(map_dir, id), map_hasher);  // rejects another map rotation
+    if (seg->uses_map_hasher() != (map_hasher != nullptr)) return std::nullopt;  // the other scope: rebuild
+    return r;
   } catch (const std::exception&) {
   }
   return std::nullopt;
@@ -976,7 +982,7 @@ MapBuildResult build_map(const fs::path& map_dir, const MapBuildOptions& opt,
     nlohmann::json failed = nlohmann::json::array();
     for (const auto& r : result.segments)
       if (!r.ok && !r.error.empty() && r.error != "not built") failed.push_back({{"id", r.id}, {"error", r.error}});
-    // Segments of an earlier run with a map rotation keep needing it.
+    // Listed whenever present: a segment of an earlier run may need it.
     if (fs::exists(rotation_path)) man.hash_rotation_file = kHashRotationFileName;
     man.parameters = {{"hash", {{"method", "itq"}, {"bits", kHashBits}, {"tables", kHashTables},
                                 {"table_bits", kHashTableBits}, {"itq_iterations", opt.itq.iterations},
@@ -1008,13 +1014,20 @@ MapBuildResult build_map(const fs::path& map_dir, const MapBuildOptions& opt,
   size_t segments_done = 0;
   for (size_t s = 0; s < n_segments; ++s) {
     const int id = static_cast<int>(s);
-    if (!only.count(id))
-      if (auto r = finished_segment(map_dir, id)) {
+    if (!only.count(id)) {
+      if (auto r = finished_segment(map_dir, id, ctx.map_hasher)) {
         result.segments[s] = *r;
         result.segments[s].reused = true;
         ++segments_done;
         continue;
       }
+      // An update keeps the other segments as they are: one that cannot be
+      // kept (another hash rotation) would drop out of the map.
+      if (!only.empty() && fs::exists(segment_file(map_dir, id)))
+        throw_error(ErrorCode::kInvalidArgument, "segment ", id, " of ", map_dir.string(),
+                    " was built with another hash rotation than --hash-rotation ", to_string(opt.hash_rotation),
+                    " gives; update with the same option, or rebuild the map with 'map build'");
+    }
     if (only.empty() || only.count(id)) to_build.push_back(id);
   }
   write_current_manifest();  // the ENU origin and plan, before any task reads them

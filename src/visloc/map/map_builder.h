@@ -1,8 +1,8 @@
 // MapBuilder: `visloc map build` (paper section III-A). A city's geotagged
 // images are cut into segments of 8-10 consecutive placemarks (2 shared with
 // the next segment); each segment is reconstructed on its own by COLMAP
-// (a process), compressed into a segment file (mean SIFT → ITQ codes, LUTs,
-// PQ codes with the map's shared codebook) and geo-registered to local ENU
+// (a process), compressed into a segment file (mean SIFT → ITQ codes of the segment's
+// or the map's rotation, PQ codes with the map's shared codebook) and geo-registered to local ENU
 // by a robust similarity transform from its camera centres to their GPS
 // (upright: the cameras' mean up axis is aligned with ENU up, leaving yaw,
 // scale and translation, which stay well-posed along a straight street).

@@ -148,7 +148,6 @@ TEST(SegmentFile, RejectsTruncatedCorruptedAndWrongVersion) {
   // Sections of the wrong size (valid CRCs) are caught.
   {
     SegmentData bad = random_segment(500, 3);
-    bad.extra_meta["points"] = 1;  // overridden by the writer; write a lying META by hand instead
     SectionFileWriter w(p, "SEGM", kSegmentFileVersion);
     w.add_text("META", R"({"segment_id": 1, "points": 501})");
     w.add_array<float>("XYZ", bad.xyz);

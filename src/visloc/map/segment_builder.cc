@@ -28,6 +28,7 @@ SegmentData make_segment_data(const ColmapModel& model, const PointDescriptors& 
   std::vector<float> workspace;
   if (map_hasher) {
     encode_hash(map_hasher->view(), desc.mean.data(), desc.num_points, seg.codes.data(), workspace);
+    seg.extra_meta["hash_rotation_crc32c"] = hash_rotation_fingerprint(*map_hasher);
   } else {
     seg.hasher = std::move(itq.hasher);
     encode_hash(seg.hasher.view(), desc.mean.data(), desc.num_points, seg.codes.data(), workspace);

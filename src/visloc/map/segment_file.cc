@@ -63,11 +63,17 @@ std::unique_ptr<Segment> Segment::open(const std::filesystem::path& path,
   std::unique_ptr<Segment> s(new Segment(path));
   const SectionFileReader& r = s->reader_;
   const std::string name = path.string();
+  std::string scope;
+  bool has_crc = false;
+  uint32_t expected_crc = 0;
   try {
     s->meta_ = nlohmann::json::parse(r.text("META"));
     s->id_ = s->meta_.at("segment_id").get<uint32_t>();
     s->num_points_ = s->meta_.at("points").get<size_t>();
     for (const auto& j : nlohmann::json::parse(r.text("IMAGES"))) s->images_.push_back(segment_image_from_json(j));
+    scope = s->meta_.value("hash_rotation", "segment");
+    has_crc = s->meta_.contains("hash_rotation_crc32c");
+    if (has_crc) expected_crc = s->meta_.at("hash_rotation_crc32c").get<uint32_t>();
   } catch (const nlohmann::json::exception& e) {
     throw_error(ErrorCode::kFormat, name, ": bad segment metadata: ", e.what());
   }
@@ -81,14 +87,23 @@ std::unique_ptr<Segment> Segment::open(const std::filesystem::path& path,
   v.codes = codes.data();
   v.pq_codes = r.array<uint8_t>("PQ", n * kPqCodeBytes).data();
   SegmentBytes& b = s->bytes_;
-  if (r.has("ITQMEAN") || r.has("ITQW")) {
+  const bool own_rotation = r.has("ITQMEAN") || r.has("ITQW");
+  if (own_rotation != (scope == "segment"))
+    throw_error(ErrorCode::kFormat, name, ": META says hash_rotation '", scope, "' but the file ",
+                own_rotation ? "has" : "has no", " ITQ sections");
+  if (own_rotation) {
     v.hasher.mean = r.array<float>("ITQMEAN", kDescriptorDim).data();
     v.hasher.projection = r.array<float>("ITQW", kHashBits * kDescriptorDim).data();
     b.hasher = r.bytes("ITQMEAN").size() + r.bytes("ITQW").size();
   } else {
     if (!map_hasher)
       throw_error(ErrorCode::kFormat, name,
-                  ": the segment uses its map's hash rotation (no ITQ sections); open it through its map");
+                  ": the segment's codes use its map's hash rotation (MAP/hash_rotation.vlitq), and none was given "
+                  "(is hash_rotation_file missing from the map's manifest.json?)");
+    const uint32_t given = hash_rotation_fingerprint(*map_hasher);
+    if (has_crc && expected_crc != given)
+      throw_error(ErrorCode::kFormat, name, ": the segment's codes were made with another hash rotation (CRC32C ",
+                  expected_crc, ") than its map's (", given, "); rebuild the segment");
     s->map_hasher_ = std::move(map_hasher);
     v.hasher = s->map_hasher_->view();
   }

@@ -88,6 +88,9 @@ class Segment {
   static std::unique_ptr<Segment> open(const std::filesystem::path& path,
                                        std::shared_ptr<const BinaryHasher> map_hasher = nullptr);
   uint32_t format_version() const { return reader_.kind_version(); }
+  // index() points into the segment itself (its lookup tables): not copyable or movable.
+  Segment(const Segment&) = delete;
+  Segment& operator=(const Segment&) = delete;
   bool uses_map_hasher() const { return map_hasher_ != nullptr; }
 
   uint32_t id() const { return id_; }

@@ -8,6 +8,7 @@
 #include <random>
 
 #include "visloc/matching/search_kernels.h"
+#include "visloc/util/crc32c.h"
 #include "visloc/util/error.h"
 #include "visloc/util/section_file.h"
 
@@ -187,6 +188,11 @@ void write_hash_rotation_file(const std::filesystem::path& path, const BinaryHas
   w.add_array<float>("MEAN", h.mean);
   w.add_array<float>("W", h.projection);
   w.commit();
+}
+
+uint32_t hash_rotation_fingerprint(const BinaryHasher& h) {
+  const uint32_t crc = crc32c(h.mean.data(), h.mean.size() * sizeof(float));
+  return crc32c(h.projection.data(), h.projection.size() * sizeof(float), crc);
 }
 
 BinaryHasher read_hash_rotation_file(const std::filesystem::path& path) {

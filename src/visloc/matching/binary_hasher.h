@@ -101,6 +101,9 @@ inline constexpr uint32_t kHashRotationFileVersion = 1;
 void write_hash_rotation_file(const std::filesystem::path& path, const BinaryHasher& hasher,
                               const std::string& meta_json);
 BinaryHasher read_hash_rotation_file(const std::filesystem::path& path);
+// CRC32C of the mean and projection bytes: segments made with a map's
+// rotation record it, so that codes are never searched with another one.
+uint32_t hash_rotation_fingerprint(const BinaryHasher& hasher);
 
 // Mean over the descriptors of ||sign(W(x−μ)) − W(x−μ)||² (the ITQ objective).
 double hash_quantization_error(BinaryHasherView hasher, const float* descriptors, size_t n);

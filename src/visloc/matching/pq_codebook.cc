@@ -6,6 +6,7 @@
 #include <numeric>
 #include <random>
 
+#include "visloc/matching/search_kernels.h"
 #include "visloc/util/error.h"
 #include "visloc/util/section_file.h"
 
@@ -74,21 +75,9 @@ void PqCodebook::encode(const float* x, size_t n, uint8_t* codes) const {
 }
 
 void PqCodebook::distance_table(const float* q, float* table) const {
-  const float* c = centroids_.data();
-  for (int m = 0; m < kPqSubvectors; ++m) {
-    const float* qm = q + m * kPqSubDim;
-    float* t = table + m * kPqCentroids;
-    const float* cm = c + size_t(m) * kPqCentroids * kPqSubDim;
-    for (int k = 0; k < kPqCentroids; ++k) {
-      const float* ck = cm + k * kPqSubDim;
-      float d = 0;
-      for (int j = 0; j < kPqSubDim; ++j) {
-        const float e = qm[j] - ck[j];
-        d += e * e;
-      }
-      t[k] = d;
-    }
-  }
+  // The scalar search kernel: compiled without fused multiply-add, so every
+  // SIMD level's table equals this one bit for bit.
+  search_kernels(SimdLevel::kScalar).adc_table(transposed_.data(), q, table);
 }
 
 double PqCodebook::reconstruction_sqdist(const uint8_t* code, const float* x) const {

@@ -80,6 +80,17 @@ TEST(SearchKernels, AdcTableIsBitIdenticalToTheCodebooksTable) {
     for (auto& x : q) x = std::round(u(rng));  // SIFT is integer-valued
     if (trial == 4) q.assign(128, 0.37f);
     cb.distance_table(q.data(), reference.data());
+    // An independent reference from the codebook's own layout, in double.
+    const auto c = cb.centroids();
+    for (int m = 0; m < kPqSubvectors; ++m)
+      for (int k = 0; k < kPqCentroids; ++k) {
+        double d = 0;
+        for (int j = 0; j < kPqSubDim; ++j) {
+          const double e = double(q[m * 8 + j]) - c[(size_t(m) * kPqCentroids + k) * kPqSubDim + j];
+          d += e * e;
+        }
+        ASSERT_NEAR(reference[m * kPqCentroids + k], d, 1e-5 * d + 1e-3);
+      }
     for (SimdLevel level : supported_simd_levels()) {
       std::fill(table.begin(), table.end(), -1.f);
       search_kernels(level).adc_table(cb.centroids_transposed(), q.data(), table.data());

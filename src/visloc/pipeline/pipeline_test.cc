@@ -6,6 +6,7 @@
 #include "visloc/colmap/colmap_database.h"
 #include "visloc/geometry/pose_list.h"
 #include "visloc/map/colmap_import.h"
+#include "visloc/map/map.h"
 #include "visloc/pipeline/localization_json.h"
 #include "visloc/pipeline/localizer.h"
 #include "visloc/util/error.h"
@@ -158,6 +159,24 @@ TEST(Localizer, EndToEndOnSyntheticStreet) {
   ASSERT_EQ(back.segments.size(), built.segments.size());
   EXPECT_FALSE(back.segments[0].reused);
   EXPECT_EQ(back.failed(), 0u);
+  // One hash rotation for the map: segments made with their own are built
+  // again (never searched with another rotation), then reused; an update with
+  // the other scope is refused rather than dropping segments. The queries
+  // below are localized on this map (a query hashed once for all segments).
+  MapBuildOptions shared = mb;
+  shared.hash_rotation = HashRotationScope::kMap;
+  const MapBuildResult rotated = build_map(dir / "map", shared);
+  EXPECT_FALSE(rotated.segments[0].reused);
+  EXPECT_EQ(rotated.failed(), 0u);
+  ASSERT_TRUE(fs::exists(dir / "map" / kHashRotationFileName));
+  EXPECT_EQ(read_manifest(dir / "map").hash_rotation_file, kHashRotationFileName);
+  EXPECT_TRUE(build_map(dir / "map", shared).segments[0].reused);
+  if (rotated.segments.size() > 1) {
+    MapBuildOptions update = mb;  // scope: segment
+    update.only_segments = {0};
+    EXPECT_THROW(build_map(dir / "map", update), Error);
+  }
+  EXPECT_TRUE(Map::open(dir / "map").open_segment(0)->uses_map_hasher());
 
   std::map<std::string, CameraPose> truth;
   for (const auto& p : read_pose_list(dir / "city" / "queries" / "truth.txt")) truth[p.name] = p.cam_from_world;
