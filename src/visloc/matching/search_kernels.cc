@@ -119,7 +119,8 @@ __attribute__((target("avx2"))) void adc_distances_avx2(const float* table, cons
 }
 
 // One row at a time: 16 accumulators of 8 outputs, the sum over j in order.
-__attribute__((target("avx2"))) void hash_codes_avx2(const float* wt, const float* x, size_t n, HashCode* codes) {
+__attribute__((target("avx2"))) void hash_codes_avx2_rows(const float* wt, const float* x, size_t n,
+                                                           HashCode* codes) {
   for (size_t r = 0; r < n; ++r) {
     const float* xr = x + r * kDescriptorDim;
     __m256 acc[16];
@@ -137,6 +138,39 @@ __attribute__((target("avx2"))) void hash_codes_avx2(const float* wt, const floa
     }
     codes[r] = c;
   }
+}
+
+// Blocks of 4 rows × 32 outputs (16 accumulators): the 16 KiB slice of W for
+// 32 outputs stays in L1 while 4 rows pass over it; same order as the reference.
+__attribute__((target("avx2"))) void hash_codes_avx2(const float* wt, const float* x, size_t n, HashCode* codes) {
+  constexpr int kRows = 4;
+  size_t r0 = 0;
+  for (; r0 + kRows <= n; r0 += kRows) {
+    HashCode c[kRows] = {};
+    for (int ib = 0; ib < kHashBits / 32; ++ib) {
+      __m256 acc[kRows][4];
+      for (auto& a : acc)
+        for (auto& v : a) v = _mm256_setzero_ps();
+      for (int j = 0; j < kDescriptorDim; ++j) {
+        __m256 w[4];
+        for (int t = 0; t < 4; ++t) w[t] = _mm256_loadu_ps(wt + j * kHashBits + 32 * ib + 8 * t);
+        for (int r = 0; r < kRows; ++r) {
+          const __m256 b = _mm256_set1_ps(x[(r0 + r) * kDescriptorDim + j]);
+          for (int t = 0; t < 4; ++t) acc[r][t] = _mm256_add_ps(acc[r][t], _mm256_mul_ps(w[t], b));
+        }
+      }
+      const __m256 zero = _mm256_setzero_ps();
+      for (int r = 0; r < kRows; ++r) {
+        uint64_t bits = 0;
+        for (int t = 0; t < 4; ++t)
+          bits |= uint64_t(static_cast<uint32_t>(_mm256_movemask_ps(_mm256_cmp_ps(acc[r][t], zero, _CMP_GT_OQ))))
+                  << (8 * t);
+        c[r].w[ib >> 1] |= bits << (32 * (ib & 1));
+      }
+    }
+    for (int r = 0; r < kRows; ++r) codes[r0 + r] = c[r];
+  }
+  hash_codes_avx2_rows(wt, x + r0 * kDescriptorDim, n - r0, codes + r0);
 }
 
 // ---- x86-64: AVX-512F ------------------------------------------------------------
@@ -181,34 +215,37 @@ __attribute__((target("avx512f"))) void adc_distances_avx512(const float* table,
   adc_distances_avx2(table, pq, ids + i, n - i, out + i);
 }
 
-// Two rows at a time (16 accumulators of 16 outputs), each W row loaded once for both.
+// Blocks of 8 rows × 32 outputs (16 accumulators): the 16 KiB slice of W
+// for 32 outputs stays in L1 while 8 rows pass over it; each output is still
+// summed over j = 0..127 in order, as the reference.
 __attribute__((target("avx512f"))) void hash_codes_avx512(const float* wt, const float* x, size_t n,
                                                            HashCode* codes) {
-  size_t r = 0;
-  for (; r + 2 <= n; r += 2) {
-    const float* x0 = x + r * kDescriptorDim;
-    const float* x1 = x0 + kDescriptorDim;
-    __m512 a0[8], a1[8];
-    for (int t = 0; t < 8; ++t) a0[t] = a1[t] = _mm512_setzero_ps();
-    for (int j = 0; j < kDescriptorDim; ++j) {
-      const __m512 b0 = _mm512_set1_ps(x0[j]), b1 = _mm512_set1_ps(x1[j]);
-      const float* w = wt + j * kHashBits;
-      for (int t = 0; t < 8; ++t) {
-        const __m512 wv = _mm512_loadu_ps(w + 16 * t);
-        a0[t] = _mm512_add_ps(a0[t], _mm512_mul_ps(wv, b0));
-        a1[t] = _mm512_add_ps(a1[t], _mm512_mul_ps(wv, b1));
+  constexpr int kRows = 8;
+  size_t r0 = 0;
+  for (; r0 + kRows <= n; r0 += kRows) {
+    HashCode c[kRows] = {};
+    for (int ib = 0; ib < kHashBits / 32; ++ib) {
+      __m512 acc[kRows][2];
+      for (auto& a : acc) a[0] = a[1] = _mm512_setzero_ps();
+      for (int j = 0; j < kDescriptorDim; ++j) {
+        const __m512 w0 = _mm512_loadu_ps(wt + j * kHashBits + 32 * ib);
+        const __m512 w1 = _mm512_loadu_ps(wt + j * kHashBits + 32 * ib + 16);
+        for (int r = 0; r < kRows; ++r) {
+          const __m512 b = _mm512_set1_ps(x[(r0 + r) * kDescriptorDim + j]);
+          acc[r][0] = _mm512_add_ps(acc[r][0], _mm512_mul_ps(w0, b));
+          acc[r][1] = _mm512_add_ps(acc[r][1], _mm512_mul_ps(w1, b));
+        }
+      }
+      const __m512 zero = _mm512_setzero_ps();
+      for (int r = 0; r < kRows; ++r) {
+        const uint64_t lo = _mm512_cmp_ps_mask(acc[r][0], zero, _CMP_GT_OQ);
+        const uint64_t hi = _mm512_cmp_ps_mask(acc[r][1], zero, _CMP_GT_OQ);
+        c[r].w[ib >> 1] |= (lo | (hi << 16)) << (32 * (ib & 1));
       }
     }
-    HashCode c0{{0, 0}}, c1{{0, 0}};
-    const __m512 zero = _mm512_setzero_ps();
-    for (int t = 0; t < 8; ++t) {
-      c0.w[t >> 2] |= uint64_t(_mm512_cmp_ps_mask(a0[t], zero, _CMP_GT_OQ)) << (16 * (t & 3));
-      c1.w[t >> 2] |= uint64_t(_mm512_cmp_ps_mask(a1[t], zero, _CMP_GT_OQ)) << (16 * (t & 3));
-    }
-    codes[r] = c0;
-    codes[r + 1] = c1;
+    for (int r = 0; r < kRows; ++r) codes[r0 + r] = c[r];
   }
-  hash_codes_avx2(wt, x + r * kDescriptorDim, n - r, codes + r);
+  hash_codes_avx2(wt, x + r0 * kDescriptorDim, n - r0, codes + r0);
 }
 
 #endif  // VISLOC_X86_KERNELS
