@@ -107,9 +107,9 @@ void BM_Crc32c(benchmark::State& state) {
 }
 BENCHMARK(BM_Crc32c);
 
-const visloc::SearchKernels* kernels_or_skip(benchmark::State& state) {
+const visloc::SearchKernels* kernels_or_skip(benchmark::State& state, int64_t index = -1) {
   const visloc::SimdLevel levels[] = {visloc::SimdLevel::kScalar, visloc::SimdLevel::kAvx2, visloc::SimdLevel::kAvx512};
-  const visloc::SimdLevel level = levels[state.range(0)];
+  const visloc::SimdLevel level = levels[index >= 0 ? index : state.range(0)];
   if (!visloc::cpu_supports(level)) {
     state.SkipWithError("this CPU lacks the level");
     return nullptr;
@@ -173,6 +173,36 @@ void BM_KernelAdcDistances(benchmark::State& state) {
   state.SetItemsProcessed(state.iterations() * kPoints);
 }
 BENCHMARK(BM_KernelAdcDistances)->DenseRange(0, 2);
+
+// ADC distances of 40 candidates (L_R) without a table, against the table
+// and its lookups (argument 3..5: the same levels, table path).
+void BM_KernelAdcDirect40(benchmark::State& state) {
+  const bool table_path = state.range(0) >= 3;
+  const auto* k = kernels_or_skip(state, state.range(0) % 3);
+  if (!k) return;
+  state.SetLabel(std::string(visloc::to_string(k->level)) + (table_path ? " table+lookups" : " direct"));
+  std::mt19937 rng(9);
+  std::uniform_real_distribution<float> u(0, 120);
+  std::vector<float> c(size_t(visloc::kPqTableSize) * visloc::kPqSubDim), q(128), table(visloc::kPqTableSize);
+  for (auto& x : c) x = u(rng);
+  for (auto& x : q) x = u(rng);
+  const visloc::PqCodebook cb(c);
+  auto codes = random_bytes(kPoints * visloc::kPqCodeBytes, 10);
+  std::vector<uint32_t> ids(40);
+  for (auto& i : ids) i = rng() % kPoints;
+  std::vector<float> out(40);
+  for (auto _ : state) {
+    if (table_path) {
+      k->adc_table(cb.centroids_transposed(), q.data(), table.data());
+      k->adc_distances(table.data(), codes.data(), ids.data(), ids.size(), out.data());
+    } else {
+      k->adc_direct(cb.centroids().data(), q.data(), codes.data(), ids.data(), ids.size(), out.data());
+    }
+    benchmark::DoNotOptimize(out.data());
+  }
+  state.SetItemsProcessed(state.iterations() * 40);
+}
+BENCHMARK(BM_KernelAdcDirect40)->DenseRange(0, 5);
 
 // Hash codes of 1024 centred descriptors.
 void BM_KernelHashCodes(benchmark::State& state) {

@@ -119,6 +119,12 @@ CascadeMatcher::CascadeMatcher(CascadeIndexView index, const PqCodebook& codeboo
 
 namespace {
 
+// Below this many ranked candidates the ADC distances are computed without the
+// table: measured (bench/micro_bench BM_KernelAdcDirect40) the table and its
+// lookups cost as much as ~70 direct distances with AVX2 or AVX-512 and ~40
+// with the scalar kernels.
+constexpr size_t kDirectAdcMaxCandidates = 48;
+
 // The probes of one table: the exact bucket, then (radius 1) the 16 buckets
 // one bit away, in that order.
 inline uint32_t probe_bucket(uint32_t key, int b) { return b == 0 ? key : key ^ (1u << (b - 1)); }
@@ -294,9 +300,17 @@ void CascadeMatcher::match_hashed(const DescriptorMatrix& queries, std::span<con
     // Precise: PQ asymmetric distances, the `keep` nearest by insertion.
     const uint8_t* q = queries.row(f);
     for (int j = 0; j < kDescriptorDim; ++j) qf[j] = q[j];
-    kernels.adc_table(codebook_->centroids_transposed(), qf, ws.table.data());
+    // A short list (L_R = 40 after the refined step) costs less without the
+    // 16 × 256 table; both paths give the same distances bit for bit.
     ws.ranked_distances.resize(ranked->size());
-    kernels.adc_distances(ws.table.data(), index_.pq_codes, ranked->data(), ranked->size(), ws.ranked_distances.data());
+    if (ranked->size() <= kDirectAdcMaxCandidates) {
+      kernels.adc_direct(codebook_->centroids().data(), qf, index_.pq_codes, ranked->data(), ranked->size(),
+                         ws.ranked_distances.data());
+    } else {
+      kernels.adc_table(codebook_->centroids_transposed(), qf, ws.table.data());
+      kernels.adc_distances(ws.table.data(), index_.pq_codes, ranked->data(), ranked->size(),
+                            ws.ranked_distances.data());
+    }
     int filled = 0;
     for (size_t r = 0; r < ranked->size(); ++r) {
       const float d = ws.ranked_distances[r];

@@ -16,6 +16,10 @@
 //   adc_table          the query's 16 × 256 table of squared sub-distances,
 //                      from centroids transposed to [m][j][k] (PqCodebook)
 //   adc_distances      d_i = Σ_m table[m·256 + pq_codes[ids_i·16 + m]]
+//   adc_direct         the same distances as adc_table + adc_distances without
+//                      the table: each candidate's 16 entries computed from
+//                      the centroids ([m][k][j]) as the table computes them
+//                      (cheaper when a feature ranks fewer than ~100 candidates)
 //   hash_codes         bit i of row r = [Σ_j Wᵀ[j][i] · x_rj > 0] over j = 0..127
 //                      in order (x centred): the ITQ/LSH projection's signs
 #pragma once
@@ -49,6 +53,8 @@ struct SearchKernels {
   void (*adc_table)(const float* centroids_transposed, const float* query, float* table) = nullptr;
   void (*adc_distances)(const float* table, const uint8_t* pq_codes, const uint32_t* ids, size_t n,
                         float* distances) = nullptr;
+  void (*adc_direct)(const float* centroids /* [m][k][j] */, const float* query, const uint8_t* pq_codes,
+                     const uint32_t* ids, size_t n, float* distances) = nullptr;
   void (*hash_codes)(const float* projection_transposed /* [j][i], 128 × 128 */, const float* centred /* n × 128 */,
                      size_t n, HashCode* codes) = nullptr;
 };

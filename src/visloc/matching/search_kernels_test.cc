@@ -155,3 +155,30 @@ TEST(SearchKernels, HashCodesMatchTheReference) {
       if (n < 37) EXPECT_EQ(b[n].w[0], 7u) << "wrote past the end";
     }
 }
+
+TEST(SearchKernels, AdcDirectEqualsTheTableAndItsLookups) {
+  const PqCodebook cb = random_codebook(7);
+  std::mt19937 rng(8);
+  std::uniform_real_distribution<float> u(0, 160);
+  std::vector<float> q(128), table(kPqTableSize);
+  for (auto& x : q) x = std::round(u(rng));
+  const size_t points = 700;
+  std::vector<uint8_t> pq(points * kPqCodeBytes);
+  for (auto& b : pq) b = static_cast<uint8_t>(rng());
+  for (size_t m = 0; m < 16; ++m) pq[m] = 255, pq[16 + m] = 0;  // the last and first centroid of every sub-space
+  std::vector<uint32_t> ids(120);
+  for (auto& i : ids) i = rng() % points;
+  ids[0] = 0, ids[1] = 1, ids[2] = points - 1;
+  const SearchKernels& ref = search_kernels(SimdLevel::kScalar);
+  ref.adc_table(cb.centroids_transposed(), q.data(), table.data());
+  std::vector<float> via_table(ids.size());
+  ref.adc_distances(table.data(), pq.data(), ids.data(), ids.size(), via_table.data());
+  for (SimdLevel level : supported_simd_levels())
+    for (size_t n : kLengths) {
+      n = std::min(n, ids.size());
+      std::vector<float> out(n + 1, -3.f);
+      search_kernels(level).adc_direct(cb.centroids().data(), q.data(), pq.data(), ids.data(), n, out.data());
+      ASSERT_EQ(0, std::memcmp(via_table.data(), out.data(), n * 4)) << to_string(level) << " n=" << n;
+      EXPECT_EQ(out[n], -3.f) << "wrote past the end";
+    }
+}
