@@ -137,16 +137,24 @@ void BM_KernelHamming(benchmark::State& state) {
 }
 BENCHMARK(BM_KernelHamming)->DenseRange(0, 2);
 
+// Centroids and a query with values in [0, 120), drawn from `rng` in that order.
+visloc::PqCodebook random_codebook_and_query(std::mt19937& rng, std::vector<float>& query) {
+  std::uniform_real_distribution<float> u(0, 120);
+  std::vector<float> c(size_t(visloc::kPqTableSize) * visloc::kPqSubDim);
+  for (auto& x : c) x = u(rng);
+  query.resize(128);
+  for (auto& x : query) x = u(rng);
+  return visloc::PqCodebook(c);
+}
+
 // One query's 16 × 256 ADC table (once per searched feature).
 void BM_KernelAdcTable(benchmark::State& state) {
   const auto* k = kernels_or_skip(state);
   if (!k) return;
   std::mt19937 rng(3);
-  std::uniform_real_distribution<float> u(0, 120);
-  std::vector<float> c(size_t(visloc::kPqTableSize) * visloc::kPqSubDim), q(128), table(visloc::kPqTableSize);
-  for (auto& x : c) x = u(rng);
-  for (auto& x : q) x = u(rng);
-  const visloc::PqCodebook cb(c);
+  std::vector<float> q;
+  const visloc::PqCodebook cb = random_codebook_and_query(rng, q);
+  std::vector<float> table(visloc::kPqTableSize);
   for (auto _ : state) {
     k->adc_table(cb.centroids_transposed(), q.data(), table.data());
     benchmark::DoNotOptimize(table.data());
@@ -182,11 +190,9 @@ void BM_KernelAdcDirect40(benchmark::State& state) {
   if (!k) return;
   state.SetLabel(std::string(visloc::to_string(k->level)) + (table_path ? " table+lookups" : " direct"));
   std::mt19937 rng(9);
-  std::uniform_real_distribution<float> u(0, 120);
-  std::vector<float> c(size_t(visloc::kPqTableSize) * visloc::kPqSubDim), q(128), table(visloc::kPqTableSize);
-  for (auto& x : c) x = u(rng);
-  for (auto& x : q) x = u(rng);
-  const visloc::PqCodebook cb(c);
+  std::vector<float> q;
+  const visloc::PqCodebook cb = random_codebook_and_query(rng, q);
+  std::vector<float> table(visloc::kPqTableSize);
   auto codes = random_bytes(kPoints * visloc::kPqCodeBytes, 10);
   std::vector<uint32_t> ids(40);
   for (auto& i : ids) i = rng() % kPoints;
