@@ -146,7 +146,7 @@ void add_bench_city(CLI::App& bench) {
       // Tasks run `map build-segment`, which reads the options of an equivalent `map build`.
       const fs::path out = fs::absolute(a->out);
       const std::vector<std::string> args = {"--images", (out / "city" / "images").string(), "--gps",
-                                             (out / "map_gps.csv").string(), "--poses", "known", "--known-poses",
+                                             (out / "map_gps.csv").string(), "--gps-subset", "--poses", "known", "--known-poses",
                                              (out / "city" / "sparse").string(), "--out", (out / "map").string(),
                                              "--min-placemarks", std::to_string(o.map.plan.min_placemarks),
                                              "--max-placemarks", std::to_string(o.map.plan.max_placemarks),

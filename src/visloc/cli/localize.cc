@@ -31,7 +31,8 @@ void add_localize_command(CLI::App& app) {
   cmd->add_option("--poses", args->poses,
                   "Also write the registered images' poses as 'name qw qx qy qz tx ty tz' (world-to-camera in the "
                   "segment's frame; the visuallocalization.net format)");
-  cmd->add_option("--focal", args->focal, "Focal length in pixels for every image (default: EXIF, else estimated)");
+  cmd->add_option("--focal", args->focal, "Focal length in pixels for every image (default: EXIF, else estimated)")
+      ->check(positive_finite_number());
   cmd->add_option("--intrinsics", args->intrinsics,
                   "Per-image intrinsics: 'name MODEL width height params...' (SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL)")
       ->excludes("--focal");

@@ -1,7 +1,36 @@
+#include <cmath>
 #include <iostream>
+#include <string>
 
 #include "visloc/cli/commands.h"
 #include "visloc/util/error.h"
+
+namespace {
+
+// Every floating-point option of every command refuses NaN and ±infinity
+// (CLI11 parses them, and range checks let NaN through); ranges are checked
+// by the options' own validators and the library's validate().
+void require_finite_numbers(CLI::App& app) {
+  const CLI::Validator finite(
+      [](std::string& text) -> std::string {
+        try {
+          size_t used = 0;
+          const double v = std::stod(text, &used);
+          if (std::isfinite(v)) return {};
+        } catch (const std::out_of_range&) {
+          return "'" + text + "' is out of range";
+        } catch (const std::exception&) {
+          return {};  // not a number at all: CLI11's own conversion reports it
+        }
+        return "'" + text + "' is not a finite number";
+      },
+      "", "FINITE");
+  for (CLI::Option* o : app.get_options())
+    if (o->get_type_name().find("FLOAT") != std::string::npos) o->check(finite);
+  for (CLI::App* sub : app.get_subcommands([](CLI::App*) { return true; })) require_finite_numbers(*sub);
+}
+
+}  // namespace
 
 int main(int argc, char** argv) {
   using namespace visloc;
@@ -18,6 +47,7 @@ int main(int argc, char** argv) {
   cli::add_bench_command(app);
   cli::add_synth_command(app);
   cli::add_retrieval_command(app);
+  require_finite_numbers(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

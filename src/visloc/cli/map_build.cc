@@ -26,6 +26,7 @@ struct MapBuildArgs {
   std::string images, gps, out, poses = "sfm", known_poses, colmap = "colmap";
   std::string matcher = "auto", executor = "local";
   int jobs = 0;
+  bool gps_subset = false;
   int segment = -1;
   MapBuildOptions options;
 };
@@ -33,6 +34,9 @@ struct MapBuildArgs {
 void bind_build_options(CLI::App* cmd, MapBuildArgs& a, bool update) {
   cmd->add_option("--images", a.images, "Directory of the map's images")->required();
   cmd->add_option("--gps", a.gps, "GPS CSV (image,lat,lon,alt[,placemark]) or 'exif'")->default_str("exif");
+  cmd->add_flag("--gps-subset", a.gps_subset,
+                "The GPS CSV lists a subset of --images: build from those only (default: every image in the folder "
+                "must have a line)");
   cmd->add_option("--poses", a.poses, "Where poses come from: 'sfm' (COLMAP mapper) or 'known' (triangulate)")
       ->check(CLI::IsMember({"sfm", "known"}))
       ->capture_default_str();
@@ -190,6 +194,7 @@ void apply_arguments(MapBuildArgs& a) {
   MapBuildOptions& o = a.options;
   o.images_dir = a.images;
   if (a.gps != "exif") o.gps_csv = a.gps;
+  o.gps_lists_subset = a.gps_subset;
   o.poses = a.poses == "known" ? PoseSource::kKnown : PoseSource::kSfm;
   o.known_poses = a.known_poses;
   o.jobs = a.jobs;

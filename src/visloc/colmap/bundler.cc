@@ -162,6 +162,11 @@ LoweKeys parse_lowe_keys(const fs::path& path, bool want_descriptors, bool root_
   const uint64_t n = c.integer("the number of keypoints", 100'000'000);
   const uint64_t len = c.integer("the descriptor length");
   if (len != 128) c.fail("descriptor length " + std::to_string(len) + ", expected 128 (a SIFT key file: \"N 128\")");
+  // A key is 132 numbers, each at least one digit and a separator: the text
+  // bounds the count before anything is allocated for it.
+  if (n > text.size() / 264)
+    c.fail("the header promises " + std::to_string(n) + " keypoints, more than " + std::to_string(text.size()) +
+           " bytes can hold (truncated?)");
   LoweKeys out;
   out.keypoints.resize(n);
   if (want_descriptors) out.descriptors = DescriptorMatrix(n);

@@ -59,9 +59,16 @@ ColmapDatabase::ColmapDatabase(const std::filesystem::path& path) : path_(path) 
     throw_error(ErrorCode::kIo, path.string(), ": cannot open database: ", msg);
   }
   // Validate the schema now so that later calls fail only on real I/O errors.
-  Statement(db_, path_, "SELECT image_id, name, camera_id FROM images LIMIT 1");
-  Statement(db_, path_, "SELECT image_id, rows, cols, data FROM keypoints LIMIT 1");
-  Statement(db_, path_, "SELECT image_id, rows, cols, data FROM descriptors LIMIT 1");
+  // The destructor does not run when the constructor throws: close here.
+  try {
+    Statement(db_, path_, "SELECT image_id, name, camera_id FROM images LIMIT 1");
+    Statement(db_, path_, "SELECT image_id, rows, cols, data FROM keypoints LIMIT 1");
+    Statement(db_, path_, "SELECT image_id, rows, cols, data FROM descriptors LIMIT 1");
+  } catch (...) {
+    sqlite3_close(db_);
+    db_ = nullptr;
+    throw;
+  }
 }
 
 ColmapDatabase::~ColmapDatabase() { sqlite3_close(db_); }
@@ -104,7 +111,9 @@ std::vector<Keypoint> ColmapDatabase::keypoints(int64_t image_id) const {
   if (!s.step()) return {};
   const int64_t rows = s.integer(0), cols = s.integer(1);
   auto [p, n] = s.blob(2);
-  if (rows < 0 || (cols != 2 && cols != 4 && cols != 6) || n != size_t(rows * cols) * sizeof(float))
+  // rows is bounded by the blob first, so that no product below overflows.
+  if (rows < 0 || static_cast<uint64_t>(rows) > n || (cols != 2 && cols != 4 && cols != 6) ||
+      n != static_cast<uint64_t>(rows) * static_cast<uint64_t>(cols) * sizeof(float))
     throw_error(ErrorCode::kFormat, path_.string(), ": keypoints of image ", image_id, " have ",
                 rows, "x", cols, " values in ", n, " bytes");
   std::vector<float> v(rows * cols);
@@ -134,7 +143,8 @@ DescriptorMatrix ColmapDatabase::descriptors(int64_t image_id) const {
   if (!s.step()) return {};
   const int64_t rows = s.integer(0), cols = s.integer(1);
   auto [p, n] = s.blob(2);
-  if (rows < 0 || cols != kDescriptorDim || n != size_t(rows * cols))
+  if (rows < 0 || static_cast<uint64_t>(rows) > n || cols != kDescriptorDim ||
+      n != static_cast<uint64_t>(rows) * kDescriptorDim)
     throw_error(ErrorCode::kFormat, path_.string(), ": descriptors of image ", image_id, " have ",
                 rows, "x", cols, " values in ", n, " bytes (expected uint8 × 128)");
   return DescriptorMatrix(static_cast<const uint8_t*>(p), rows);
@@ -167,7 +177,7 @@ std::vector<std::pair<uint32_t, uint32_t>> ColmapDatabase::verified_matches(int6
   const int64_t rows = s.integer(0), cols = s.integer(1);
   auto [p, n] = s.blob(2);
   if (rows == 0 || n == 0) return {};
-  if (cols != 2 || n != size_t(rows) * 2 * sizeof(uint32_t))
+  if (rows < 0 || static_cast<uint64_t>(rows) > n || cols != 2 || n != static_cast<uint64_t>(rows) * 2 * sizeof(uint32_t))
     throw_error(ErrorCode::kFormat, path_.string(), ": two-view geometry of images ", id1, ", ", id2,
                 " has a bad match blob");
   std::vector<std::pair<uint32_t, uint32_t>> out(rows);

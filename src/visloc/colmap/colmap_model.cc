@@ -1,6 +1,7 @@
 #include "visloc/colmap/colmap_model.h"
 
 #include <algorithm>
+#include <cmath>
 #include <cstring>
 #include <fstream>
 #include <iomanip>
@@ -94,16 +95,21 @@ class BinaryBuffer {
   std::string data_;
 };
 
-void check_params(const fs::path& path, const ColmapCamera& c) {
-  if (static_cast<int>(c.params.size()) != colmap_camera_model_num_params(c.model_id))
-    throw_error(ErrorCode::kFormat, path.string(), ": camera ", c.camera_id, " of model ",
-                colmap_camera_model_name(c.model_id), " has ", c.params.size(), " parameters");
-}
+void check_params(const fs::path& path, const ColmapCamera& c) { validate_colmap_camera(c, path.string()); }
 
 // Sorts by id, checks uniqueness and that tracks and 2D-3D links are consistent.
 void finalize(ColmapModel& m, const fs::path& dir) {
   std::sort(m.images.begin(), m.images.end(), [](auto& a, auto& b) { return a.image_id < b.image_id; });
   std::sort(m.points.begin(), m.points.end(), [](auto& a, auto& b) { return a.point3d_id < b.point3d_id; });
+  for (size_t i = 0; i < m.cameras.size(); ++i)
+    for (size_t k = 0; k < i; ++k)
+      if (m.cameras[i].camera_id == m.cameras[k].camera_id)
+        throw_error(ErrorCode::kFormat, dir.string(), ": duplicate camera id ", m.cameras[i].camera_id);
+  for (const auto& im : m.images) validate_colmap_image_pose(im, dir.string());
+  for (const auto& p : m.points)
+    for (double x : p.xyz)
+      if (!std::isfinite(x))
+        throw_error(ErrorCode::kFormat, dir.string(), ": 3D point ", p.point3d_id, " has a non-finite position");
   for (size_t i = 1; i < m.images.size(); ++i)
     if (m.images[i].image_id == m.images[i - 1].image_id)
       throw_error(ErrorCode::kFormat, dir.string(), ": duplicate image id ", m.images[i].image_id);
@@ -139,12 +145,55 @@ bool next_data_line(std::istream& in, std::string& line) {
 }
 
 std::ifstream open_text(const fs::path& path) {
+  require_regular_file(path);
   std::ifstream in(path);
   if (!in) throw_error(ErrorCode::kIo, path.string(), ": cannot open");
   return in;
 }
 
 }  // namespace
+
+void validate_colmap_camera(const ColmapCamera& c, const std::string& file) {
+  auto fail = [&](const auto&... parts) {
+    throw_error(ErrorCode::kFormat, file, ": camera ", c.camera_id, ": ", parts...);
+  };
+  int expected = 0;
+  try {
+    expected = colmap_camera_model_num_params(c.model_id);
+  } catch (const Error&) {
+    fail("unknown camera model id ", c.model_id);
+  }
+  if (static_cast<int>(c.params.size()) != expected)
+    fail("model ", colmap_camera_model_name(c.model_id), " takes ", expected, " parameters, found ", c.params.size());
+  if (c.width == 0 || c.height == 0 || c.width > kColmapMaxImageSide || c.height > kColmapMaxImageSide)
+    fail("image size ", c.width, "x", c.height, " is not valid (each side 1..", kColmapMaxImageSide, " pixels)");
+  for (double p : c.params)
+    if (!std::isfinite(p)) fail("a parameter is not finite (", p, ")");
+  // COLMAP's models put one focal first (SIMPLE_PINHOLE, SIMPLE_RADIAL,
+  // RADIAL and their fisheye forms) or fx, fy, then the principal point.
+  const bool one_focal = c.model_id == 0 || c.model_id == 2 || c.model_id == 3 || c.model_id == 8 || c.model_id == 9;
+  const int focals = one_focal ? 1 : 2;
+  for (int k = 0; k < focals; ++k)
+    if (!(c.params[k] > 0)) fail("focal length must be positive, found ", c.params[k]);
+  const double cx = c.params[focals], cy = c.params[focals + 1];
+  if (!(cx >= 0 && cx <= double(c.width) && cy >= 0 && cy <= double(c.height)))
+    fail("principal point (", cx, ", ", cy, ") lies outside the ", c.width, "x", c.height, " image");
+}
+
+void validate_colmap_image_pose(const ColmapImage& im, const std::string& file) {
+  const auto& q = im.cam_from_world_q_wxyz;
+  const auto& t = im.cam_from_world_t;
+  double norm2 = 0;
+  for (double x : q) norm2 += x * x;
+  if (!std::isfinite(norm2) || std::abs(std::sqrt(norm2) - 1.0) > 1e-2)
+    throw_error(ErrorCode::kFormat, file, ": image ", im.image_id, " (", im.name,
+                "): rotation is not a unit quaternion (", q[0], " ", q[1], " ", q[2], " ", q[3], ")");
+  if (!std::isfinite(t[0]) || !std::isfinite(t[1]) || !std::isfinite(t[2]))
+    throw_error(ErrorCode::kFormat, file, ": image ", im.image_id, " (", im.name, "): translation is not finite");
+  for (const auto& p : im.points2d)
+    if (!std::isfinite(p[0]) || !std::isfinite(p[1]))
+      throw_error(ErrorCode::kFormat, file, ": image ", im.image_id, " (", im.name, "): a 2D point is not finite");
+}
 
 int colmap_camera_model_num_params(int model_id) {
   for (const auto& m : kModels)
@@ -199,7 +248,12 @@ ColmapModel read_colmap_model_binary(const fs::path& dir) {
       cam.model_id = c.get<int32_t>("camera model");
       cam.width = c.get<uint64_t>("camera width");
       cam.height = c.get<uint64_t>("camera height");
-      const int np = colmap_camera_model_num_params(cam.model_id);
+      int np = 0;
+      try {
+        np = colmap_camera_model_num_params(cam.model_id);
+      } catch (const Error& e) {
+        throw_error(ErrorCode::kFormat, (dir / "cameras.bin").string(), ": camera ", cam.camera_id, ": ", e.what());
+      }
       for (int k = 0; k < np; ++k) cam.params.push_back(c.get<double>("camera parameters"));
       m.cameras.push_back(std::move(cam));
     }
@@ -265,9 +319,16 @@ ColmapModel read_colmap_model_text(const fs::path& dir) {
       std::string model;
       if (!(s >> cam.camera_id >> model >> cam.width >> cam.height))
         throw_error(ErrorCode::kFormat, path.string(), ": bad camera line '", line, "'");
-      cam.model_id = colmap_camera_model_id(model);
+      try {
+        cam.model_id = colmap_camera_model_id(model);
+      } catch (const Error& e) {
+        throw_error(ErrorCode::kFormat, path.string(), ": camera ", cam.camera_id, ": ", e.what());
+      }
       double v;
       while (s >> v) cam.params.push_back(v);
+      if (!s.eof())
+        throw_error(ErrorCode::kFormat, path.string(), ": camera ", cam.camera_id, ": a parameter is not a number ('",
+                    line.substr(0, 120), "')");
       check_params(path, cam);
       m.cameras.push_back(std::move(cam));
     }
@@ -299,6 +360,8 @@ ColmapModel read_colmap_model_text(const fs::path& dir) {
                     " (expected X Y POINT3D_ID triples)");
       for (size_t k = 0; k < v.size(); k += 3) {
         im.points2d.push_back({v[k], v[k + 1]});
+        if (!(v[k + 2] < 9.0e18) || v[k + 2] != std::floor(v[k + 2]))
+          throw_error(ErrorCode::kFormat, path.string(), ": image ", im.name, ": bad POINT3D_ID ", v[k + 2]);
         im.point3d_ids.push_back(v[k + 2] < 0 ? kColmapInvalidPoint3DId : static_cast<int64_t>(v[k + 2]));
       }
       m.images.push_back(std::move(im));

@@ -70,6 +70,13 @@ struct ColmapModel {
 
 // Number of parameters of a COLMAP camera model id; throws for unknown ids.
 int colmap_camera_model_num_params(int model_id);
+// Checks a camera's meaning: known model, its parameter count, finite values,
+// positive focal, principal point inside the image, each side 1..
+// kColmapMaxImageSide. Throws Error(kFormat) naming `file` and the camera.
+inline constexpr uint64_t kColmapMaxImageSide = 1u << 17;
+void validate_colmap_camera(const ColmapCamera& camera, const std::string& file);
+// A unit quaternion (±1%), finite translation and finite 2D points.
+void validate_colmap_image_pose(const ColmapImage& image, const std::string& file);
 // "PINHOLE" etc. ↔ model id.
 std::string colmap_camera_model_name(int model_id);
 int colmap_camera_model_id(const std::string& name);

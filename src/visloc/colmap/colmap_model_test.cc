@@ -1,6 +1,8 @@
 #include <gtest/gtest.h>
 
 #include <filesystem>
+#include <functional>
+#include <limits>
 
 #include "visloc/colmap/colmap_database.h"
 #include "visloc/colmap/colmap_model.h"
@@ -198,4 +200,41 @@ TEST(ColmapModel, ReadsStrechaFountainBinaryModelAndMeanDescriptors) {
   double n2 = 0;
   for (int j = 0; j < 128; ++j) n2 += double(d.mean[j]) * d.mean[j];
   EXPECT_GT(n2, 100.0);
+}
+
+// Well-formed models whose values mean nothing valid are rejected naming the
+// file and the camera, image or point (robustness issue: NaN, zero or infinite
+// poses, NaN points, focal NaN or −1000, width 0).
+TEST(ColmapModelValidation, RejectsMeaninglessValuesInBothFormats) {
+  const auto nan = std::numeric_limits<double>::quiet_NaN();
+  const auto inf = std::numeric_limits<double>::infinity();
+  const std::vector<std::pair<std::string, std::function<void(ColmapModel&)>>> cases = {
+      {"unit quaternion", [&](ColmapModel& m) { m.images[0].cam_from_world_q_wxyz = {nan, 0, 0, 0}; }},
+      {"unit quaternion", [&](ColmapModel& m) { m.images[1].cam_from_world_q_wxyz = {0, 0, 0, 0}; }},
+      {"translation", [&](ColmapModel& m) { m.images[2].cam_from_world_t = {inf, 0, 0}; }},
+      {"non-finite position", [&](ColmapModel& m) { m.points[1].xyz = {nan, 0, 0}; }},
+      {"not finite", [&](ColmapModel& m) { m.cameras[0].params[0] = nan; }},
+      {"focal length", [&](ColmapModel& m) { m.cameras[0].params = {-1000, -1000, 320, 240}; }},
+      {"image size", [&](ColmapModel& m) { m.cameras[0].width = 0; }},
+      {"principal point", [&](ColmapModel& m) { m.cameras[0].params[2] = 6400; }},
+  };
+  const auto dir = temp_dir("validation");
+  for (const auto& [expected, edit] : cases)
+    for (bool binary : {true, false}) {
+      ColmapModel m = small_model();
+      edit(m);
+      fs::remove_all(dir);
+      binary ? write_colmap_model_binary(m, dir) : write_colmap_model_text(m, dir);
+      try {
+        read_colmap_model(dir);
+        ADD_FAILURE() << "accepted a model with a bad value (" << expected << ")";
+      } catch (const Error& e) {
+        EXPECT_EQ(e.code(), ErrorCode::kFormat);
+        // The text reader already refuses "nan" and "inf" as numbers ("bad image line ...").
+        const bool text_number = !binary && (std::string(e.what()).find("bad ") != std::string::npos ||
+                                             std::string(e.what()).find("not a number") != std::string::npos);
+        EXPECT_TRUE(text_number || std::string(e.what()).find(expected) != std::string::npos) << e.what();
+        EXPECT_NE(std::string(e.what()).find(dir.string()), std::string::npos) << e.what();
+      }
+    }
 }

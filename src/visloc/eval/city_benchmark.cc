@@ -246,6 +246,7 @@ nlohmann::json run_city_benchmark(const fs::path& out, const CityBenchmarkOption
     MapBuildOptions mb = opt.map;
     mb.images_dir = city_dir / "images";
     mb.gps_csv = out / "map_gps.csv";
+    mb.gps_lists_subset = true;  // the streets left out stay in the folder
     mb.poses = PoseSource::kKnown;
     mb.known_poses = city_dir / "sparse";
     if (progress) progress({"map", 0, 1});

@@ -257,6 +257,7 @@ nlohmann::json run_segment_study(const fs::path& out, const StudyDataset& all_qu
     MapBuildOptions mb = opt.map;
     mb.images_dir = dataset.images_dir;
     mb.gps_csv = dataset.gps_csv;
+    mb.gps_lists_subset = true;  // e.g. KITTI's even frames of a folder of all frames
     mb.poses = PoseSource::kKnown;
     mb.known_poses = dataset.known_poses;
     mb.known_intrinsics = dataset.known_intrinsics;

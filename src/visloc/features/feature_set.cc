@@ -30,16 +30,20 @@ FeatureSet read_feature_file(const std::filesystem::path& path) {
   SectionFileReader r(path, "FEAT", 1, kFeatureFileVersion);
   FeatureSet f;
   nlohmann::json meta;
+  int64_t count = -1;
   try {
     meta = nlohmann::json::parse(r.text("META"));
     f.image = meta.at("image").get<std::string>();
     f.image_width = meta.at("width").get<int>();
     f.image_height = meta.at("height").get<int>();
     if (!meta.at("extractor").is_null()) f.extractor = meta.at("extractor").dump();
+    if (meta.contains("count")) count = meta.at("count").get<int64_t>();
   } catch (const nlohmann::json::exception& e) {
     throw_error(ErrorCode::kFormat, path.string(), ": bad META section: ", e.what());
   }
-  const int64_t count = meta.value("count", int64_t{-1});
+  if (f.image_width <= 0 || f.image_height <= 0 || count < -1 || count > (int64_t{1} << 32))
+    throw_error(ErrorCode::kFormat, path.string(), ": bad META section: image size ", f.image_width, "x",
+                f.image_height, ", count ", count);
   auto kpts = r.array<Keypoint>("KPTS", count);
   auto desc = r.array<uint8_t>("DESC", count * kDescriptorDim);
   f.keypoints.assign(kpts.begin(), kpts.end());

@@ -200,3 +200,10 @@ TEST(Similarity, StreetFitUsesFullSimilarityWhenCentresSpreadIn2D) {
   EXPECT_LT(line.rms_residual, 1e-6);
   EXPECT_LT((line.transform.rotation - truth.rotation).norm(), 1e-6);
 }
+
+TEST(GpsCsv, AcceptsAUtf8ByteOrderMark) {
+  fs::path p = write_temp("bom.csv", "\xEF\xBB\xBFimage,lat,lon,alt\na.jpg,46.5,6.5,400\nb.jpg,46.6,6.4,401\n");
+  auto r = read_gps_csv(p);
+  ASSERT_EQ(r.size(), 2u);
+  EXPECT_EQ(r[0].image, "a.jpg");
+}

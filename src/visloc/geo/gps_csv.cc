@@ -31,7 +31,8 @@ std::vector<std::string> split(const std::string& line, char sep) {
 }  // namespace
 
 std::vector<GpsRecord> read_gps_csv(const std::filesystem::path& path) {
-  const std::string content = read_file(path);
+  std::string content = read_file(path);
+  if (content.rfind("\xEF\xBB\xBF", 0) == 0) content.erase(0, 3);  // a UTF-8 byte-order mark (spreadsheets write one)
   std::istringstream in(content);
   std::vector<GpsRecord> records;
   std::set<std::string> seen;

@@ -56,8 +56,9 @@ void PinholeCamera::validate() const {
                 width, "x", height);
   if (has_focal && !(focal > 0 && std::isfinite(focal)))
     throw_error(ErrorCode::kInvalidArgument, "camera: focal must be a positive number, got ", focal);
-  if (!std::isfinite(cx) || !std::isfinite(cy))
-    throw_error(ErrorCode::kInvalidArgument, "camera: principal point must be finite");
+  if (!(cx >= 0 && cx <= width && cy >= 0 && cy <= height))
+    throw_error(ErrorCode::kInvalidArgument, "camera: principal point (", cx, ", ", cy, ") must lie inside the ", width,
+                "x", height, " image");
   if (!std::isfinite(k1) || std::abs(k1) > 10)
     throw_error(ErrorCode::kInvalidArgument, "camera: k1 must be finite and |k1| <= 10, got ", k1);
 }

@@ -176,3 +176,20 @@ TEST(IntrinsicsList, ReadsModelsAndRejectsBadLines) {
     EXPECT_NE(std::string(e.what()).find(":1:"), std::string::npos) << e.what();
   }
 }
+
+TEST(IntrinsicsList, RejectsConflictingLinesAndPrincipalPointsOutside) {
+  namespace fs = std::filesystem;
+  fs::path p = fs::temp_directory_path() / "visloc_geometry_test_intrinsics_conflict.txt";
+  write_file_atomic(p, "q1.jpg PINHOLE 800 600 500 502 400 300\nq1.jpg PINHOLE 800 600 700 702 400 300\n");
+  try {
+    read_intrinsics_list(p);
+    FAIL() << "two lines for one image were accepted";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find(":2: image 'q1.jpg' already has intrinsics on line 1"), std::string::npos)
+        << e.what();
+  }
+  write_file_atomic(p, "q1.jpg PINHOLE 800 600 500 502 4000 300\n");
+  EXPECT_THROW(read_intrinsics_list(p), Error);
+  write_file_atomic(p, "q1.jpg PINHOLE 800 600 nan 502 400 300\n");
+  EXPECT_THROW(read_intrinsics_list(p), Error);
+}

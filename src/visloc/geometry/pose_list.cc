@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <iomanip>
+#include <map>
 #include <set>
 #include <sstream>
 
@@ -73,6 +74,7 @@ std::vector<NamedPose> read_colmap_images_txt_poses(const std::filesystem::path&
     const double norm = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
     if (!(std::abs(norm - 1.0) < 1e-3))
       throw_error(ErrorCode::kFormat, path.string(), ":", line_no, ": quaternion norm is ", norm, ", not 1");
+    if (!t.allFinite()) throw_error(ErrorCode::kFormat, path.string(), ":", line_no, ": translation is not finite");
     p.cam_from_world = CameraPose::from_wxyz(q, t);
     out.push_back(std::move(p));
     expect_pose = false;
@@ -95,6 +97,7 @@ void write_pose_list(const std::filesystem::path& path, const std::vector<NamedP
 std::vector<NamedCamera> read_intrinsics_list(const std::filesystem::path& path) {
   std::istringstream in(read_file(path));
   std::vector<NamedCamera> out;
+  std::map<std::string, int> first_line;
   std::string line;
   int line_no = 0;
   while (std::getline(in, line)) {
@@ -110,11 +113,18 @@ std::vector<NamedCamera> read_intrinsics_list(const std::filesystem::path& path)
     std::vector<double> p;
     double v;
     while (s >> v) p.push_back(v);
+    if (!s.eof())
+      throw_error(ErrorCode::kFormat, path.string(), ":", line_no, ": a camera parameter is not a number");
     try {
       c.camera = PinholeCamera::from_colmap(model, w, h, p);
+      c.camera.validate();
     } catch (const Error& e) {
       throw_error(ErrorCode::kFormat, path.string(), ":", line_no, ": ", e.what());
     }
+    auto [it, fresh] = first_line.emplace(c.name, line_no);
+    if (!fresh)
+      throw_error(ErrorCode::kFormat, path.string(), ":", line_no, ": image '", c.name, "' already has intrinsics on line ",
+                  it->second);
     out.push_back(std::move(c));
   }
   return out;

@@ -1,8 +1,13 @@
 #include "visloc/map/map.h"
 
+#include <cmath>
+#include <limits>
+#include <set>
+
 #include "visloc/util/crc32c.h"
 #include "visloc/util/error.h"
 #include "visloc/util/file_io.h"
+#include "visloc/util/json_fields.h"
 #include "visloc/util/mapped_file.h"
 #include "visloc/util/section_file.h"
 
@@ -36,38 +41,64 @@ nlohmann::json MapManifest::to_json() const {
   return j;
 }
 
-MapManifest MapManifest::from_json(const nlohmann::json& j, const std::string& what) {
+namespace {
+
+// A file named by the manifest: relative, inside the map directory.
+std::string map_relative_file(const JsonField& f) {
+  std::string name = f.string();
+  const fs::path p(name);
+  if (name.empty()) f.fail("is empty");
+  if (p.is_absolute()) f.fail("must be a path relative to the map directory, found '", name, "'");
+  for (const auto& part : p)
+    if (part == "..") f.fail("must stay inside the map directory, found '", name, "'");
+  return name;
+}
+
+}  // namespace
+
+MapManifest MapManifest::from_json(const nlohmann::json& json, const std::string& what) {
   MapManifest m;
-  try {
-    if (j.at("format").get<std::string>() != "visloc-map")
-      throw_error(ErrorCode::kFormat, what, ": not a visloc map manifest");
-    m.format_version = j.at("format_version").get<int>();
-    if (m.format_version < 1 || m.format_version > kMapFormatVersion)
-      throw_error(ErrorCode::kFormat, what, ": map format version ", m.format_version,
-                  " is not supported (this build reads 1..", kMapFormatVersion, ")");
-    m.parameters = j.value("parameters", nlohmann::json::object());
-    m.pq_codebook_file = j.at("pq_codebook_file").get<std::string>();
-    m.hash_rotation_file = j.value("hash_rotation_file", "");
-    for (const auto& s : j.at("segments")) {
-      MapSegmentEntry e;
-      e.id = s.at("id").get<uint32_t>();
-      e.file = s.at("file").get<std::string>();
-      e.descriptors_file = s.value("descriptors_file", "");
-      e.points = s.at("points").get<size_t>();
-      e.images = s.at("images").get<size_t>();
-      e.file_bytes = s.at("file_bytes").get<uint64_t>();
-      e.file_crc32c = s.at("file_crc32c").get<uint32_t>();
-      m.segments.push_back(e);
-    }
-    m.source = j.value("source", nlohmann::json::object());
-    m.holdout_images = j.value("holdout_images", std::vector<std::string>{});
-    m.holdout_file = j.value("holdout_file", "");
-    if (j.contains("enu_origin") && !j["enu_origin"].is_null())
-      m.enu_origin_lat_lon_alt = std::array<double, 3>{j["enu_origin"].at("lat").get<double>(),
-                                                       j["enu_origin"].at("lon").get<double>(),
-                                                       j["enu_origin"].at("alt").get<double>()};
-  } catch (const nlohmann::json::exception& e) {
-    throw_error(ErrorCode::kFormat, what, ": bad manifest: ", e.what());
+  const JsonField j(json, what);
+  if (!json.is_object()) j.fail("must be a JSON object, found ", json.type_name());
+  if (j.at("format").string() != "visloc-map") throw_error(ErrorCode::kFormat, what, ": not a visloc map manifest");
+  m.format_version = static_cast<int>(j.at("format_version").integer(std::numeric_limits<int>::min(), std::numeric_limits<int>::max()));
+  if (m.format_version < 1 || m.format_version > kMapFormatVersion)
+    throw_error(ErrorCode::kFormat, what, ": map format version ", m.format_version,
+                " is not supported (this build reads 1..", kMapFormatVersion, ")");
+  if (j.has("parameters")) {
+    if (!json["parameters"].is_object()) j.at("parameters").fail("must be an object, found ", json["parameters"].type_name());
+    m.parameters = json["parameters"];
+  }
+  m.pq_codebook_file = map_relative_file(j.at("pq_codebook_file"));
+  if (j.has("hash_rotation_file") && !j.at("hash_rotation_file").string().empty())
+    m.hash_rotation_file = map_relative_file(j.at("hash_rotation_file"));
+  const JsonField segs = j.at("segments");
+  std::set<uint32_t> ids;
+  for (size_t i = 0; i < segs.size(); ++i) {
+    const JsonField s = segs.at(i);
+    MapSegmentEntry e;
+    e.id = static_cast<uint32_t>(s.at("id").unsigned_integer(std::numeric_limits<uint32_t>::max()));
+    if (!ids.insert(e.id).second) s.at("id").fail("repeats segment id ", e.id);
+    e.file = map_relative_file(s.at("file"));
+    if (s.has("descriptors_file") && !s.at("descriptors_file").string().empty())
+      e.descriptors_file = map_relative_file(s.at("descriptors_file"));
+    e.points = s.at("points").unsigned_integer(CascadeLookup::kMaxPoints);
+    e.images = s.at("images").unsigned_integer(std::numeric_limits<uint32_t>::max());
+    e.file_bytes = s.at("file_bytes").unsigned_integer();
+    e.file_crc32c = static_cast<uint32_t>(s.at("file_crc32c").unsigned_integer(std::numeric_limits<uint32_t>::max()));
+    m.segments.push_back(e);
+  }
+  if (j.has("source")) m.source = json["source"];
+  if (j.has("holdout_images")) m.holdout_images = j.at("holdout_images").strings();
+  if (j.has("holdout_file") && !j.at("holdout_file").string().empty())
+    m.holdout_file = map_relative_file(j.at("holdout_file"));
+  if (j.has("enu_origin")) {
+    const JsonField o = j.at("enu_origin");
+    const double lat = o.at("lat").number(), lon = o.at("lon").number(), alt = o.at("alt").number();
+    if (!(lat >= -90 && lat <= 90)) o.at("lat").fail("must be a latitude in [-90, 90], found ", lat);
+    if (!(lon >= -180 && lon <= 180)) o.at("lon").fail("must be a longitude in [-180, 180], found ", lon);
+    if (!(std::abs(alt) <= 1e5)) o.at("alt").fail("must be an altitude within ±100 km, found ", alt);
+    m.enu_origin_lat_lon_alt = std::array<double, 3>{lat, lon, alt};
   }
   return m;
 }
@@ -79,13 +110,7 @@ void write_manifest(const fs::path& dir, const MapManifest& m) {
 MapManifest read_manifest(const fs::path& dir) {
   const fs::path p = dir / "manifest.json";
   if (!fs::exists(p)) throw_error(ErrorCode::kIo, dir.string(), ": not a visloc map (no manifest.json)");
-  nlohmann::json j;
-  try {
-    j = nlohmann::json::parse(read_file(p));
-  } catch (const nlohmann::json::exception& e) {
-    throw_error(ErrorCode::kFormat, p.string(), ": not valid JSON: ", e.what());
-  }
-  return MapManifest::from_json(j, p.string());
+  return MapManifest::from_json(parse_json(read_file(p), p.string()), p.string());
 }
 
 void write_point_descriptor_file(const fs::path& path, const DescriptorMatrix& d, const std::vector<uint32_t>& track) {

@@ -304,6 +304,19 @@ BuildContext prepare_context(const fs::path& map_dir, const MapBuildOptions& opt
     if (!missing.empty())
       throw_error(ErrorCode::kNotFound, opt.gps_csv.string(), ": ", missing.size(), " listed images are not in ",
                   opt.images_dir.string(), " (first: ", missing.front(), ")");
+    if (!opt.gps_lists_subset) {
+      std::set<std::string> listed;
+      for (const auto& r : ctx.records) listed.insert(r.image);
+      std::vector<std::string> unlisted;
+      for (const auto& e : fs::directory_iterator(opt.images_dir))
+        if (e.is_regular_file() && is_image_file(e.path()) && !listed.count(e.path().filename().string()))
+          unlisted.push_back(e.path().filename().string());
+      std::sort(unlisted.begin(), unlisted.end());
+      if (!unlisted.empty())
+        throw_error(ErrorCode::kInvalidArgument, opt.gps_csv.string(), " lists ", ctx.records.size(), " images but ",
+                    unlisted.size(), " more in ", opt.images_dir.string(), " have no line (first: ", unlisted.front(),
+                    "); add them, or pass --gps-subset to build from the listed images only");
+    }
   } else {
     std::vector<fs::path> files;
     for (const auto& e : fs::directory_iterator(opt.images_dir))
@@ -346,7 +359,15 @@ BuildContext prepare_context(const fs::path& map_dir, const MapBuildOptions& opt
       const int64_t k = ctx.known->image_index_by_name(ctx.records[i].image);
       if (k < 0)
         throw_error(ErrorCode::kNotFound, opt.known_poses.string(), ": no pose for image '", ctx.records[i].image, "'");
-      const CameraPose pose = colmap_image_pose(ctx.known->images[k]);
+      // Known intrinsics must be for the image as it is on disk (its header).
+      const auto& im = ctx.known->images[k];
+      const PinholeCamera cam = camera_of(ctx.known->cameras[ctx.known->camera_index(im.camera_id)]);
+      const ImageMetadata meta = read_image_metadata(opt.images_dir / im.name, opt.sift.image);
+      if (cam.width != meta.width || cam.height != meta.height)
+        throw_error(ErrorCode::kInvalidArgument, "map build: the known intrinsics of image '", im.name, "' are for ",
+                    cam.width, "x", cam.height, " pixels, but ", (opt.images_dir / im.name).string(), " is ",
+                    meta.width, "x", meta.height);
+      const CameraPose pose = colmap_image_pose(im);
       src.push_back(pose.center());
       up += camera_up(pose);
       dst.push_back(ctx.enu[i]);

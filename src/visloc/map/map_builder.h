@@ -55,6 +55,10 @@ enum class PoseSource {
 struct MapBuildOptions {
   std::filesystem::path images_dir;
   std::filesystem::path gps_csv;         // empty: read GPS from each image's EXIF
+  // With gps_csv: false (default) every image in images_dir must be listed,
+  // as with EXIF every image must carry GPS; true: the CSV chooses a subset
+  // of the folder and the other images are left out of the map.
+  bool gps_lists_subset = false;
   PoseSource poses = PoseSource::kSfm;
   // kKnown: a COLMAP model directory (text or binary) whose image names
   // match, or a pose list file ('name qw qx qy qz tx ty tz', world-to-camera)

@@ -39,7 +39,8 @@ SegmentData random_segment(size_t n, uint64_t seed) {
   for (size_t i = 0; i < n; ++i) s.codes.push_back({{rng(), rng()}});
   for (size_t i = 0; i < n * 16; ++i) s.pq_codes.push_back(static_cast<uint8_t>(rng()));
   s.images.push_back({"a.jpg", 1, 640, 480, {500, 500, 320, 240}, {1, 0, 0, 0}, {0, 0, 1}});
-  s.extra_meta["enu_from_segment"] = {{"scale", 1.0}};
+  s.extra_meta["enu_from_segment"] = {
+      {"scale", 1.0}, {"rotation_row_major", {1, 0, 0, 0, 1, 0, 0, 0, 1}}, {"translation", {0, 0, 0}}};
   return s;
 }
 
@@ -211,7 +212,8 @@ TEST(Map, SharedHashRotationOpensSegmentsWithoutTheirOwn) {
   const BinaryHasher rotation = s.hasher;
   s.hasher = {};
   write_segment_file(dir / "segments" / "0000.vlseg", s);
-  std::vector<float> centroids(size_t(kPqTableSize) * kPqSubDim, 1.0f);
+  std::vector<float> centroids(size_t(kPqTableSize) * kPqSubDim);
+  for (size_t i = 0; i < centroids.size(); ++i) centroids[i] = float(i % 251);
   PqCodebook(centroids).write(dir / "pq_codebook.vlpq", "{}");
   write_hash_rotation_file(dir / kHashRotationFileName, rotation, "{}");
   MapManifest m;

@@ -1,7 +1,12 @@
 #include "visloc/map/segment_file.h"
 
+#include <cmath>
+#include <limits>
+
+#include "visloc/colmap/colmap_model.h"
 #include "visloc/matching/pq_codebook.h"
 #include "visloc/util/error.h"
+#include "visloc/util/json_fields.h"
 
 namespace visloc {
 
@@ -13,16 +18,49 @@ nlohmann::json to_json(const SegmentImage& im) {
 }
 
 SegmentImage segment_image_from_json(const nlohmann::json& j) {
+  return segment_image_from_json(JsonField(j, "segment image"));
+}
+
+SegmentImage segment_image_from_json(const JsonField& j) {
   SegmentImage im;
-  im.name = j.at("name").get<std::string>();
-  const auto& c = j.at("camera");
-  im.camera_model_id = c.at("model_id").get<int>();
-  im.width = c.at("width").get<uint64_t>();
-  im.height = c.at("height").get<uint64_t>();
-  im.camera_params = c.at("params").get<std::vector<double>>();
-  im.cam_from_world_q_wxyz = j.at("cam_from_world").at("q_wxyz").get<std::array<double, 4>>();
-  im.cam_from_world_t = j.at("cam_from_world").at("t").get<std::array<double, 3>>();
+  im.name = j.at("name").string();
+  if (im.name.empty()) j.at("name").fail("is empty");
+  const JsonField c = j.at("camera");
+  im.camera_model_id = static_cast<int>(c.at("model_id").integer(0, 100));
+  im.width = c.at("width").unsigned_integer(kColmapMaxImageSide);
+  im.height = c.at("height").unsigned_integer(kColmapMaxImageSide);
+  im.camera_params = c.at("params").numbers();
+  ColmapCamera cam;
+  cam.model_id = im.camera_model_id, cam.width = im.width, cam.height = im.height, cam.params = im.camera_params;
+  try {
+    validate_colmap_camera(cam, j.file());
+  } catch (const Error& e) {
+    c.fail("is not a valid camera (", e.what(), ")");
+  }
+  const JsonField pose = j.at("cam_from_world");
+  const auto q = pose.at("q_wxyz").numbers(4);
+  const auto t = pose.at("t").numbers(3);
+  const double qn = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+  if (!(std::abs(qn - 1.0) <= 1e-3)) pose.at("q_wxyz").fail("must be a unit quaternion, its norm is ", qn);
+  std::copy(q.begin(), q.end(), im.cam_from_world_q_wxyz.begin());
+  std::copy(t.begin(), t.end(), im.cam_from_world_t.begin());
   return im;
+}
+
+std::optional<Similarity3d> similarity_from_json(const JsonField& j) {
+  Similarity3d s;
+  s.scale = j.at("scale").number();
+  if (!(s.scale > 1e-9 && s.scale < 1e9)) j.at("scale").fail("must be a positive scale, found ", s.scale);
+  const auto r = j.at("rotation_row_major").numbers(9);
+  const auto t = j.at("translation").numbers(3);
+  for (int i = 0; i < 3; ++i)
+    for (int k = 0; k < 3; ++k) s.rotation(i, k) = r[3 * i + k];
+  const double off = (s.rotation.transpose() * s.rotation - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff();
+  if (!(off <= 1e-6) || !(s.rotation.determinant() > 0))
+    j.at("rotation_row_major").fail("must be a rotation (orthonormal, determinant +1); |RᵀR − I| is ", off,
+                                    ", det ", s.rotation.determinant());
+  s.translation = {t[0], t[1], t[2]};
+  return s;
 }
 
 void write_segment_file(const std::filesystem::path& path, const SegmentData& s) {
@@ -66,21 +104,32 @@ std::unique_ptr<Segment> Segment::open(const std::filesystem::path& path,
   std::string scope;
   bool has_crc = false;
   uint32_t expected_crc = 0;
-  try {
-    s->meta_ = nlohmann::json::parse(r.text("META"));
-    s->id_ = s->meta_.at("segment_id").get<uint32_t>();
-    s->num_points_ = s->meta_.at("points").get<size_t>();
-    for (const auto& j : nlohmann::json::parse(r.text("IMAGES"))) s->images_.push_back(segment_image_from_json(j));
-    scope = s->meta_.value("hash_rotation", "segment");
-    has_crc = s->meta_.contains("hash_rotation_crc32c");
-    if (has_crc) expected_crc = s->meta_.at("hash_rotation_crc32c").get<uint32_t>();
-  } catch (const nlohmann::json::exception& e) {
-    throw_error(ErrorCode::kFormat, name, ": bad segment metadata: ", e.what());
+  {
+    s->meta_ = parse_json(r.text("META"), name, "section META");
+    const JsonField meta(s->meta_, name + " (META)");
+    if (!s->meta_.is_object()) meta.fail("must be a JSON object");
+    s->id_ = static_cast<uint32_t>(meta.at("segment_id").unsigned_integer(std::numeric_limits<uint32_t>::max()));
+    s->num_points_ = meta.at("points").unsigned_integer(CascadeLookup::kMaxPoints);
+    const uint64_t image_count = meta.has("images") ? meta.at("images").unsigned_integer() : 0;
+    const nlohmann::json images = parse_json(r.text("IMAGES"), name, "section IMAGES");
+    const JsonField list(images, name + " (IMAGES)");
+    for (size_t i = 0; i < list.size(); ++i) s->images_.push_back(segment_image_from_json(list.at(i)));
+    if (meta.has("images") && image_count != s->images_.size())
+      meta.at("images").fail("says ", image_count, " images, section IMAGES holds ", s->images_.size());
+    scope = meta.string_or("hash_rotation", "segment");
+    if (scope != "segment" && scope != "map") meta.at("hash_rotation").fail("must be \"segment\" or \"map\", found \"", scope, "\"");
+    has_crc = meta.has("hash_rotation_crc32c");
+    if (has_crc)
+      expected_crc = static_cast<uint32_t>(meta.at("hash_rotation_crc32c").unsigned_integer(std::numeric_limits<uint32_t>::max()));
+    if (meta.has("enu_from_segment")) s->enu_from_segment_ = similarity_from_json(meta.at("enu_from_segment"));
   }
   if (s->num_points_ > CascadeLookup::kMaxPoints)
     throw_error(ErrorCode::kFormat, name, ": ", s->num_points_, " points, at most ", CascadeLookup::kMaxPoints);
   const int64_t n = static_cast<int64_t>(s->num_points_);
   s->xyz_ = r.array<float>("XYZ", 3 * n);
+  for (size_t i = 0; i < s->xyz_.size(); ++i)
+    if (!std::isfinite(s->xyz_[i]))
+      throw_error(ErrorCode::kFormat, name, ": section 'XYZ': point ", i / 3, " has a non-finite coordinate");
   CascadeIndexView& v = s->index_;
   v.num_points = s->num_points_;
   auto codes = r.array<HashCode>("CODE", n);
@@ -95,6 +144,7 @@ std::unique_ptr<Segment> Segment::open(const std::filesystem::path& path,
     v.hasher.mean = r.array<float>("ITQMEAN", kDescriptorDim).data();
     v.hasher.projection = r.array<float>("ITQW", kHashBits * kDescriptorDim).data();
     b.hasher = r.bytes("ITQMEAN").size() + r.bytes("ITQW").size();
+    check_hash_rotation(v.hasher, name);
   } else {
     if (!map_hasher)
       throw_error(ErrorCode::kFormat, name,

@@ -28,13 +28,16 @@
 #include <cstdint>
 #include <filesystem>
 #include <memory>
+#include <optional>
 #include <nlohmann/json.hpp>
 #include <span>
 #include <string>
 #include <vector>
 
+#include "visloc/geo/similarity_transform.h"
 #include "visloc/matching/binary_hasher.h"
 #include "visloc/matching/cascade_index.h"
+#include "visloc/util/json_fields.h"
 #include "visloc/util/section_file.h"
 
 namespace visloc {
@@ -51,7 +54,14 @@ struct SegmentImage {
   std::array<double, 3> cam_from_world_t{0, 0, 0};
 };
 nlohmann::json to_json(const SegmentImage& image);
+// Reads and checks an image record: a valid COLMAP camera (model, parameter
+// count, finite, focal > 0, principal point inside the image) and a pose with
+// a unit quaternion and a finite translation. Error(kFormat) names the field.
+SegmentImage segment_image_from_json(const JsonField& j);
 SegmentImage segment_image_from_json(const nlohmann::json& j);
+// A similarity stored as {"scale", "rotation_row_major", "translation"}:
+// scale > 0, an orthonormal rotation with determinant +1, finite values.
+std::optional<Similarity3d> similarity_from_json(const JsonField& j);
 
 // Everything a segment file holds, owned (the writer's input).
 struct SegmentData {
@@ -99,6 +109,8 @@ class Segment {
   const CascadeIndexView& index() const { return index_; }
   const std::vector<SegmentImage>& images() const { return images_; }
   const nlohmann::json& meta() const { return meta_; }
+  // META's enu_from_segment (checked at open), absent when not georegistered.
+  const std::optional<Similarity3d>& enu_from_segment() const { return enu_from_segment_; }
   const SegmentBytes& bytes() const { return bytes_; }
   const std::filesystem::path& path() const { return reader_.path(); }
 
@@ -113,6 +125,7 @@ class Segment {
   std::shared_ptr<const BinaryHasher> map_hasher_;
   std::vector<SegmentImage> images_;
   nlohmann::json meta_;
+  std::optional<Similarity3d> enu_from_segment_;
   SegmentBytes bytes_;
 };
 

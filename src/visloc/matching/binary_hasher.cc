@@ -195,6 +195,17 @@ uint32_t hash_rotation_fingerprint(const BinaryHasher& h) {
   return crc32c(h.projection.data(), h.projection.size() * sizeof(float), crc);
 }
 
+void check_hash_rotation(BinaryHasherView h, const std::string& file) {
+  for (int i = 0; i < kDescriptorDim; ++i)
+    if (!std::isfinite(h.mean[i])) throw_error(ErrorCode::kFormat, file, ": hash rotation mean is not finite");
+  // ITQ's projection is a rotation of the PCA basis: rows orthonormal.
+  Eigen::Map<const RowMatrixF> p(h.projection, kHashBits, kDescriptorDim);
+  if (!p.allFinite()) throw_error(ErrorCode::kFormat, file, ": hash rotation is not finite");
+  const double off = ((p * p.transpose()).cast<double>() - Eigen::MatrixXd::Identity(kHashBits, kHashBits)).cwiseAbs().maxCoeff();
+  if (!(off <= 1e-3))
+    throw_error(ErrorCode::kFormat, file, ": hash rotation is not orthonormal (|W Wᵀ − I| up to ", off, ")");
+}
+
 BinaryHasher read_hash_rotation_file(const std::filesystem::path& path) {
   SectionFileReader r(path, "ITQR", kHashRotationFileVersion, kHashRotationFileVersion);
   auto mean = r.array<float>("MEAN", kDescriptorDim);
@@ -202,14 +213,7 @@ BinaryHasher read_hash_rotation_file(const std::filesystem::path& path) {
   BinaryHasher h;
   h.mean.assign(mean.begin(), mean.end());
   h.projection.assign(w.begin(), w.end());
-  for (float x : h.mean)
-    if (!std::isfinite(x)) throw_error(ErrorCode::kFormat, path.string(), ": hash rotation mean is not finite");
-  // ITQ's projection is a rotation of the PCA basis: rows orthonormal.
-  Eigen::Map<const RowMatrixF> p(h.projection.data(), kHashBits, kDescriptorDim);
-  if (!p.allFinite()) throw_error(ErrorCode::kFormat, path.string(), ": hash rotation is not finite");
-  const double off = ((p * p.transpose()).cast<double>() - Eigen::MatrixXd::Identity(kHashBits, kHashBits)).cwiseAbs().maxCoeff();
-  if (off > 1e-3)
-    throw_error(ErrorCode::kFormat, path.string(), ": hash rotation is not orthonormal (|W Wᵀ − I| up to ", off, ")");
+  check_hash_rotation(h.view(), path.string());
   return h;
 }
 

@@ -101,6 +101,9 @@ inline constexpr uint32_t kHashRotationFileVersion = 1;
 void write_hash_rotation_file(const std::filesystem::path& path, const BinaryHasher& hasher,
                               const std::string& meta_json);
 BinaryHasher read_hash_rotation_file(const std::filesystem::path& path);
+// Throws Error(kFormat) naming `file` unless the mean is finite and the
+// projection finite and orthonormal (|W Wᵀ − I| ≤ 1e-3), as ITQ makes it.
+void check_hash_rotation(BinaryHasherView hasher, const std::string& file);
 // CRC32C of the mean and projection bytes: segments made with a map's
 // rotation record it, so that codes are never searched with another one.
 uint32_t hash_rotation_fingerprint(const BinaryHasher& hasher);

@@ -1,5 +1,7 @@
 #include "visloc/matching/pq_codebook.h"
 
+#include <cmath>
+
 #include <faiss/impl/ProductQuantizer.h>
 
 #include <algorithm>
@@ -101,6 +103,21 @@ void PqCodebook::write(const std::filesystem::path& path, const std::string& met
 PqCodebook PqCodebook::read(const std::filesystem::path& path, std::string* meta_json) {
   SectionFileReader r(path, "PQCB", kPqCodebookFileVersion, kPqCodebookFileVersion);
   auto c = r.array<float>("CENT", int64_t(kPqTableSize) * kPqSubDim);
+  for (size_t i = 0; i < c.size(); ++i)
+    if (!std::isfinite(c[i]))
+      throw_error(ErrorCode::kFormat, path.string(), ": section 'CENT': centroid ", i / kPqSubDim % kPqCentroids,
+                  " of subspace ", i / (size_t(kPqCentroids) * kPqSubDim), " is not finite");
+  // A subspace whose centroids are all equal cannot tell codes apart (every
+  // ADC distance the same): the codebook was never trained.
+  for (int m = 0; m < kPqSubvectors; ++m) {
+    const float* first = c.data() + size_t(m) * kPqCentroids * kPqSubDim;
+    bool distinct = false;
+    for (int k = 1; k < kPqCentroids && !distinct; ++k)
+      distinct = !std::equal(first, first + kPqSubDim, first + size_t(k) * kPqSubDim);
+    if (!distinct)
+      throw_error(ErrorCode::kFormat, path.string(), ": section 'CENT': the ", kPqCentroids, " centroids of subspace ",
+                  m, " are all equal (an untrained or zeroed codebook)");
+  }
   if (meta_json) *meta_json = std::string(r.text("META"));
   return PqCodebook(std::vector<float>(c.begin(), c.end()));
 }

@@ -55,18 +55,8 @@ struct SegmentFrame {
 
 SegmentFrame segment_frame(const Segment& seg) {
   SegmentFrame f;
-  const auto& meta = seg.meta();
-  auto it = meta.find("enu_from_segment");
-  if (it == meta.end()) return f;
-  const auto& j = *it;
-  f.enu_from_segment.scale = j.at("scale").get<double>();
-  const auto r = j.at("rotation_row_major").get<std::vector<double>>();
-  const auto t = j.at("translation").get<std::vector<double>>();
-  if (r.size() != 9 || t.size() != 3)
-    throw_error(ErrorCode::kFormat, seg.path().string(), ": bad enu_from_segment in META");
-  for (int i = 0; i < 3; ++i)
-    for (int k = 0; k < 3; ++k) f.enu_from_segment.rotation(i, k) = r[3 * i + k];
-  f.enu_from_segment.translation = {t[0], t[1], t[2]};
+  if (!seg.enu_from_segment()) return f;
+  f.enu_from_segment = *seg.enu_from_segment();
   f.georegistered = true;
   return f;
 }

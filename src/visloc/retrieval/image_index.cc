@@ -31,7 +31,7 @@ void configure_tables(faiss::IndexIVFPQ* ivfpq, bool precomputed) {
   ivfpq->use_precomputed_table = precomputed ? 1 : -1;
   if (precomputed) {
     ivfpq->precompute_table();
-  } else {
+  } else if (ivfpq->precomputed_table.size() > 0) {  // FAISS's clear() of an empty table memsets a null pointer
     ivfpq->precomputed_table.clear();
   }
 }
@@ -230,6 +230,10 @@ ImageIndex ImageIndex::load(const std::filesystem::path& path) {
   try {
     index.reset(faiss::read_index(&reader, faiss::IO_FLAG_SKIP_PRECOMPUTE_TABLE));
   } catch (const faiss::FaissException& ex) {
+    fail("FAISS index section cannot be read (", ex.what(), ")");
+  } catch (const std::bad_alloc&) {
+    fail("FAISS index section cannot be read (its sizes ask for more memory than there is)");
+  } catch (const std::exception& ex) {
     fail("FAISS index section cannot be read (", ex.what(), ")");
   }
   if (index->d != out.dims_ || static_cast<size_t>(index->ntotal) != count)

@@ -1,11 +1,13 @@
 #include "visloc/sfm/process.h"
 
 #include <fcntl.h>
-#include <spawn.h>
+#include <sys/prctl.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
 #include <cerrno>
+#include <csignal>
+#include <cstdlib>
 #include <cstring>
 #include <deque>
 #include <fstream>
@@ -54,20 +56,43 @@ ProcessResult run_process(const std::vector<std::string>& argv, const std::files
     std::string header = "\n$ " + command + "\n";
     if (::write(log_fd, header.data(), header.size()) < 0) { /* the log is best effort */ }
   }
-  posix_spawn_file_actions_t actions;
-  posix_spawn_file_actions_init(&actions);
-  posix_spawn_file_actions_addopen(&actions, STDIN_FILENO, "/dev/null", O_RDONLY, 0);
-  posix_spawn_file_actions_adddup2(&actions, log_fd, STDOUT_FILENO);
-  posix_spawn_file_actions_adddup2(&actions, log_fd, STDERR_FILENO);
+  // The program's full path, found before fork: between fork and exec the
+  // child only makes async-signal-safe calls.
+  std::string program = argv[0];
+  if (program.find('/') == std::string::npos) {
+    const char* path = std::getenv("PATH");
+    std::istringstream dirs(path ? path : "/usr/bin:/bin");
+    for (std::string dir; std::getline(dirs, dir, ':');)
+      if (!dir.empty() && ::access((dir + "/" + program).c_str(), X_OK) == 0) {
+        program = dir + "/" + program;
+        break;
+      }
+  }
   std::vector<char*> args;
   for (const auto& a : argv) args.push_back(const_cast<char*>(a.c_str()));
   args.push_back(nullptr);
+  const int null_fd = ::open("/dev/null", O_RDONLY | O_CLOEXEC);
+  if (null_fd < 0) {
+    ::close(log_fd);
+    throw_error(ErrorCode::kIo, "cannot open /dev/null: ", std::strerror(errno));
+  }
   Timer timer;
-  pid_t pid = 0;
-  const int rc = ::posix_spawnp(&pid, argv[0].c_str(), &actions, nullptr, args.data(), environ);
-  posix_spawn_file_actions_destroy(&actions);
+  const pid_t parent = ::getpid();
+  const pid_t pid = ::fork();
+  if (pid == 0) {
+    // The child dies with us: a killed `map build` leaves no COLMAP running
+    // on in its work folder (PR_SET_PDEATHSIG; the getppid check closes the
+    // race with a parent that died before prctl).
+    if (::prctl(PR_SET_PDEATHSIG, SIGKILL) != 0 || ::getppid() != parent) ::_exit(127);
+    if (::dup2(null_fd, STDIN_FILENO) < 0 || ::dup2(log_fd, STDOUT_FILENO) < 0 || ::dup2(log_fd, STDERR_FILENO) < 0)
+      ::_exit(127);
+    ::execv(program.c_str(), args.data());
+    ::_exit(127);
+  }
+  const int spawn_errno = errno;
+  ::close(null_fd);
   ::close(log_fd);
-  if (rc != 0) throw_error(ErrorCode::kExternalTool, "cannot start '", command, "': ", std::strerror(rc));
+  if (pid < 0) throw_error(ErrorCode::kExternalTool, "cannot start '", command, "': ", std::strerror(spawn_errno));
   int status = 0;
   while (::waitpid(pid, &status, 0) < 0) {
     if (errno != EINTR) throw_error(ErrorCode::kExternalTool, "waiting for '", command, "': ", std::strerror(errno));

@@ -1,4 +1,8 @@
 #include <gtest/gtest.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <csignal>
 
 #include <filesystem>
 #include <numeric>
@@ -119,6 +123,46 @@ TEST(Process, MissingProgramAndFailureAreReported) {
     EXPECT_NE(std::string(e.what()).find("exit status 3"), std::string::npos);
     EXPECT_NE(std::string(e.what()).find("the-reason"), std::string::npos) << e.what();
   }
+}
+
+// A child process dies with the process that started it: `map build`
+// killed with SIGKILL leaves no COLMAP writing on into its work folder.
+TEST(Process, ChildDiesWithItsParent) {
+  fs::path dir = temp_dir("process_orphan");
+  const fs::path pid_file = dir / "child.pid";
+  const pid_t builder = ::fork();
+  ASSERT_GE(builder, 0);
+  if (builder == 0) {  // stands for `map build`: starts a long child, then is killed
+    try {
+      run_process({"sh", "-c", "echo $$ > " + pid_file.string() + ".tmp && mv " + pid_file.string() + ".tmp " +
+                                   pid_file.string() + " && exec sleep 60"},
+                  dir / "log.txt");
+    } catch (...) {
+    }
+    ::_exit(0);
+  }
+  for (int i = 0; i < 500 && !fs::exists(pid_file); ++i) ::usleep(10000);
+  ASSERT_TRUE(fs::exists(pid_file)) << "the child never started";
+  const pid_t child = std::stoi(read_file(pid_file));
+  ::kill(builder, SIGKILL);
+  ::waitpid(builder, nullptr, 0);
+  // Dead means gone, or a zombie waiting for init to reap it.
+  auto alive = [&] {
+    const std::string stat_path = "/proc/" + std::to_string(child) + "/stat";
+    if (!fs::exists(stat_path)) return false;
+    std::string stat;
+    try {
+      stat = read_file(stat_path);
+    } catch (const Error&) {
+      return false;
+    }
+    const size_t paren = stat.rfind(')');
+    return paren != std::string::npos && paren + 2 < stat.size() && stat[paren + 2] != 'Z';
+  };
+  bool still_alive = true;
+  for (int i = 0; i < 300 && (still_alive = alive()); ++i) ::usleep(10000);
+  EXPECT_FALSE(still_alive) << "child " << child << " outlived its killed parent";
+  if (still_alive) ::kill(child, SIGKILL);
 }
 
 TEST(ColmapDatabaseWriter, RoundTripThroughReader) {

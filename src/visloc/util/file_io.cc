@@ -82,13 +82,42 @@ void write_file_atomic(const std::filesystem::path& path, std::string_view conte
   writer.commit();
 }
 
+void require_regular_file(const std::filesystem::path& path) {
+  struct stat st {};
+  if (::stat(path.c_str(), &st) != 0)
+    throw_error(ErrorCode::kIo, "cannot open ", path.string(), ": ", std::strerror(errno));
+  if (!S_ISREG(st.st_mode))
+    throw_error(ErrorCode::kIo, path.string(), " is not a regular file (a ",
+                S_ISDIR(st.st_mode) ? "directory" : S_ISFIFO(st.st_mode) ? "FIFO" : "special file", ")");
+}
+
 std::string read_file(const std::filesystem::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw_error(ErrorCode::kIo, "cannot open ", path.string(), ": ", std::strerror(errno));
-  std::ostringstream s;
-  s << in.rdbuf();
-  if (in.bad()) throw_error(ErrorCode::kIo, "cannot read ", path.string());
-  return s.str();
+  // O_NONBLOCK: opening a FIFO must not wait for a writer; fstat then rejects
+  // anything but a regular file.
+  const int fd = ::open(path.c_str(), O_RDONLY | O_NONBLOCK | O_CLOEXEC);
+  if (fd < 0) throw_error(ErrorCode::kIo, "cannot open ", path.string(), ": ", std::strerror(errno));
+  struct stat st {};
+  if (::fstat(fd, &st) != 0 || !S_ISREG(st.st_mode)) {
+    ::close(fd);
+    require_regular_file(path);  // names what it is
+    throw_error(ErrorCode::kIo, path.string(), " is not a regular file");
+  }
+  std::string out;
+  out.reserve(static_cast<size_t>(st.st_size));
+  char buf[1 << 16];
+  for (;;) {
+    const ssize_t got = ::read(fd, buf, sizeof(buf));
+    if (got == 0) break;
+    if (got < 0) {
+      if (errno == EINTR) continue;
+      const int e = errno;
+      ::close(fd);
+      throw_error(ErrorCode::kIo, "cannot read ", path.string(), ": ", std::strerror(e));
+    }
+    out.append(buf, static_cast<size_t>(got));
+  }
+  ::close(fd);
+  return out;
 }
 
 }  // namespace visloc

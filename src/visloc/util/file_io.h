@@ -43,7 +43,11 @@ class AtomicFileWriter {
 // Convenience: writes the whole content atomically.
 void write_file_atomic(const std::filesystem::path& path, std::string_view content);
 
-// Reads a whole file; throws Error(kIo) naming the file on failure.
+// Throws Error(kIo) naming the file unless it is a regular file (a FIFO, a
+// device or a directory would hang or mislead a reader).
+void require_regular_file(const std::filesystem::path& path);
+
+// Reads a whole regular file; throws Error(kIo) naming the file on failure.
 std::string read_file(const std::filesystem::path& path);
 
 }  // namespace visloc

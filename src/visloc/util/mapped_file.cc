@@ -14,7 +14,7 @@
 namespace visloc {
 
 MappedFile::MappedFile(const std::filesystem::path& path) : path_(path) {
-  int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  int fd = ::open(path.c_str(), O_RDONLY | O_NONBLOCK | O_CLOEXEC);  // a FIFO must not block
   if (fd < 0) throw_error(ErrorCode::kIo, "cannot open ", path.string(), ": ", std::strerror(errno));
   struct stat st {};
   if (::fstat(fd, &st) != 0) {

@@ -85,7 +85,7 @@ SectionFileReader::SectionFileReader(const std::filesystem::path& path, std::str
       table_bytes > file_.size() - header_.table_offset)
     fail("section table lies outside the file");
   entries_.resize(header_.section_count);
-  std::memcpy(entries_.data(), file_.data() + header_.table_offset, table_bytes);
+  if (table_bytes > 0) std::memcpy(entries_.data(), file_.data() + header_.table_offset, table_bytes);
   if (crc32c(entries_.data(), table_bytes) != header_.table_crc32c)
     fail("section table checksum mismatch (corrupted)");
   for (const auto& e : entries_) {

@@ -94,7 +94,7 @@ class SectionFileReader {
   std::span<const T> array(std::string_view tag, int64_t expected_count = -1) const {
     auto b = bytes(tag);
     if (b.size() % sizeof(T) != 0 ||
-        (expected_count >= 0 && b.size() != static_cast<size_t>(expected_count) * sizeof(T)))
+        (expected_count >= 0 && b.size() / sizeof(T) != static_cast<uint64_t>(expected_count)))
       throw_error(ErrorCode::kFormat, path().string(), ": section '", tag, "' has ", b.size(),
                   " bytes, expected ",
                   expected_count >= 0 ? std::to_string(expected_count) + " elements of "
