@@ -85,7 +85,40 @@ void check_out_dir(const fs::path& out_dir, const ColmapImportOptions& options) 
     throw_error(ErrorCode::kInvalidArgument, out_dir.string(), ": a map already exists there (use --overwrite)");
 }
 
-void import_model_map(ColmapModel model, const ModelSource& source, const fs::path& out_dir,
+// The new map's files are written in MAP/.import-staging and moved into
+// place (the manifest last) only once all of them are written: a failure
+// (a full disk, a kill) leaves the previous map as it was, and the staging
+// folder is removed on failure or by the next import.
+class StagingDir {
+ public:
+  explicit StagingDir(fs::path map_dir) : map_dir_(std::move(map_dir)), dir_(map_dir_ / ".import-staging") {
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+  }
+  ~StagingDir() {
+    std::error_code ec;
+    fs::remove_all(dir_, ec);
+  }
+  StagingDir(const StagingDir&) = delete;
+  StagingDir& operator=(const StagingDir&) = delete;
+  const fs::path& dir() const { return dir_; }
+  // Moves staged files (relative names) into the map; `last` after the others.
+  void publish(const std::vector<std::string>& files, const std::string& last) {
+    for (const auto& f : files) move_one(f);
+    move_one(last);
+  }
+
+ private:
+  void move_one(const std::string& f) {
+    fs::create_directories((map_dir_ / f).parent_path());
+    std::error_code ec;
+    fs::rename(dir_ / f, map_dir_ / f, ec);
+    if (ec) throw_error(ErrorCode::kIo, (map_dir_ / f).string(), ": cannot move the new file into place (", ec.message(), ")");
+  }
+  fs::path map_dir_, dir_;
+};
+
+void import_model_map(ColmapModel model, const ModelSource& source, const fs::path& map_dir,
                       const ColmapImportOptions& options, ColmapImportResult& res) {
   Timer t;
   std::vector<ColmapImage> held_out;
@@ -141,15 +174,21 @@ void import_model_map(ColmapModel model, const ModelSource& source, const fs::pa
   res.ms_encode = seg_stats.ms_encode;
 
   t.reset();
+  fs::create_directories(map_dir);
+  StagingDir staging(map_dir);
+  const fs::path& out_dir = staging.dir();
+  std::vector<std::string> written;
   fs::create_directories(out_dir / "segments");
   MapManifest man;
   const std::string seg_file = "segments/" + segment_name(0, ".vlseg");
   write_segment_file(out_dir / seg_file, seg);
+  written.push_back(seg_file);
   std::string desc_file;
   if (options.keep_descriptors) {
     fs::create_directories(out_dir / "descriptors");
     desc_file = "descriptors/" + segment_name(0, ".vldesc");
     write_point_descriptor_file(out_dir / desc_file, round_descriptors(desc.mean), desc.track_size);
+    written.push_back(desc_file);
   }
   nlohmann::json pq_meta = {{"dimension", kDescriptorDim},
                             {"subvectors", kPqSubvectors},
@@ -158,6 +197,7 @@ void import_model_map(ColmapModel model, const ModelSource& source, const fs::pa
                             {"training_source", res.pq_training_source},
                             {"seed", options.pq.seed}};
   codebook.write(out_dir / man.pq_codebook_file, pq_meta.dump());
+  written.push_back(man.pq_codebook_file);
   if (map_hasher) {
     man.hash_rotation_file = kHashRotationFileName;
     write_hash_rotation_file(out_dir / man.hash_rotation_file, *map_hasher,
@@ -166,6 +206,7 @@ void import_model_map(ColmapModel model, const ModelSource& source, const fs::pa
                                             {"itq_iterations", options.itq.iterations},
                                             {"seed", options.itq.seed}}
                                  .dump());
+    written.push_back(man.hash_rotation_file);
   }
   if (!held_out.empty()) {
     std::ostringstream s;
@@ -178,6 +219,7 @@ void import_model_map(ColmapModel model, const ModelSource& source, const fs::pa
     }
     man.holdout_file = "holdout.txt";
     write_file_atomic(out_dir / man.holdout_file, s.str());
+    written.push_back(man.holdout_file);
   }
   man.holdout_images = options.holdout_images;
   man.parameters = {{"hash", {{"method", "itq"}, {"bits", kHashBits}, {"tables", kHashTables},
@@ -190,6 +232,7 @@ void import_model_map(ColmapModel model, const ModelSource& source, const fs::pa
   man.segments.push_back({0, seg_file, desc_file, desc.num_points, seg.images.size(), fs::file_size(seg_path),
                           file_crc(seg_path)});
   write_manifest(out_dir, man);
+  staging.publish(written, "manifest.json");
   res.ms_write = t.elapsed_ms();
 }
 

@@ -1,0 +1,45 @@
+#!/usr/bin/env bash
+# `map build` killed with SIGKILL after its first segment is written, then run
+# again (robustness issue):
+#  - no child process (COLMAP) outlives the killed build;
+#  - the re-run reuses the written segment;
+#  - its manifest and `map info --json` equal those of an uninterrupted build.
+# A small synthetic street, known poses, our guided matcher, no retrieval.
+# Usage: map_build_crash_test.sh VISLOC   (exit 77: skipped without COLMAP)
+set -euo pipefail
+V="$1"
+command -v colmap > /dev/null || { echo "SKIP: colmap is not installed"; exit 77; }
+T="$(mktemp -d)"
+cleanup() { pkill -9 -f "$T/" 2> /dev/null || true; rm -rf "$T"; }
+trap cleanup EXIT
+export OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1
+fail() { echo "FAIL: $*"; exit 1; }
+"$V" synth city --out "$T/city" --road-length 60 --headings 6 --elevations 10 --queries 1 --jobs 1 > /dev/null
+args=(--images "$T/city/images" --gps "$T/city/gps.csv" --poses known --known-poses "$T/city/sparse" --jobs 1
+      --min-placemarks 3 --max-placemarks 3 --overlap 1 --no-retrieval --pq-training-images 6)
+"$V" map build "${args[@]}" --out "$T/reference" > /dev/null 2>&1
+
+"$V" map build "${args[@]}" --out "$T/killed" > "$T/killed.log" 2>&1 &
+pid=$!
+for _ in $(seq 1 60000); do
+  [ -n "$(ls "$T/killed/segments/" 2> /dev/null | grep "\.vlseg$")" ] && break
+  kill -0 "$pid" 2> /dev/null || break
+  sleep 0.01
+done
+kill -9 "$pid" 2> /dev/null || fail "the build ended before its first segment was seen"
+wait "$pid" 2> /dev/null || true
+sleep 0.5
+written="$(ls "$T/killed/segments/" | grep -c '\.vlseg$' || true)"
+[ "$written" -ge 1 ] || fail "no segment was written before the kill"
+if pgrep -f "$T/killed" > /dev/null; then
+  pgrep -af "$T/killed"
+  fail "processes of the killed build are still running"
+fi
+[ ! -f "$T/killed/manifest.json" ] || grep -q '"segments"' "$T/killed/manifest.json"
+"$V" map build "${args[@]}" --out "$T/killed" > "$T/rerun.log" 2>&1 || { cat "$T/rerun.log"; fail "the re-run failed"; }
+grep -qi "reus" "$T/rerun.log" || { cat "$T/rerun.log"; fail "the re-run did not say it reused the written segment"; }
+"$V" map info "$T/reference" --json > "$T/reference.json"
+"$V" map info "$T/killed" --json > "$T/killed.json"
+diff "$T/reference.json" "$T/killed.json" || fail "map info differs from the uninterrupted build"
+diff "$T/reference/manifest.json" "$T/killed/manifest.json" || fail "the manifest differs from the uninterrupted build"
+echo "killed after $written segment(s), no process left; re-run reused them; manifest and map info equal the uninterrupted build"

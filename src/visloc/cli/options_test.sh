@@ -1,0 +1,26 @@
+#!/usr/bin/env bash
+# Numeric options: NaN, infinities and out-of-range values are usage errors
+# (exit 2, a message naming the option), never silently ignored.
+set -uo pipefail
+V="$1"
+status=0
+check() {
+  local expected_option="$1"
+  shift
+  "$V" "$@" > /dev/null 2> /tmp/visloc_options_test.$$
+  local rc=$?
+  if [ "$rc" != 2 ] || ! grep -q -- "$expected_option" /tmp/visloc_options_test.$$; then
+    echo "FAIL: visloc $* -> exit $rc: $(head -c 200 /tmp/visloc_options_test.$$)"
+    status=1
+  fi
+}
+for v in nan -nan inf -1 0; do check --focal localize --map /nonexistent --focal "$v" q.jpg; done
+for v in nan inf; do
+  check --cache-mib localize --map /nonexistent --cache-mib "$v" q.jpg
+  check --threshold localize --map /nonexistent --threshold "$v" q.jpg
+  check --min-confidence localize --map /nonexistent --min-confidence "$v" q.jpg
+done
+check --min-confidence localize --map /nonexistent --min-confidence 1.5 q.jpg
+rm -f /tmp/visloc_options_test.$$
+[ "$status" = 0 ] && echo "all numeric options refuse NaN and bad ranges"
+exit "$status"
