@@ -1,4 +1,6 @@
 #include <cmath>
+#include <cstdlib>
+#include <filesystem>
 #include <iostream>
 #include <string>
 
@@ -13,16 +15,11 @@ namespace {
 void require_finite_numbers(CLI::App& app) {
   const CLI::Validator finite(
       [](std::string& text) -> std::string {
-        try {
-          size_t used = 0;
-          const double v = std::stod(text, &used);
-          if (std::isfinite(v)) return {};
-        } catch (const std::out_of_range&) {
-          return "'" + text + "' is out of range";
-        } catch (const std::exception&) {
-          return {};  // not a number at all: CLI11's own conversion reports it
-        }
-        return "'" + text + "' is not a finite number";
+        char* end = nullptr;
+        const double v = std::strtod(text.c_str(), &end);
+        if (end == text.c_str()) return {};  // not a number at all: CLI11's own conversion reports it
+        if (std::isnan(v) || std::isinf(v)) return "'" + text + "' is not a finite number";
+        return {};
       },
       "", "FINITE");
   for (CLI::Option* o : app.get_options())
@@ -61,6 +58,10 @@ int main(int argc, char** argv) {
       case ErrorCode::kInternal: return cli::kExitInternal;
       default: return cli::kExitUserError;
     }
+  } catch (const std::filesystem::filesystem_error& e) {
+    std::cout.flush();
+    std::cerr << "visloc: error: " << e.what() << "\n";
+    return cli::kExitUserError;
   } catch (const std::bad_alloc&) {
     std::cerr << "visloc: error: out of memory\n";
     return cli::kExitUserError;

@@ -14,7 +14,7 @@ check() {
     status=1
   fi
 }
-for v in nan -nan inf -1 0; do check --focal localize --map /nonexistent --focal "$v" q.jpg; done
+for v in nan -nan inf -1 0; do check --focal localize --map /nonexistent --focal="$v" q.jpg; done
 for v in nan inf; do
   check --cache-mib localize --map /nonexistent --cache-mib "$v" q.jpg
   check --threshold localize --map /nonexistent --threshold "$v" q.jpg

@@ -101,11 +101,19 @@ void check_params(const fs::path& path, const ColmapCamera& c) { validate_colmap
 void finalize(ColmapModel& m, const fs::path& dir) {
   std::sort(m.images.begin(), m.images.end(), [](auto& a, auto& b) { return a.image_id < b.image_id; });
   std::sort(m.points.begin(), m.points.end(), [](auto& a, auto& b) { return a.point3d_id < b.point3d_id; });
-  for (size_t i = 0; i < m.cameras.size(); ++i)
-    for (size_t k = 0; k < i; ++k)
-      if (m.cameras[i].camera_id == m.cameras[k].camera_id)
-        throw_error(ErrorCode::kFormat, dir.string(), ": duplicate camera id ", m.cameras[i].camera_id);
-  for (const auto& im : m.images) validate_colmap_image_pose(im, dir.string());
+  std::unordered_set<uint32_t> camera_ids;
+  for (const auto& c : m.cameras)
+    if (!camera_ids.insert(c.camera_id).second)
+      throw_error(ErrorCode::kFormat, dir.string(), ": duplicate camera id ", c.camera_id);
+  // Accepted quaternions (±1% of unit length, e.g. a text model written with
+  // few digits) are normalized here, once, so that every later reader (a
+  // segment's IMAGES checks ±0.1%) sees a unit quaternion.
+  for (auto& im : m.images) {
+    validate_colmap_image_pose(im, dir.string());
+    auto& q = im.cam_from_world_q_wxyz;
+    const double norm = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+    for (double& x : q) x /= norm;
+  }
   for (const auto& p : m.points)
     for (double x : p.xyz)
       if (!std::isfinite(x))

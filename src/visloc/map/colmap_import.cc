@@ -1,5 +1,11 @@
 #include "visloc/map/colmap_import.h"
 
+#include <fcntl.h>
+#include <stdio.h>
+
+#include <cerrno>
+#include <cstring>
+
 #include <optional>
 #include "visloc/map/segment_builder.h"
 
@@ -85,15 +91,25 @@ void check_out_dir(const fs::path& out_dir, const ColmapImportOptions& options) 
     throw_error(ErrorCode::kInvalidArgument, out_dir.string(), ": a map already exists there (use --overwrite)");
 }
 
-// The new map's files are written in MAP/.import-staging and moved into
-// place (the manifest last) only once all of them are written: a failure
-// (a full disk, a kill) leaves the previous map as it was, and the staging
-// folder is removed on failure or by the next import.
+// The new map is written whole into a sibling folder, MAP.import-staging,
+// then swapped with MAP in one atomic step (renameat2 RENAME_EXCHANGE) and the
+// old map deleted: a failure (a full disk, a kill) before the swap leaves the
+// previous map as it was; the staging folder is removed on failure or by the
+// next import. Only a map folder (or a new or empty one) is ever replaced.
 class StagingDir {
  public:
-  explicit StagingDir(fs::path map_dir) : map_dir_(std::move(map_dir)), dir_(map_dir_ / ".import-staging") {
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
+  explicit StagingDir(fs::path map_dir) : map_dir_(std::move(map_dir)) {
+    if (map_dir_.filename().empty()) map_dir_ = map_dir_.parent_path();  // "out/" → "out"
+    dir_ = map_dir_;
+    dir_ += ".import-staging";
+    std::error_code ec;
+    if (fs::exists(map_dir_, ec) && !fs::exists(map_dir_ / "manifest.json", ec) && !fs::is_empty(map_dir_, ec))
+      throw_error(ErrorCode::kInvalidArgument, map_dir_.string(),
+                  " exists and is not a visloc map; import into a new or empty folder");
+    fs::remove_all(dir_, ec);
+    if (ec) throw_error(ErrorCode::kIo, dir_.string(), ": cannot remove a stale staging folder (", ec.message(), ")");
+    fs::create_directories(dir_, ec);
+    if (ec) throw_error(ErrorCode::kIo, dir_.string(), ": cannot create the staging folder (", ec.message(), ")");
   }
   ~StagingDir() {
     std::error_code ec;
@@ -102,19 +118,20 @@ class StagingDir {
   StagingDir(const StagingDir&) = delete;
   StagingDir& operator=(const StagingDir&) = delete;
   const fs::path& dir() const { return dir_; }
-  // Moves staged files (relative names) into the map; `last` after the others.
-  void publish(const std::vector<std::string>& files, const std::string& last) {
-    for (const auto& f : files) move_one(f);
-    move_one(last);
+  // Makes the staged map the map: one rename (or exchange), then the old map
+  // (now in the staging folder) is deleted by the destructor.
+  void publish() {
+    std::error_code ec;
+    if (!fs::exists(map_dir_, ec)) {
+      fs::rename(dir_, map_dir_, ec);
+      if (ec) throw_error(ErrorCode::kIo, map_dir_.string(), ": cannot move the new map into place (", ec.message(), ")");
+      return;
+    }
+    if (::renameat2(AT_FDCWD, dir_.c_str(), AT_FDCWD, map_dir_.c_str(), RENAME_EXCHANGE) != 0)
+      throw_error(ErrorCode::kIo, map_dir_.string(), ": cannot swap the new map into place (", std::strerror(errno), ")");
   }
 
  private:
-  void move_one(const std::string& f) {
-    fs::create_directories((map_dir_ / f).parent_path());
-    std::error_code ec;
-    fs::rename(dir_ / f, map_dir_ / f, ec);
-    if (ec) throw_error(ErrorCode::kIo, (map_dir_ / f).string(), ": cannot move the new file into place (", ec.message(), ")");
-  }
   fs::path map_dir_, dir_;
 };
 
@@ -174,21 +191,17 @@ void import_model_map(ColmapModel model, const ModelSource& source, const fs::pa
   res.ms_encode = seg_stats.ms_encode;
 
   t.reset();
-  fs::create_directories(map_dir);
   StagingDir staging(map_dir);
   const fs::path& out_dir = staging.dir();
-  std::vector<std::string> written;
   fs::create_directories(out_dir / "segments");
   MapManifest man;
   const std::string seg_file = "segments/" + segment_name(0, ".vlseg");
   write_segment_file(out_dir / seg_file, seg);
-  written.push_back(seg_file);
   std::string desc_file;
   if (options.keep_descriptors) {
     fs::create_directories(out_dir / "descriptors");
     desc_file = "descriptors/" + segment_name(0, ".vldesc");
     write_point_descriptor_file(out_dir / desc_file, round_descriptors(desc.mean), desc.track_size);
-    written.push_back(desc_file);
   }
   nlohmann::json pq_meta = {{"dimension", kDescriptorDim},
                             {"subvectors", kPqSubvectors},
@@ -197,7 +210,6 @@ void import_model_map(ColmapModel model, const ModelSource& source, const fs::pa
                             {"training_source", res.pq_training_source},
                             {"seed", options.pq.seed}};
   codebook.write(out_dir / man.pq_codebook_file, pq_meta.dump());
-  written.push_back(man.pq_codebook_file);
   if (map_hasher) {
     man.hash_rotation_file = kHashRotationFileName;
     write_hash_rotation_file(out_dir / man.hash_rotation_file, *map_hasher,
@@ -206,7 +218,6 @@ void import_model_map(ColmapModel model, const ModelSource& source, const fs::pa
                                             {"itq_iterations", options.itq.iterations},
                                             {"seed", options.itq.seed}}
                                  .dump());
-    written.push_back(man.hash_rotation_file);
   }
   if (!held_out.empty()) {
     std::ostringstream s;
@@ -219,7 +230,6 @@ void import_model_map(ColmapModel model, const ModelSource& source, const fs::pa
     }
     man.holdout_file = "holdout.txt";
     write_file_atomic(out_dir / man.holdout_file, s.str());
-    written.push_back(man.holdout_file);
   }
   man.holdout_images = options.holdout_images;
   man.parameters = {{"hash", {{"method", "itq"}, {"bits", kHashBits}, {"tables", kHashTables},
@@ -232,7 +242,7 @@ void import_model_map(ColmapModel model, const ModelSource& source, const fs::pa
   man.segments.push_back({0, seg_file, desc_file, desc.num_points, seg.images.size(), fs::file_size(seg_path),
                           file_crc(seg_path)});
   write_manifest(out_dir, man);
-  staging.publish(written, "manifest.json");
+  staging.publish();
   res.ms_write = t.elapsed_ms();
 }
 

@@ -71,11 +71,25 @@ ProcessResult run_process(const std::vector<std::string>& argv, const std::files
   std::vector<char*> args;
   for (const auto& a : argv) args.push_back(const_cast<char*>(a.c_str()));
   args.push_back(nullptr);
-  const int null_fd = ::open("/dev/null", O_RDONLY | O_CLOEXEC);
+  int null_fd = ::open("/dev/null", O_RDONLY | O_CLOEXEC);
   if (null_fd < 0) {
     ::close(log_fd);
     throw_error(ErrorCode::kIo, "cannot open /dev/null: ", std::strerror(errno));
   }
+  // Both above 2, so that the child's dup2 onto 0-2 never overwrites one with
+  // the other (a process started with a standard stream closed).
+  for (int* fd : {&log_fd, &null_fd})
+    if (*fd <= 2) {
+      const int moved = ::fcntl(*fd, F_DUPFD_CLOEXEC, 3);
+      ::close(*fd);
+      *fd = moved;
+    }
+  if (log_fd < 0 || null_fd < 0) {
+    if (log_fd >= 0) ::close(log_fd);
+    if (null_fd >= 0) ::close(null_fd);
+    throw_error(ErrorCode::kIo, "cannot set up the standard streams of '", command, "'");
+  }
+  static const char kExecFailed[] = "visloc: cannot execute the program (execv failed)\n";
   Timer timer;
   const pid_t parent = ::getpid();
   const pid_t pid = ::fork();
@@ -87,6 +101,7 @@ ProcessResult run_process(const std::vector<std::string>& argv, const std::files
     if (::dup2(null_fd, STDIN_FILENO) < 0 || ::dup2(log_fd, STDOUT_FILENO) < 0 || ::dup2(log_fd, STDERR_FILENO) < 0)
       ::_exit(127);
     ::execv(program.c_str(), args.data());
+    if (::write(STDERR_FILENO, kExecFailed, sizeof(kExecFailed) - 1) < 0) { /* nothing left to report to */ }
     ::_exit(127);
   }
   const int spawn_errno = errno;
