@@ -32,6 +32,13 @@ echo "== 3. Localize the queries and evaluate"
   --truth "$OUT/city/queries/truth.txt" --intrinsics "$OUT/city/queries/intrinsics.txt" --out "$OUT/city-report"
 echo "(report and plots in $OUT/city-report/)"
 
+if [ -f build/python/visloc/__init__.py ]; then
+  echo "== 3b. The same map from Python (examples/localize.py, import visloc)"
+  mapfile -t first < <(head -3 "$OUT/city/queries/list.txt")
+  PYTHONPATH="$PWD/build/python" /usr/bin/python3 examples/localize.py "$OUT/city-map" \
+    --intrinsics "$OUT/city/queries/intrinsics.txt" "${first[@]/#/$OUT/city/queries/images/}"
+fi
+
 SCENE="$DATA/strecha/fountain-P11"
 if [ -d "$SCENE" ]; then
   echo "== 4. Real photos: fountain-P11 imported with its held-out queries, localized with our SIFT"

@@ -22,7 +22,7 @@ note() { echo "fuzz: $*" >&2; }
 if ! grep -q "^VISLOC_FUZZ:BOOL=ON" "$BUILD/CMakeCache.txt" 2>/dev/null; then
   note "configuring $BUILD (clang, ASan + UBSan + libFuzzer)"
   CC=clang CXX=clang++ cmake -S . -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo \
-    -DVISLOC_BUILD_TESTS=OFF -DVISLOC_BUILD_BENCH=OFF -DVISLOC_FUZZ=ON >"$BUILD.configure.log" 2>&1 ||
+    -DVISLOC_BUILD_TESTS=OFF -DVISLOC_BUILD_BENCH=OFF -DVISLOC_BUILD_PYTHON=OFF -DVISLOC_FUZZ=ON >"$BUILD.configure.log" 2>&1 ||
     { tail -20 "$BUILD.configure.log" >&2; exit 1; }
 fi
 note "building the fuzz targets"

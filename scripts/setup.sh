@@ -15,6 +15,7 @@ PACKAGES=(
   libcli11-dev nlohmann-json3-dev
   libgtest-dev libgmock-dev libbenchmark-dev
   slurm-wlm munge
+  pybind11-dev python3-dev python3-numpy python3-pytest
 )
 
 if [ "${SKIP_APT:-0}" != "1" ]; then

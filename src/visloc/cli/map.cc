@@ -99,23 +99,8 @@ void add_import(CLI::App& map) {
     } else {
       r = import_colmap_map(args->colmap, args->database, args->out, o);
     }
-    nlohmann::json j = {{"map", args->out},
-                        {"images", r.images},
-                        {"points", r.points},
-                        {"observations", r.observations},
-                        {"holdout",
-                         {{"images_removed", r.holdout.images_removed},
-                          {"observations_removed", r.holdout.observations_removed},
-                          {"points_dropped", r.holdout.points_dropped}}},
-                        {"pq_training", {{"descriptors", r.pq_training_descriptors}, {"source", r.pq_training_source}}},
-                        {"itq_final_error", r.itq_final_error},
-                        {"ms",
-                         {{"read", r.ms_read},
-                          {"descriptors", r.ms_descriptors},
-                          {"pq", r.ms_pq},
-                          {"itq", r.ms_itq},
-                          {"encode", r.ms_encode},
-                          {"write", r.ms_write}}}};
+    nlohmann::json j = to_json(r);
+    j["map"] = args->out;
     if (conv)
       j["bundler"] = {{"cameras", conv->cameras},
                       {"cameras_unregistered", conv->cameras_unregistered},

@@ -296,4 +296,23 @@ BundlerImportResult import_bundler_map(const fs::path& bundle_file, const fs::pa
   return out;
 }
 
+nlohmann::json to_json(const ColmapImportResult& r) {
+  return {{"images", r.images},
+          {"points", r.points},
+          {"observations", r.observations},
+          {"holdout",
+           {{"images_removed", r.holdout.images_removed},
+            {"observations_removed", r.holdout.observations_removed},
+            {"points_dropped", r.holdout.points_dropped}}},
+          {"pq_training", {{"descriptors", r.pq_training_descriptors}, {"source", r.pq_training_source}}},
+          {"itq_final_error", r.itq_final_error},
+          {"ms",
+           {{"read", r.ms_read},
+            {"descriptors", r.ms_descriptors},
+            {"pq", r.ms_pq},
+            {"itq", r.ms_itq},
+            {"encode", r.ms_encode},
+            {"write", r.ms_write}}}};
+}
+
 }  // namespace visloc

@@ -16,6 +16,7 @@
 #pragma once
 
 #include <filesystem>
+#include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
 
@@ -47,6 +48,9 @@ struct ColmapImportResult {
   double itq_final_error = 0;
   double ms_read = 0, ms_descriptors = 0, ms_pq = 0, ms_itq = 0, ms_encode = 0, ms_write = 0;
 };
+
+// The statistics as `visloc map import --json` prints them (and Python returns).
+nlohmann::json to_json(const ColmapImportResult& r);
 
 ColmapImportResult import_colmap_map(const std::filesystem::path& model_dir, const std::filesystem::path& database,
                                      const std::filesystem::path& out_dir, const ColmapImportOptions& options = {});

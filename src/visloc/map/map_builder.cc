@@ -1272,4 +1272,22 @@ MapBuildResult build_map(const fs::path& map_dir, const MapBuildOptions& opt,
   return result;
 }
 
+nlohmann::json to_json(const MapBuildResult& r) {
+  nlohmann::json segments = nlohmann::json::array();
+  for (const auto& s : r.segments) {
+    nlohmann::json j = to_json(s);  // as in MAP/work/segNNNN/result.json
+    j["reused"] = s.reused;
+    segments.push_back(std::move(j));
+  }
+  return {{"images", r.images},
+          {"placemarks", r.placemarks},
+          {"failed", r.failed()},
+          {"segments", segments},
+          {"seconds",
+           {{"features", r.seconds_features},
+            {"segments", r.seconds_segments},
+            {"retrieval", r.seconds_retrieval},
+            {"total", r.seconds_total}}}};
+}
+
 }  // namespace visloc

@@ -19,6 +19,7 @@
 
 #include <filesystem>
 #include <functional>
+#include <nlohmann/json.hpp>
 #include <optional>
 #include <string>
 #include <vector>
@@ -176,5 +177,9 @@ SegmentBuildResult build_planned_segment(const std::filesystem::path& map_dir, c
 
 MapBuildResult build_map(const std::filesystem::path& map_dir, const MapBuildOptions& options,
                          const std::function<void(const MapBuildProgress&)>& progress = {});
+
+// The build's statistics as a JSON object (Python's visloc.build_map returns
+// it): each segment as in its MAP/work/segNNNN/result.json, plus "reused".
+nlohmann::json to_json(const MapBuildResult& r);
 
 }  // namespace visloc

@@ -182,6 +182,7 @@ LocalizationResult Localizer::localize_file(const std::filesystem::path& image,
   } catch (const Error& e) {
     if (e.code() == ErrorCode::kInternal) throw;
     res.error = e.what();
+    res.error_code = e.code();
     res.times.total = total.elapsed_ms();
   }
   return res;

@@ -23,6 +23,7 @@
 #include "visloc/matching/cascade_index.h"
 #include "visloc/pipeline/confidence.h"
 #include "visloc/pose/one_many_ransac.h"
+#include "visloc/util/error.h"
 
 namespace visloc {
 
@@ -95,6 +96,7 @@ struct LocalizationResult {
   std::string image;
   bool registered = false;
   std::string error;                 // a bad image: the reason (the rest go on)
+  ErrorCode error_code = ErrorCode::kInternal;  // its kind, meaningful when error is set
   int segment = -1;                  // segment id of the best pose
   size_t inliers = 0;
   // Score in [0, 1] that the pose is right (confidence.h), 0 without a pose;

@@ -1,0 +1,316 @@
+"""Tests of the Python bindings (`import visloc`), run by ctest as python.pytest.
+
+Environment (set by CMake): PYTHONPATH (build/python), VISLOC_CLI (the CLI
+binary), VISLOC_SHARED_DATA_DIR, VISLOC_TEST_FOUNTAIN_MAP (the fountain-P11
+map the C API fixture imports). Tests that need COLMAP or the shared data
+skip with a message when they are absent.
+"""
+
+import concurrent.futures
+import json
+import math
+import os
+import pathlib
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+import visloc
+
+CLI = os.environ.get("VISLOC_CLI", "visloc")
+DATA = pathlib.Path(os.environ.get("VISLOC_SHARED_DATA_DIR", "../shared/data"))
+FOUNTAIN = DATA / "strecha" / "fountain-P11"
+FOUNTAIN_MAP = pathlib.Path(os.environ.get("VISLOC_TEST_FOUNTAIN_MAP", "build/src/visloc/capi/fountain_map"))
+
+
+# --- Without data ---------------------------------------------------------------
+
+
+def test_public_api():
+    for name in ["Localizer", "Map", "build_map", "import_colmap", "evaluate", "read_image", "Error"]:
+        assert hasattr(visloc, name), name
+    assert issubclass(visloc.InvalidArgumentError, visloc.Error)
+    assert issubclass(visloc.InvalidArgumentError, ValueError)
+    assert issubclass(visloc.NotFoundError, FileNotFoundError)
+    assert issubclass(visloc.FormatError, ValueError)
+
+
+def test_missing_map_raises(tmp_path):
+    with pytest.raises(visloc.Error) as e:
+        visloc.Localizer(tmp_path / "nothing")
+    assert "nothing" in str(e.value)
+    with pytest.raises(visloc.Error):
+        visloc.Map(str(tmp_path / "nothing"))
+
+
+def test_not_a_map_raises_format_error(tmp_path):
+    (tmp_path / "manifest.json").write_text("{ not json")
+    with pytest.raises(visloc.FormatError) as e:
+        visloc.Map(tmp_path)
+    assert "manifest.json" in str(e.value)
+
+
+@pytest.mark.parametrize(
+    "options, error, field",
+    [
+        ({"top_images": 0}, ValueError, "top_images"),
+        ({"max_segments": -1}, ValueError, "max_segments"),
+        ({"min_confidence": 1.5}, ValueError, "min_confidence"),
+        ({"min_confidence": float("nan")}, ValueError, "min_confidence"),
+        ({"threshold_px": float("inf")}, ValueError, "threshold_px"),
+        ({"cache_mib": 0.5}, ValueError, "cache_mib"),
+        ({"min_inliers": -3}, ValueError, "min_inliers"),
+        ({"setting": "4"}, ValueError, "setting"),
+        ({"top_images": "20"}, TypeError, "top_images"),
+        ({"use_exif_focal": 1}, TypeError, "use_exif_focal"),
+        ({"top_image": 20}, TypeError, "top_image"),
+    ],
+)
+def test_bad_options_name_the_field(tmp_path, options, error, field):
+    # Options are checked before the map is opened: no map is needed.
+    with pytest.raises(error) as e:
+        visloc.Localizer(tmp_path / "no-map", **options)
+    assert field in str(e.value)
+
+
+def test_bad_build_and_import_options(tmp_path):
+    with pytest.raises(TypeError, match="placemarks"):
+        visloc.build_map(tmp_path, tmp_path / "map", placemarks=3)
+    with pytest.raises(ValueError, match="poses"):
+        visloc.build_map(tmp_path, tmp_path / "map", poses="guess")
+    with pytest.raises(TypeError, match="progress"):
+        visloc.build_map(tmp_path, tmp_path / "map", progress=3)
+    with pytest.raises(TypeError, match="holdot"):
+        visloc.import_colmap(tmp_path, tmp_path / "db", tmp_path / "map", holdot=["a"])
+    with pytest.raises(visloc.Error):
+        visloc.import_colmap(tmp_path / "model", tmp_path / "database.db", tmp_path / "map")
+    with pytest.raises(ValueError, match="queries and truth"):
+        visloc.evaluate(tmp_path, tmp_path / "out", images=tmp_path)
+
+
+def test_read_image_errors(tmp_path):
+    with pytest.raises(FileNotFoundError):
+        visloc.read_image(tmp_path / "none.jpg")
+    (tmp_path / "bad.jpg").write_bytes(b"not a jpeg at all")
+    with pytest.raises(visloc.Error) as e:
+        visloc.read_image(tmp_path / "bad.jpg")
+    assert "bad.jpg" in str(e.value)
+
+
+# --- A small synthetic street: build, open, localize, evaluate -----------------
+
+
+@pytest.fixture(scope="module")
+def street(tmp_path_factory):
+    if shutil.which("colmap") is None:
+        pytest.skip("colmap is not installed (map building triangulates with it)")
+    root = tmp_path_factory.mktemp("street")
+    city = root / "city"
+    subprocess.run(
+        [CLI, "synth", "city", "--out", str(city), "--road-length", "60", "--headings", "6", "--elevations", "10",
+         "--queries", "6", "--jobs", "1"],
+        check=True, stdout=subprocess.DEVNULL)
+    progress = []
+    report = visloc.build_map(
+        city / "images", root / "map", gps=str(city / "gps.csv"), poses="known", known_poses=city / "sparse",
+        jobs=1, min_placemarks=3, max_placemarks=3, overlap=1, retrieval=False, pq_training_images=6,
+        progress=lambda p: progress.append(p))
+    return {"city": city, "map": root / "map", "report": report, "progress": progress, "root": root}
+
+
+def test_build_map_reports_and_progresses(street):
+    report = street["report"]
+    assert report["failed"] == 0
+    assert len(report["segments"]) >= 2
+    assert all(s["ok"] and s["points"] > 0 for s in report["segments"])
+    stages = {p["stage"] for p in street["progress"]}
+    assert "segments" in stages, stages
+    # The CLI reads the same map.
+    info = json.loads(subprocess.run([CLI, "map", "info", str(street["map"]), "--json"], check=True,
+                                     capture_output=True, text=True).stdout)
+    assert info["total"]["points"] == sum(s["points"] for s in report["segments"])
+
+
+def test_map_exposes_segments_points_images(street):
+    m = visloc.Map(street["map"])
+    info = m.info()
+    assert len(m) == len(info["segments"]) == len(m.segments)
+    total = 0
+    for seg in m.segments:
+        pts = seg.points
+        assert pts.shape == (seg.num_points, 3) and pts.dtype == np.float32
+        assert not pts.flags.writeable
+        assert not pts.flags.owndata  # a view of the mapped file, not a copy
+        assert np.isfinite(pts).all()
+        assert seg.enu_from_segment is not None and seg.enu_from_segment["scale"] > 0
+        assert all(len(im["qvec"]) == 4 for im in seg.images)
+        total += seg.num_points
+    assert total == info["total"]["points"] == m.num_points
+    assert {im["segment"] for im in m.images} == {s.id for s in m.segments}
+    # The view keeps its segment (and the mapping) alive.
+    pts = visloc.Map(street["map"]).segments[0].points
+    assert np.isfinite(pts.sum())
+
+
+def read_intrinsics(path):
+    cams = {}
+    for line in pathlib.Path(path).read_text().splitlines():
+        if not line.strip() or line.startswith("#"):
+            continue
+        name, model, w, h, *params = line.split()
+        cams[name] = (model, int(w), int(h), [float(p) for p in params])
+    return cams
+
+
+def test_localize_and_evaluate_street(street, tmp_path):
+    city = street["city"]
+    names = (city / "queries" / "list.txt").read_text().split()
+    cams = read_intrinsics(city / "queries" / "intrinsics.txt")
+    loc = visloc.Localizer(street["map"])
+    results = [loc.localize(city / "queries" / "images" / n, intrinsics=cams[n]) for n in names]
+    for r in results:
+        assert 0.0 <= r.confidence <= 1.0
+        if r.registered:
+            assert r.pose is not None and r.center_enu is not None
+            assert r.lat is not None and -90 <= r.lat <= 90
+            assert r.pose.cam_from_world.shape == (3, 4)
+    report = visloc.evaluate(street["map"], tmp_path / "eval", queries=names, images=city / "queries" / "images",
+                             truth=city / "queries" / "truth.txt", intrinsics=city / "queries" / "intrinsics.txt")
+    assert report["queries"] == len(names)
+    assert report["registered"] == sum(r.registered for r in results)
+    assert (tmp_path / "eval" / "report.md").exists()
+
+
+# --- fountain-P11 (shared data): the CLI's poses, numpy frames, threads ---------
+
+
+@pytest.fixture(scope="module")
+def fountain():
+    if not (FOUNTAIN / "images").is_dir():
+        pytest.skip(f"shared data absent: {FOUNTAIN}")
+    if not (FOUNTAIN_MAP / "manifest.json").exists():
+        pytest.skip(f"no map at {FOUNTAIN_MAP} (the ctest fixture capi.import_fountain_map imports it)")
+    queries = (FOUNTAIN / "queries.txt").read_text().split()
+    return {"queries": queries, "images": [FOUNTAIN / "images" / q for q in queries]}
+
+
+def fountain_camera():
+    for line in (FOUNTAIN / "colmap" / "sparse" / "cameras.txt").read_text().splitlines():
+        if line and not line.startswith("#"):
+            _, model, w, h, *params = line.split()
+            return (model, int(w), int(h), [float(p) for p in params])
+    raise AssertionError("no camera in cameras.txt")
+
+
+def test_holdout_matches_cli(fountain):
+    """The Python poses are the CLI's (same options, same images)."""
+    out = subprocess.run([CLI, "localize", "--map", str(FOUNTAIN_MAP), "--max-features", "16384",
+                          *map(str, fountain["images"])], check=True, capture_output=True, text=True).stdout
+    cli = [json.loads(line) for line in out.splitlines()]
+    loc = visloc.Localizer(FOUNTAIN_MAP, max_features=16384)
+    registered = 0
+    for path, expected in zip(fountain["images"], cli):
+        r = loc.localize(path)
+        d = r.to_dict()
+        assert d["image"] == expected["image"] == path.name
+        assert r.registered == expected["registered"]
+        assert r.inliers == expected["inliers"]
+        if r.registered:
+            registered += 1
+            center = r.pose.center
+            # The CLI's JSON line carries the pose as q_wxyz and t (world-to-camera).
+            q = np.array(expected["q_wxyz"])
+            t = np.array(expected["t"])
+            assert np.abs(r.pose.tvec - t).max() <= 1e-9
+            assert min(np.abs(r.pose.qvec - q).max(), np.abs(r.pose.qvec + q).max()) <= 1e-12
+            assert np.isfinite(center).all()
+    assert registered == len(fountain["images"])
+
+
+def test_numpy_frame_equals_file(fountain):
+    cam = fountain_camera()
+    loc = visloc.Localizer(FOUNTAIN_MAP, max_features=16384)
+    path = fountain["images"][0]
+    from_file = loc.localize(path, intrinsics=cam)
+    pixels = visloc.read_image(path)
+    assert pixels.dtype == np.uint8 and pixels.shape == (cam[2], cam[1])
+    from_array = loc.localize(pixels, intrinsics=cam)
+    assert from_file.registered and from_array.registered
+    assert from_array.inliers == from_file.inliers
+    assert np.array_equal(from_array.pose.qvec, from_file.pose.qvec)
+    assert np.array_equal(from_array.pose.tvec, from_file.pose.tvec)
+    # Three equal channels are the same grey image.
+    rgb = np.repeat(pixels[:, :, None], 3, axis=2)
+    from_rgb = loc.localize(rgb, intrinsics=cam)
+    assert np.array_equal(from_rgb.pose.tvec, from_file.pose.tvec)
+    # A non-contiguous view is accepted (copied).
+    from_view = loc.localize(np.asfortranarray(pixels), intrinsics=cam)
+    assert np.array_equal(from_view.pose.tvec, from_file.pose.tvec)
+
+
+def test_bad_frames_and_intrinsics(fountain):
+    loc = visloc.Localizer(FOUNTAIN_MAP)
+    with pytest.raises(ValueError, match="uint8"):
+        loc.localize(np.zeros((64, 64), dtype=np.float32))
+    with pytest.raises(ValueError, match="H×W"):
+        loc.localize(np.zeros((4, 64, 64), dtype=np.uint8))
+    with pytest.raises(ValueError, match="channels"):
+        loc.localize(np.zeros((64, 64, 4), dtype=np.uint8))
+    with pytest.raises(TypeError):
+        loc.localize(12)
+    with pytest.raises(ValueError, match="focal"):
+        loc.localize(fountain["images"][0], intrinsics=-5.0)
+    with pytest.raises(ValueError, match="focal"):
+        loc.localize(fountain["images"][0], intrinsics=float("nan"))
+    with pytest.raises(ValueError, match="unknown key"):
+        loc.localize(fountain["images"][0], intrinsics={"focal": 2000, "fx": 1})
+    with pytest.raises(ValueError, match="intrinsics"):
+        loc.localize(fountain["images"][0], intrinsics=("PINHOLE", 10, 10, [1, 1, 5, 5]))
+    with pytest.raises(visloc.NotFoundError):
+        loc.localize(FOUNTAIN / "images" / "missing.jpg")
+    r = loc.localize(np.zeros((64, 64), dtype=np.uint8))  # no features: not registered, no exception
+    assert not r.registered and r.pose is None
+
+
+def test_two_threads_give_the_same_results(fountain):
+    loc = visloc.Localizer(FOUNTAIN_MAP, max_features=16384)
+    cam = fountain_camera()
+    work = fountain["images"] * 2
+    alone = [loc.localize(p, intrinsics=cam) for p in work]
+    with concurrent.futures.ThreadPoolExecutor(max_workers=2) as pool:
+        together = list(pool.map(lambda p: loc.localize(p, intrinsics=cam), work))
+    for a, b in zip(alone, together):
+        assert a.registered == b.registered and a.inliers == b.inliers
+        assert np.array_equal(a.pose.tvec, b.pose.tvec)
+
+
+def test_result_fields(fountain):
+    loc = visloc.Localizer(FOUNTAIN_MAP, max_features=16384)
+    r = loc.localize(fountain["images"][0], intrinsics=fountain_camera())
+    d = r.to_dict()
+    assert d["registered"] is True and d["inliers"] == r.inliers
+    assert set(r.times_ms) == {"features", "retrieval", "matching", "ransac", "total"}
+    assert r.times_ms["total"] >= r.times_ms["features"] > 0
+    R = r.pose.cam_from_world[:, :3]
+    assert np.allclose(R @ R.T, np.eye(3), atol=1e-9)
+    assert math.isclose(np.linalg.norm(r.pose.qvec), 1.0, rel_tol=1e-12)
+    assert np.allclose(r.pose.center, -R.T @ r.pose.tvec, atol=1e-9)
+    assert "registered=True" in repr(r)
+
+
+def test_import_colmap_and_evaluate(fountain, tmp_path):
+    stats = visloc.import_colmap(FOUNTAIN / "colmap" / "sparse", FOUNTAIN / "colmap" / "database.db",
+                                 tmp_path / "map", holdout=FOUNTAIN / "queries.txt", itq_iterations=10,
+                                 keep_descriptors=False)
+    assert stats["holdout"]["images_removed"] == len(fountain["queries"])
+    assert stats["points"] > 1000
+    with pytest.raises(visloc.Error, match="overwrite|exists|not empty"):
+        visloc.import_colmap(FOUNTAIN / "colmap" / "sparse", FOUNTAIN / "colmap" / "database.db",
+                             tmp_path / "map", holdout=fountain["queries"])
+    report = visloc.evaluate(tmp_path / "map", tmp_path / "eval", queries=fountain["queries"],
+                             images=FOUNTAIN / "images", truth=FOUNTAIN / "truth.txt", max_features=16384)
+    assert report["queries"] == len(fountain["queries"])
+    assert report["registered"] == len(fountain["queries"])
+    assert report["position_error_m"]["median"] < 0.5
