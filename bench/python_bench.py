@@ -49,6 +49,7 @@ def main():
             _, model, w, h, *params = line.split()
             cam = (model, int(w), int(h), [float(p) for p in params])
             break
+    visloc.set_opencv_threads(1)  # as the CLI: one core per query, so that threads do not compete
     loc = visloc.Localizer(args.map, max_features=args.max_features)
     frames = [visloc.read_image(p) for p in paths]
     for p in paths:  # warm the segment cache and the allocator

@@ -1,12 +1,14 @@
 #!/usr/bin/env bash
-# What CI runs after the test suite (issue #20; docs/robustness.md):
-#   1. the test suite built with AddressSanitizer + UndefinedBehaviorSanitizer
-#      (scripts/sanitize.sh, build-asan/; any finding fails the test);
+# What CI runs after the test suite (issue #20; docs/robustness.md), in one
+# clang build, build-fuzz/, where every target carries AddressSanitizer +
+# UndefinedBehaviorSanitizer (any finding fatal) and libFuzzer's coverage:
+#   1. the test suite under the sanitizers (LeakSanitizer on; fuzz/lsan.supp
+#      lists the only suppression, a FAISS leak on corrupted input);
 #   2. every libFuzzer target for FUZZ_SECONDS (default 30) seconds
-#      (scripts/fuzz.sh, build-fuzz/; any crash, leak or timeout fails).
+#      (scripts/fuzz.sh; any crash, leak, out-of-memory or timeout fails).
 # Installs clang and its libFuzzer runtime when missing (Debian packages).
-# Environment: SANITIZE_CTEST_ARGS (extra ctest arguments for the sanitized
-# suite, e.g. "-LE cli"), FUZZ_SECONDS.
+# Environment: SANITIZE_CTEST_ARGS (extra ctest arguments, e.g. "-L map"),
+# FUZZ_SECONDS, JOBS. scripts/sanitize.sh is the same suite built with gcc.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -23,11 +25,20 @@ if [ ${#need[@]} -gt 0 ]; then
 fi
 
 t0=$(date +%s)
-echo "== ci-robustness: the test suite under ASan + UBSan"
-# shellcheck disable=SC2086
-scripts/sanitize.sh ${SANITIZE_CTEST_ARGS:-}
+echo "== ci-robustness: building build-fuzz/ (clang, ASan + UBSan + libFuzzer coverage): tests, CLI, fuzz targets"
+# fuzz.sh configures build-fuzz/, builds everything and makes the seeds.
+FUZZ_BUILD_TARGET=all scripts/fuzz.sh --build-only
 t1=$(date +%s)
+echo "== ci-robustness: the test suite under ASan + UBSan"
+export OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1
+export ASAN_OPTIONS="detect_leaks=1:abort_on_error=1:strict_string_checks=1:detect_stack_use_after_return=1"
+export UBSAN_OPTIONS="print_stacktrace=1:halt_on_error=1"
+export LSAN_OPTIONS="suppressions=$PWD/fuzz/lsan.supp:print_suppressions=0"
+# shellcheck disable=SC2086
+ctest --test-dir build-fuzz --output-on-failure -j "$(nproc)" --timeout 1800 ${SANITIZE_CTEST_ARGS:-}
+unset ASAN_OPTIONS UBSAN_OPTIONS LSAN_OPTIONS
+t2=$(date +%s)
 echo "== ci-robustness: every fuzz target for ${FUZZ_SECONDS:-30} s"
 scripts/fuzz.sh "${FUZZ_SECONDS:-30}"
-t2=$(date +%s)
-echo "ci-robustness: sanitized suite $((t1 - t0)) s, fuzzing $((t2 - t1)) s"
+t3=$(date +%s)
+echo "ci-robustness: build $((t1 - t0)) s, sanitized suite $((t2 - t1)) s, fuzzing $((t3 - t2)) s"

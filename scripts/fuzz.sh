@@ -1,18 +1,21 @@
 #!/usr/bin/env bash
 # Builds and runs the libFuzzer targets of fuzz/ (one per file reader):
 #   scripts/fuzz.sh [SECONDS] [TARGET...]     default: 30 s each, every target
+#   scripts/fuzz.sh --build-only              build (and make the seeds), run nothing
 # Configures build-fuzz/ with clang (-DVISLOC_FUZZ=ON) when needed, builds the
 # custom target visloc_fuzzers, makes the seeds once (build-fuzz/seeds, from
 # fuzz/make_seeds.sh), then runs each target for SECONDS. New inputs are kept
 # in build-fuzz/corpus/TARGET, crashes in build-fuzz/artifacts/TARGET, logs in
 # build-fuzz/logs/TARGET.log. Prints one line per target and exits non-zero
 # if any target crashed, leaked, ran out of memory or timed out.
-# Environment: JOBS (build, default 2), FUZZ_MAX_LEN (bytes, default 1 MiB),
+# Environment: JOBS (build, default 2), FUZZ_BUILD_TARGET (default visloc_fuzzers), FUZZ_MAX_LEN (bytes, default 1 MiB),
 # FUZZ_FLAGS (more libFuzzer flags), VISLOC_SHARED_DATA_DIR (default ../shared/data).
 set -uo pipefail
 cd "$(dirname "$0")/.."
 BUILD=build-fuzz
 SECONDS_PER_TARGET=30
+BUILD_ONLY=0
+if [ "${1:-}" = "--build-only" ]; then BUILD_ONLY=1; shift; fi
 if [[ "${1:-}" =~ ^[0-9]+$ ]]; then SECONDS_PER_TARGET=$1; shift; fi
 MAX_LEN="${FUZZ_MAX_LEN:-1048576}"
 DATA="${VISLOC_SHARED_DATA_DIR:-../shared/data}"
@@ -22,11 +25,15 @@ note() { echo "fuzz: $*" >&2; }
 if ! grep -q "^VISLOC_FUZZ:BOOL=ON" "$BUILD/CMakeCache.txt" 2>/dev/null; then
   note "configuring $BUILD (clang, ASan + UBSan + libFuzzer)"
   CC=clang CXX=clang++ cmake -S . -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo \
-    -DVISLOC_BUILD_TESTS=OFF -DVISLOC_BUILD_BENCH=OFF -DVISLOC_BUILD_PYTHON=OFF -DVISLOC_FUZZ=ON >"$BUILD.configure.log" 2>&1 ||
+    -DVISLOC_BUILD_TESTS=ON -DVISLOC_BUILD_BENCH=OFF -DVISLOC_BUILD_PYTHON=OFF -DVISLOC_FUZZ=ON >"$BUILD.configure.log" 2>&1 ||
     { tail -20 "$BUILD.configure.log" >&2; exit 1; }
 fi
 note "building the fuzz targets"
-nice cmake --build "$BUILD" -j "${JOBS:-2}" --target visloc_fuzzers >"$BUILD/build.log" 2>&1 ||
+# The tests are configured too (scripts/ci-robustness.sh runs them in this
+# build: FUZZ_BUILD_TARGET=all); test discovery runs instrumented programs
+# during the build, so no leak check there.
+ASAN_OPTIONS=detect_leaks=0 nice cmake --build "$BUILD" -j "${JOBS:-2}" --target "${FUZZ_BUILD_TARGET:-visloc_fuzzers}" \
+  >"$BUILD/build.log" 2>&1 ||
   { grep -E "error|FAILED" "$BUILD/build.log" | head -20 >&2; exit 1; }
 
 # --- Seeds (once; delete build-fuzz/seeds to remake them) ---
@@ -37,6 +44,8 @@ if [ ! -f "$BUILD/seeds/.complete" ]; then
   VISLOC_SHARED_DATA_DIR="$DATA" fuzz/make_seeds.sh "$BUILD/seeds" || exit 1
   touch "$BUILD/seeds/.complete"
 fi
+
+[ "$BUILD_ONLY" = 1 ] && exit 0
 
 # --- Targets ---
 if [ $# -gt 0 ]; then

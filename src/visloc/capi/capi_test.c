@@ -56,7 +56,7 @@ static void test_strings_and_defaults(void) {
   CHECK(o.setting == VISLOC_SETTING_3_PLUS, "setting %d", (int)o.setting);
   CHECK(o.cache_bytes == 512ull << 20, "cache_bytes %llu", (unsigned long long)o.cache_bytes);
   CHECK(o.max_segments == 4 && o.top_images == 20, "max_segments %d top_images %d", o.max_segments, o.top_images);
-  CHECK(o.max_image_side == 800 && o.max_features == 8192 && o.threads == 1, "sift %d %d %d", o.max_image_side,
+  CHECK(o.max_image_side == 800 && o.max_features == 8192 && o.threads == 0, "sift %d %d %d", o.max_image_side,
         o.max_features, o.threads);
   CHECK(o.use_exif_focal == 1 && o.min_inliers == 12, "exif %d min_inliers %d", o.use_exif_focal, o.min_inliers);
   CHECK(o.min_confidence > 0 && o.min_confidence < 1, "min_confidence %f", o.min_confidence);

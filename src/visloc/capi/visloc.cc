@@ -93,7 +93,6 @@ visloc::LocalizerOptions localizer_options(const visloc_options& o) {
   l.setting = paper_setting(o.setting);
   l.sift.max_image_side = o.max_image_side;
   l.sift.max_features = o.max_features;
-  l.sift.num_threads = o.threads;
   l.use_exif_focal = o.use_exif_focal != 0;
   if (o.min_inliers < 1)
     visloc::throw_error(ErrorCode::kInvalidArgument, "options: min_inliers must be >= 1, got ", o.min_inliers);
@@ -213,7 +212,7 @@ void visloc_options_init(visloc_options* options) {
   options->setting = VISLOC_SETTING_3_PLUS;
   options->max_image_side = d.sift.max_image_side;
   options->max_features = d.sift.max_features;
-  options->threads = d.sift.num_threads;
+  options->threads = 0;
   options->use_exif_focal = d.use_exif_focal ? 1 : 0;
   options->min_inliers = static_cast<int>(d.ransac.min_inliers);
   options->min_confidence = d.min_confidence;
@@ -229,7 +228,10 @@ visloc_status visloc_localizer_open(const char* map_dir, const visloc_options* o
     visloc_options o;
     visloc_options_init(&o);
     if (options != nullptr) o = *options;
-    *out = new visloc_localizer(map_dir, localizer_options(o));
+    if (o.threads < 0) visloc::throw_error(ErrorCode::kInvalidArgument, "options: threads must be >= 0 (0: leave OpenCV's thread count), got ", o.threads);
+    const visloc::LocalizerOptions l = localizer_options(o);
+    *out = new visloc_localizer(map_dir, l);
+    if (o.threads > 0) visloc::set_opencv_threads(o.threads);  // the app asked for it: process-wide
     return VISLOC_OK;
   });
 }

@@ -65,7 +65,9 @@ typedef struct visloc_options {
   visloc_setting setting; /* default VISLOC_SETTING_3_PLUS */
   int max_image_side;     /* larger images are downscaled before SIFT (default 800; 0: never) */
   int max_features;       /* strongest SIFT features kept (default 8192) */
-  int threads;            /* threads for feature extraction per call (default 1) */
+  int threads;            /* > 0: sets OpenCV's thread count, which SIFT uses, at visloc_localizer_open
+                             (process-wide: it applies to every OpenCV call of the app); default 0:
+                             left as the app set it (OpenCV's default: every core) */
   int use_exif_focal;     /* visloc_localize_file: EXIF focal length when no intrinsics (default 1) */
   int min_inliers;        /* a pose is registered at this many inliers (default 12) */
   double min_confidence;  /* ... and at this confidence, in [0, 1] (default: the builtin model's

@@ -48,6 +48,7 @@
 #include "visloc/retrieval/triangulation_embedding.h"
 #include "visloc/util/error.h"
 #include "visloc/util/timer.h"
+#include "visloc/util/random.h"
 
 namespace visloc::cli {
 namespace fs = std::filesystem;
@@ -512,14 +513,13 @@ void add_bench_retrieval(CLI::App& bench) {
         const size_t n = d.map_names.size(), total = a.synthetic_size;
         std::vector<float> vectors(total * m.dims);
         std::copy(ev.map_vectors.begin(), ev.map_vectors.end(), vectors.begin());
-        std::mt19937_64 rng(a.embedding.seed + 17);
-        std::normal_distribution<float> g(0.0f, static_cast<float>(a.synthetic_noise / std::sqrt(double(m.dims))));
-        std::uniform_int_distribution<size_t> pick(0, n - 1);
+        RandomGenerator rng(a.embedding.seed + 17);
+        const double sigma = a.synthetic_noise / std::sqrt(double(m.dims));
         for (size_t i = n; i < total; ++i) {
-          const float* base = ev.map_vectors.data() + pick(rng) * m.dims;
+          const float* base = ev.map_vectors.data() + rng.below64(n) * m.dims;
           float* v = vectors.data() + i * m.dims;
           double n2 = 0;
-          for (int t = 0; t < m.dims; ++t) v[t] = base[t] + g(rng), n2 += double(v[t]) * v[t];
+          for (int t = 0; t < m.dims; ++t) v[t] = base[t] + static_cast<float>(sigma * rng.normal()), n2 += double(v[t]) * v[t];
           const float inv = static_cast<float>(1.0 / std::sqrt(n2));
           for (int t = 0; t < m.dims; ++t) v[t] *= inv;
         }

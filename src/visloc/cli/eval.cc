@@ -92,14 +92,16 @@ void add_eval_command(CLI::App& app) {
     }
     const bool tty = ::isatty(STDERR_FILENO);
     o.progress = [tty](size_t done, size_t total, const std::string& what) {
+      if (what == "colmap") {
+        std::cerr << "eval: registering " << total << " queries with COLMAP's image_registrator\n";
+        return;
+      }
       const std::string label = what == "negatives" ? "eval: negatives " : "eval: ";
       if (tty)
         std::cerr << "\r" << label << done << "/" << total << (done == total ? "\n" : "") << std::flush;
       else if (done == total || done % 10 == 0)
         std::cerr << label << done << "/" << total << "\n";
     };
-    if (o.compare_colmap && !o.leave_one_out)
-      std::cerr << "eval: COLMAP's image_registrator registers the same queries after visloc\n";
     const EvaluationRunResult r = run_evaluation(o);
     std::cout << r.report_markdown;
     if (r.colmap_report) std::cout << "\n" << r.comparison_markdown;

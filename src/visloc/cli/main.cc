@@ -5,6 +5,7 @@
 #include <string>
 
 #include "visloc/cli/commands.h"
+#include "visloc/features/sift_extractor.h"
 #include "visloc/util/error.h"
 
 namespace {
@@ -45,6 +46,9 @@ int main(int argc, char** argv) {
   cli::add_synth_command(app);
   cli::add_retrieval_command(app);
   require_finite_numbers(app);
+  // OpenCV's thread pool (SIFT) is process-wide and the program's to set:
+  // one thread unless a command's --threads says otherwise.
+  set_opencv_threads(1);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

@@ -18,7 +18,10 @@ inline void add_sift_options(CLI::App* cmd, SiftOptions& o, bool with_max_side =
                   "SIFT contrast threshold (OpenCV's; 0.02 is close to COLMAP's default)")
       ->capture_default_str();
   cmd->add_flag("!--no-root-sift", o.root_sift, "Plain L2-normalized SIFT instead of RootSIFT");
-  cmd->add_option("--threads", o.num_threads, "OpenCV threads for SIFT")->capture_default_str();
+  // OpenCV's pool is process-wide: set when the option is parsed (main sets 1 first).
+  cmd->add_option_function<int>("--threads", [](int n) { set_opencv_threads(n); },
+                                "OpenCV threads for SIFT [1]")
+      ->check(CLI::PositiveNumber);
   cmd->add_option("--max-pixels", o.image.max_pixels, "Refuse images with more pixels than this")
       ->capture_default_str();
 }

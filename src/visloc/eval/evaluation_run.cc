@@ -150,6 +150,7 @@ EvaluationRunResult run_evaluation(const EvaluationRunOptions& o) {
           throw_error(ErrorCode::kInvalidArgument, "evaluation against COLMAP: query '", n,
                       "' is part of the map (import the map with a holdout list, or use leave-one-out)");
       remove_images(model, man.holdout_images);
+      progress(0, prepared.size(), "colmap");
       peer = register_with_colmap(model, store->database(), prepared, o.colmap, out / ".visloc-eval-scratch" / "colmap");
       fs::remove_all(out / ".visloc-eval-scratch");
     }

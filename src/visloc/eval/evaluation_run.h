@@ -44,7 +44,8 @@ struct EvaluationRunOptions {
   LocalizerOptions localizer;
   // Recorded in the report's context (informational).
   std::string negatives_source;              // e.g. the list file the negatives came from
-  // Called after each query / negative (done, total, "queries" or "negatives").
+  // Called after each query / negative (done, total, "queries" or
+  // "negatives"), and once (0, total, "colmap") before COLMAP registers them.
   std::function<void(size_t, size_t, const std::string&)> progress;
   void validate() const;
 };

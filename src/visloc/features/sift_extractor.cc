@@ -26,7 +26,6 @@ void SiftOptions::validate() const {
   if (!(edge_threshold > 1)) bad("edge_threshold", edge_threshold, "must be > 1");
   if (!(sigma > 0)) bad("sigma", sigma, "must be positive");
   if (octave_layers < 1 || octave_layers > 10) bad("octave_layers", octave_layers, "must be in [1, 10]");
-  if (num_threads < 1) bad("num_threads", num_threads, "must be >= 1");
   image.validate();
 }
 
@@ -74,8 +73,6 @@ struct SiftExtractor::Impl {
 
 SiftExtractor::SiftExtractor(const SiftOptions& options) : options_(options), impl_(std::make_unique<Impl>()) {
   options_.validate();
-  // OpenCV's thread pool is process-wide; the extractor owns that setting.
-  cv::setNumThreads(options_.num_threads);
   impl_->sift = cv::SIFT::create(options_.max_features, options_.octave_layers,
                                  options_.contrast_threshold, options_.edge_threshold, options_.sigma);
 }
@@ -143,6 +140,11 @@ FeatureSet SiftExtractor::extract_file(const std::filesystem::path& path, ImageM
   FeatureSet f = extract(image);
   f.image = path.filename().string();
   return f;
+}
+
+void set_opencv_threads(int threads) {
+  if (threads < 1) throw_error(ErrorCode::kInvalidArgument, "OpenCV threads must be >= 1, got ", threads);
+  cv::setNumThreads(threads);
 }
 
 }  // namespace visloc

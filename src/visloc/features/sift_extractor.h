@@ -23,7 +23,6 @@ struct SiftOptions {
   double sigma = 1.6;
   int octave_layers = 3;
   bool root_sift = true;            // RootSIFT before uint8 scaling (COLMAP's default)
-  int num_threads = 1;              // OpenCV threads; 1 keeps queries on one core
   ImageReadOptions image;
 
   void validate() const;
@@ -46,6 +45,12 @@ class SiftExtractor {
   SiftOptions options_;
   std::unique_ptr<Impl> impl_;
 };
+
+// OpenCV's thread pool, which SIFT uses, is process-wide: the library never
+// changes it. A program sets it once (the CLI: --threads, default 1 so that a
+// query uses one core; the C API: options.threads; Python:
+// visloc.set_opencv_threads). threads >= 1, else Error(kInvalidArgument).
+void set_opencv_threads(int threads);
 
 // Float SIFT descriptor (any positive scale) → COLMAP's uint8 encoding.
 void sift_to_uint8(const float* in, bool root_sift, uint8_t* out);

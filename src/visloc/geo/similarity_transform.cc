@@ -7,6 +7,7 @@
 #include <random>
 
 #include "visloc/util/error.h"
+#include "visloc/util/random.h"
 
 namespace visloc {
 
@@ -118,8 +119,8 @@ SimilarityEstimate estimate_similarity_ransac(const std::vector<Eigen::Vector3d>
   const int n = static_cast<int>(src.size());
   if (src.size() != dst.size() || n < 3)
     throw_error(ErrorCode::kInvalidArgument, "similarity: need at least 3 point pairs, got ", src.size(), " and ", dst.size());
-  std::mt19937_64 rng(options.seed);
-  std::uniform_int_distribution<int> pick(0, n - 1);
+  RandomGenerator rng(options.seed);
+  auto pick = [&rng, n] { return static_cast<int>(rng.below(static_cast<uint32_t>(n))); };
   const double thr2 = options.inlier_threshold * options.inlier_threshold;
   int best_count = -1;
   double best_cost = INFINITY;
@@ -146,9 +147,9 @@ SimilarityEstimate estimate_similarity_ransac(const std::vector<Eigen::Vector3d>
         for (int c = b + 1; c < n; ++c) consider({a, b, c});
   } else {
     for (; iterations < options.max_iterations; ++iterations) {
-      sample[0] = pick(rng);
-      do sample[1] = pick(rng); while (sample[1] == sample[0]);
-      do sample[2] = pick(rng); while (sample[2] == sample[0] || sample[2] == sample[1]);
+      sample[0] = pick();
+      do sample[1] = pick(); while (sample[1] == sample[0]);
+      do sample[2] = pick(); while (sample[2] == sample[0] || sample[2] == sample[1]);
       consider(sample);
       if (best_count == n) break;
     }
@@ -230,8 +231,8 @@ SimilarityEstimate estimate_upright_similarity_ransac(const std::vector<Eigen::V
   std::vector<Eigen::Vector3d> x(n);
   for (int i = 0; i < n; ++i) x[i] = level * src[i];
   const double thr2 = options.inlier_threshold * options.inlier_threshold;
-  std::mt19937_64 rng(options.seed);
-  std::uniform_int_distribution<int> pick(0, n - 1);
+  RandomGenerator rng(options.seed);
+  auto pick = [&rng, n] { return static_cast<int>(rng.below(static_cast<uint32_t>(n))); };
   int best_count = -1;
   double best_cost = INFINITY;
   Similarity3d best;
@@ -252,8 +253,8 @@ SimilarityEstimate estimate_upright_similarity_ransac(const std::vector<Eigen::V
       for (int j = i + 1; j < n; ++j) consider(i, j);
   } else {
     for (int it = 0; it < options.max_iterations; ++it) {
-      const int i = pick(rng);
-      int j = pick(rng);
+      const int i = pick();
+      int j = pick();
       if (i == j) continue;
       consider(i, j);
     }

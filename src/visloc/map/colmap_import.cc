@@ -23,6 +23,7 @@
 #include "visloc/util/file_io.h"
 #include "visloc/util/mapped_file.h"
 #include "visloc/util/timer.h"
+#include "visloc/util/random.h"
 
 namespace visloc {
 namespace fs = std::filesystem;
@@ -57,14 +58,8 @@ std::vector<float> database_training_descriptors(const fs::path& db_path, const 
     }
   DescriptorMatrix all;
   for (const auto& im : images) all.append(db.descriptors(im.image_id));
-  std::vector<size_t> rows(all.rows());
-  for (size_t i = 0; i < rows.size(); ++i) rows[i] = i;
-  if (rows.size() > max_rows) {
-    std::mt19937_64 rng(seed);
-    std::shuffle(rows.begin(), rows.end(), rng);
-    rows.resize(max_rows);
-    std::sort(rows.begin(), rows.end());
-  }
+  RandomGenerator rng(seed);
+  const std::vector<size_t> rows = sample_sorted_indices(all.rows(), max_rows, rng);
   std::vector<float> out(rows.size() * kDescriptorDim);
   for (size_t i = 0; i < rows.size(); ++i)
     for (int j = 0; j < kDescriptorDim; ++j) out[i * kDescriptorDim + j] = all.row(rows[i])[j];

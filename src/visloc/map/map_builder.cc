@@ -40,6 +40,7 @@
 #include "visloc/util/error.h"
 #include "visloc/util/file_io.h"
 #include "visloc/util/timer.h"
+#include "visloc/util/random.h"
 
 namespace visloc {
 namespace fs = std::filesystem;
@@ -946,12 +947,12 @@ MapBuildResult build_map(const fs::path& map_dir, const MapBuildOptions& opt,
     const std::vector<size_t> training = pq_training_records(ctx);
     const size_t per_image = (opt.pq_training_descriptors + training.size() - 1) / training.size();
     std::vector<float> sample;
-    std::mt19937_64 rng(opt.pq.seed);
+    RandomGenerator rng(opt.pq.seed);
     for (size_t i : training) {
       FeatureSet f = read_feature_file(feature_path(ctx, ctx.records[i].image));
       std::vector<size_t> rows(f.size());
       for (size_t k = 0; k < rows.size(); ++k) rows[k] = k;
-      std::shuffle(rows.begin(), rows.end(), rng);
+      shuffle(rows.begin(), rows.end(), rng);
       rows.resize(std::min(rows.size(), per_image));
       for (size_t k : rows)
         for (int d = 0; d < kDescriptorDim; ++d) sample.push_back(f.descriptors.row(k)[d]);

@@ -11,6 +11,7 @@
 #include "visloc/util/crc32c.h"
 #include "visloc/util/error.h"
 #include "visloc/util/section_file.h"
+#include "visloc/util/random.h"
 
 namespace visloc {
 namespace {
@@ -44,14 +45,8 @@ void encode_impl(BinaryHasherView h, const T* x, size_t n, HashCode* codes, std:
 // Centred training rows (subsampled to at most max_rows, seeded) as a double
 // matrix, and the mean.
 Eigen::MatrixXd centred_training(const float* x, size_t n, size_t max_rows, uint64_t seed, Eigen::VectorXd& mean) {
-  std::vector<size_t> rows(n);
-  std::iota(rows.begin(), rows.end(), size_t{0});
-  if (n > max_rows) {
-    std::mt19937_64 rng(seed);
-    std::shuffle(rows.begin(), rows.end(), rng);
-    rows.resize(max_rows);
-    std::sort(rows.begin(), rows.end());
-  }
+  RandomGenerator rng(seed);
+  const std::vector<size_t> rows = sample_sorted_indices(n, max_rows, rng);
   Eigen::MatrixXd m(rows.size(), kDescriptorDim);
   for (size_t i = 0; i < rows.size(); ++i)
     for (int j = 0; j < kDescriptorDim; ++j) m(i, j) = x[rows[i] * kDescriptorDim + j];
@@ -68,11 +63,10 @@ Eigen::MatrixXd pca_basis(const Eigen::MatrixXd& centred) {
 }
 
 Eigen::MatrixXd random_orthogonal(int d, uint64_t seed) {
-  std::mt19937_64 rng(seed);
-  std::normal_distribution<double> g(0.0, 1.0);
+  RandomGenerator rng(seed);
   Eigen::MatrixXd a(d, d);
   for (int i = 0; i < d; ++i)
-    for (int j = 0; j < d; ++j) a(i, j) = g(rng);
+    for (int j = 0; j < d; ++j) a(i, j) = rng.normal();
   Eigen::JacobiSVD<Eigen::MatrixXd> svd(a, Eigen::ComputeFullU | Eigen::ComputeFullV);
   return svd.matrixU() * svd.matrixV().transpose();
 }
@@ -152,11 +146,10 @@ BinaryHasher make_lsh_hasher(const float* x, size_t n, uint64_t seed) {
   for (size_t i = 0; i < n; ++i)
     for (int j = 0; j < kDescriptorDim; ++j) mean(j) += x[i * kDescriptorDim + j];
   if (n > 0) mean /= double(n);
-  std::mt19937_64 rng(seed);
-  std::normal_distribution<double> g(0.0, 1.0);
+  RandomGenerator rng(seed);
   Eigen::MatrixXd w(kDescriptorDim, kHashBits);
   for (int i = 0; i < kHashBits; ++i)
-    for (int j = 0; j < kDescriptorDim; ++j) w(j, i) = g(rng);
+    for (int j = 0; j < kDescriptorDim; ++j) w(j, i) = rng.normal();
   return to_hasher(mean, w);
 }
 

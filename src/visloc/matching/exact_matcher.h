@@ -44,10 +44,12 @@ class ExactMatcher {
 };
 
 // Geometric verification of 2D-2D matches by a fundamental matrix (OpenCV
-// RANSAC, threshold in pixels, confidence 0.999). Returns the inlier mask.
+// RANSAC, threshold in pixels, confidence 0.999), its sampling seeded by
+// `seed` (the calling thread's OpenCV RNG is restored afterwards). Returns
+// the inlier mask.
 std::vector<bool> fundamental_inliers(const std::vector<Keypoint>& points1,
                                       const std::vector<Keypoint>& points2,
                                       const std::vector<std::pair<uint32_t, uint32_t>>& matches,
-                                      double threshold_px = 4.0);
+                                      double threshold_px = 4.0, uint64_t seed = 1);
 
 }  // namespace visloc

@@ -11,6 +11,7 @@
 #include "visloc/matching/search_kernels.h"
 #include "visloc/util/error.h"
 #include "visloc/util/section_file.h"
+#include "visloc/util/random.h"
 
 namespace visloc {
 namespace {
@@ -49,12 +50,8 @@ PqCodebook PqCodebook::train(const float* x, size_t n, const PqTrainingOptions& 
   const float* data = x;
   size_t rows = n;
   if (n > options.max_training) {
-    std::vector<size_t> idx(n);
-    std::iota(idx.begin(), idx.end(), size_t{0});
-    std::mt19937_64 rng(options.seed);
-    std::shuffle(idx.begin(), idx.end(), rng);
-    idx.resize(options.max_training);
-    std::sort(idx.begin(), idx.end());
+    RandomGenerator rng(options.seed);
+    const std::vector<size_t> idx = sample_sorted_indices(n, options.max_training, rng);
     sample.resize(idx.size() * kDim);
     for (size_t i = 0; i < idx.size(); ++i) std::copy_n(x + idx[i] * kDim, kDim, sample.data() + i * kDim);
     data = sample.data();

@@ -5,7 +5,7 @@
 #include <chrono>
 #include <cmath>
 
-#include "visloc/pose/random.h"
+#include "visloc/util/random.h"
 #include "visloc/pose/solvers/dlt6.h"
 #include "visloc/pose/solvers/p3p.h"
 #include "visloc/pose/sprt.h"

@@ -6,6 +6,7 @@
 #include <vector>
 
 #include "visloc/util/error.h"
+#include "visloc/util/opencv_seed.h"
 #include "visloc/util/timer.h"
 
 namespace visloc {
@@ -47,7 +48,7 @@ OpenCvPnpResult estimate_pose_opencv(const CorrespondenceSet& corr, const Pinhol
   cv::Mat dist = (cv::Mat_<double>(1, 4) << camera.k1, 0, 0, 0);
   cv::Mat rvec, tvec;
   std::vector<int> inliers;
-  cv::theRNG().state = seed ? seed : 0xffffffffull;
+  const ScopedOpenCvSeed seeded(seed);
   bool ok = false;
   try {
     const int flags = options.method == OpenCvPnpMethod::kP3pRansac ? static_cast<int>(cv::SOLVEPNP_P3P)

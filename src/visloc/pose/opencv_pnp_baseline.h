@@ -32,8 +32,9 @@ struct OpenCvPnpResult {
 };
 
 // `focal_px` is the focal length to give OpenCV (the camera's, or the true
-// one when the camera has none). OpenCV's RNG is process-global; the caller
-// seeds it (cv::theRNG) through `seed`.
+// one when the camera has none). OpenCV's RANSAC samples with the calling
+// thread's cv::theRNG(): it is seeded with `seed` for the call and restored
+// afterwards (util/opencv_seed.h), so the caller's OpenCV state is untouched.
 OpenCvPnpResult estimate_pose_opencv(const CorrespondenceSet& correspondences, const PinholeCamera& camera,
                                      double focal_px, const OpenCvPnpOptions& options, uint64_t seed);
 

@@ -5,7 +5,7 @@
 #include <cmath>
 
 #include "visloc/pose/pose_refinement.h"
-#include "visloc/pose/random.h"
+#include "visloc/util/random.h"
 #include "visloc/pose/solvers/dlt6.h"
 #include "visloc/pose/solvers/p3p.h"
 

@@ -4,7 +4,7 @@
 #include <cmath>
 #include <numbers>
 
-#include "visloc/pose/random.h"
+#include "visloc/util/random.h"
 #include "visloc/util/error.h"
 
 namespace visloc {

@@ -29,6 +29,7 @@ from visloc._core import (  # noqa: F401  (the public API)
     evaluate,
     import_colmap,
     read_image,
+    set_opencv_threads,
 )
 
 __all__ = [
@@ -47,4 +48,5 @@ __all__ = [
     "evaluate",
     "import_colmap",
     "read_image",
+    "set_opencv_threads",
 ]

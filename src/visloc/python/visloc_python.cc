@@ -28,6 +28,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "visloc/eval/evaluation_run.h"
+#include "visloc/features/sift_extractor.h"
 #include "visloc/geometry/pose_list.h"
 #include "visloc/image/image_io.h"
 #include "visloc/map/colmap_import.h"
@@ -69,14 +70,68 @@ PyObject* error_class(ErrorCode code) {
   throw py::error_already_set();
 }
 
-// A str or os.PathLike as a path; TypeError naming `what` otherwise.
+bool is_path_like(const py::handle& o) {
+  return py::isinstance<py::str>(o) || py::isinstance<py::bytes>(o) || py::hasattr(o, "__fspath__");
+}
+
+// A str, bytes or os.PathLike as a path; TypeError naming `what` otherwise.
+// The file system's bytes (os.fsencode), so that any name os.listdir gives works.
 fs::path path_from(const py::object& o, const std::string& what) {
-  if (!py::isinstance<py::str>(o) && !py::hasattr(o, "__fspath__"))
-    throw py::type_error(what + ": expected a path (str or os.PathLike), got " +
+  if (!is_path_like(o))
+    throw py::type_error(what + ": expected a path (str, bytes or os.PathLike), got " +
                          py::str(py::type::of(o).attr("__name__")).cast<std::string>());
-  const py::object p = py::module_::import("os").attr("fspath")(o);
-  if (!py::isinstance<py::str>(p)) throw py::type_error(what + ": expected a text path, got bytes");
-  return fs::path(p.cast<std::string>());
+  const py::bytes b = py::module_::import("os").attr("fsencode")(o);
+  return fs::path(std::string(b));
+}
+
+// True for Python's and numpy's booleans (which are not numbers here).
+bool is_boolean(const py::handle& v) {
+  return py::isinstance<py::bool_>(v) || py::str(py::type::of(v).attr("__name__")).cast<std::string>() == "bool_";
+}
+
+// An integer (int, numpy integer: anything with __index__ but a boolean) in
+// T's range; TypeError / ValueError naming `what`.
+template <typename T>
+T integer_from(const py::handle& v, const std::string& what) {
+  if (is_boolean(v)) throw py::type_error(what + ": expected an integer, got a boolean");
+  PyObject* index = PyNumber_Index(v.ptr());
+  if (index == nullptr) {
+    PyErr_Clear();
+    throw py::type_error(what + ": expected an integer, got " + py::str(py::type::of(v).attr("__name__")).cast<std::string>());
+  }
+  const py::object i = py::reinterpret_steal<py::object>(index);
+  int overflow = 0;
+  const long long value = PyLong_AsLongLongAndOverflow(i.ptr(), &overflow);
+  bool in_range = overflow == 0;
+  if (in_range) {
+    if constexpr (std::is_unsigned_v<T>) in_range = value >= 0 && static_cast<unsigned long long>(value) <= std::numeric_limits<T>::max();
+    else in_range = value >= static_cast<long long>(std::numeric_limits<T>::min()) && value <= static_cast<long long>(std::numeric_limits<T>::max());
+  }
+  if (!in_range) {
+    if (overflow > 0 && std::is_same_v<T, uint64_t>) {  // above 2^63: only an unsigned 64-bit field holds it
+      const unsigned long long u = PyLong_AsUnsignedLongLong(i.ptr());
+      if (!PyErr_Occurred()) return static_cast<T>(u);
+      PyErr_Clear();
+    }
+    raise_error(ErrorCode::kInvalidArgument, what + " must be an integer in [" + std::to_string(std::numeric_limits<T>::min()) +
+                                                 ", " + std::to_string(std::numeric_limits<T>::max()) + "], got " +
+                                                 py::str(v).cast<std::string>());
+  }
+  return static_cast<T>(value);
+}
+
+// A finite real number (int, float, numpy number; not a boolean or a string).
+double finite_number_from(const py::handle& v, const std::string& what) {
+  if (is_boolean(v) || py::isinstance<py::str>(v) || py::isinstance<py::bytes>(v))
+    throw py::type_error(what + ": expected a number, got " + py::str(py::type::of(v).attr("__name__")).cast<std::string>());
+  const double d = PyFloat_AsDouble(v.ptr());
+  if (d == -1.0 && PyErr_Occurred()) {
+    PyErr_Clear();
+    throw py::type_error(what + ": expected a number, got " + py::str(py::type::of(v).attr("__name__")).cast<std::string>());
+  }
+  if (!std::isfinite(d))
+    raise_error(ErrorCode::kInvalidArgument, what + " must be a finite number, got " + py::str(v).cast<std::string>());
+  return d;
 }
 
 // --- Keyword options -------------------------------------------------------
@@ -104,20 +159,13 @@ class Kwargs {
         if (!py::isinstance<py::bool_>(value)) throw py::cast_error();
         field = value.cast<bool>();
       } else if constexpr (std::is_integral_v<T>) {
-        if (py::isinstance<py::bool_>(value) || !py::isinstance<py::int_>(value)) throw py::cast_error();
-        const long long v = value.cast<long long>();
-        if (std::is_unsigned_v<T> && v < 0) raise_error(ErrorCode::kInvalidArgument, where_ + ": " + name + " must be >= 0, got " + std::to_string(v));
-        field = static_cast<T>(v);
+        field = integer_from<T>(value, where_ + ": " + name);
       } else if constexpr (std::is_floating_point_v<T>) {
-        if (py::isinstance<py::bool_>(value) || !(py::isinstance<py::float_>(value) || py::isinstance<py::int_>(value)))
-          throw py::cast_error();
-        const double v = value.cast<double>();
-        if (!std::isfinite(v))
-          raise_error(ErrorCode::kInvalidArgument, where_ + ": " + name + " must be a finite number, got " + py::str(value).cast<std::string>());
-        field = static_cast<T>(v);
+        field = static_cast<T>(finite_number_from(value, where_ + ": " + name));
       } else if constexpr (std::is_same_v<T, fs::path>) {
         field = path_from(value, where_ + ": option '" + name + "'");
       } else {
+        if (!py::isinstance<py::str>(value)) throw py::cast_error();
         field = value.cast<T>();
       }
     } catch (const py::cast_error&) {
@@ -173,7 +221,6 @@ void take_sift_options(Kwargs& k, SiftOptions& o) {
   k.take("max_features", o.max_features);
   k.take("contrast_threshold", o.contrast_threshold);
   k.take("root_sift", o.root_sift);
-  k.take("sift_threads", o.num_threads);
   k.take("max_pixels", o.image.max_pixels);
 }
 
@@ -193,7 +240,8 @@ void take_localizer_options(Kwargs& k, LocalizerOptions& o) {
   k.take("seed", o.ransac.seed);
   double cache_mib = static_cast<double>(o.cache_bytes) / (1 << 20);
   if (k.take("cache_mib", cache_mib)) {
-    if (cache_mib < 1) raise_error(ErrorCode::kInvalidArgument, k.where() + ": cache_mib must be at least 1");
+    if (!(cache_mib >= 1 && cache_mib <= double(1ull << 40)))
+      raise_error(ErrorCode::kInvalidArgument, k.where() + ": cache_mib must be in [1, 2^40], got " + std::to_string(cache_mib));
     o.cache_bytes = static_cast<uint64_t>(cache_mib * (1 << 20));
   }
   take_sift_options(k, o.sift);
@@ -235,7 +283,8 @@ py::object to_python(const nlohmann::json& j) {
 
 // --- Images and intrinsics ----------------------------------------------------
 
-// A numpy uint8 array H×W (grey) or H×W×3 (RGB, or BGR with bgr=True) as a
+// A numpy uint8 array H×W (grey), H×W×3 (RGB, or BGR with bgr=True) or H×W×4
+// (RGBA / BGRA, alpha ignored) as a
 // GrayImage (copied: the GIL is released afterwards).
 GrayImage gray_from_array(const py::array& input, bool bgr) {
   if (!py::isinstance<py::array_t<uint8_t>>(input) || input.dtype().kind() != 'u' || input.itemsize() != 1)
@@ -244,8 +293,8 @@ GrayImage gray_from_array(const py::array& input, bool bgr) {
   const auto arr = py::array_t<uint8_t, py::array::c_style | py::array::forcecast>::ensure(input);
   if (!arr) raise_error(ErrorCode::kInvalidArgument, "localize: cannot read the image array");
   const int nd = static_cast<int>(arr.ndim());
-  if (nd != 2 && !(nd == 3 && (arr.shape(2) == 3 || arr.shape(2) == 1)))
-    raise_error(ErrorCode::kInvalidArgument, "localize: the image array must be H×W or H×W×3, got " +
+  if (nd != 2 && !(nd == 3 && (arr.shape(2) == 1 || arr.shape(2) == 3 || arr.shape(2) == 4)))
+    raise_error(ErrorCode::kInvalidArgument, "localize: the image array must be H×W, H×W×3 or H×W×4, got " +
                                                  std::to_string(nd) + " dimensions" +
                                                  (nd == 3 ? " with " + std::to_string(arr.shape(2)) + " channels" : ""));
   const py::ssize_t h = arr.shape(0), w = arr.shape(1);
@@ -259,9 +308,11 @@ GrayImage gray_from_array(const py::array& input, bool bgr) {
   if (nd == 2 || arr.shape(2) == 1) {
     std::memcpy(g.pixels.data(), arr.data(), g.pixels.size());
   } else {
-    const cv::Mat color(g.height, g.width, CV_8UC3, const_cast<uint8_t*>(arr.data()));
+    const bool alpha = arr.shape(2) == 4;  // the alpha channel is ignored
+    const cv::Mat color(g.height, g.width, alpha ? CV_8UC4 : CV_8UC3, const_cast<uint8_t*>(arr.data()));
     cv::Mat gray(g.height, g.width, CV_8UC1, g.pixels.data());
-    cv::cvtColor(color, gray, bgr ? cv::COLOR_BGR2GRAY : cv::COLOR_RGB2GRAY);
+    cv::cvtColor(color, gray, alpha ? (bgr ? cv::COLOR_BGRA2GRAY : cv::COLOR_RGBA2GRAY)
+                                    : (bgr ? cv::COLOR_BGR2GRAY : cv::COLOR_RGB2GRAY));
   }
   return g;
 }
@@ -274,8 +325,10 @@ std::optional<PinholeCamera> intrinsics_from_python(const py::object& o) {
   const std::string where = "localize: intrinsics";
   PinholeCamera c;
   try {
-    if (py::isinstance<py::float_>(o) || (py::isinstance<py::int_>(o) && !py::isinstance<py::bool_>(o))) {
-      c.focal = o.cast<double>();
+    const bool number = !is_boolean(o) && !py::isinstance<py::str>(o) && !py::isinstance<py::bytes>(o) &&
+                        (py::isinstance<py::float_>(o) || py::isinstance<py::int_>(o) || py::hasattr(o, "__float__"));
+    if (number) {
+      c.focal = finite_number_from(o, where + ": the focal length");
       c.has_focal = true;
       if (!(std::isfinite(c.focal) && c.focal > 0))
         raise_error(ErrorCode::kInvalidArgument, where + ": the focal length must be a positive finite number");
@@ -290,19 +343,19 @@ std::optional<PinholeCamera> intrinsics_from_python(const py::object& o) {
           raise_error(ErrorCode::kInvalidArgument, where + ": unknown key '" + key + "' (focal, cx, cy, width, height, k1)");
       }
       if (!d.contains("focal")) raise_error(ErrorCode::kInvalidArgument, where + ": 'focal' is required");
-      c.focal = d["focal"].cast<double>();
+      c.focal = finite_number_from(d["focal"], where + ": focal");
       c.has_focal = true;
       const bool has_size = d.contains("width") || d.contains("height");
       const bool has_pp = d.contains("cx") || d.contains("cy");
       if (has_size != has_pp || (has_size && !(d.contains("width") && d.contains("height") && d.contains("cx") && d.contains("cy"))))
         raise_error(ErrorCode::kInvalidArgument, where + ": give width, height, cx and cy together, or only focal");
       if (has_size) {
-        c.width = d["width"].cast<int>();
-        c.height = d["height"].cast<int>();
-        c.cx = d["cx"].cast<double>();
-        c.cy = d["cy"].cast<double>();
+        c.width = integer_from<int>(d["width"], where + ": width");
+        c.height = integer_from<int>(d["height"], where + ": height");
+        c.cx = finite_number_from(d["cx"], where + ": cx");
+        c.cy = finite_number_from(d["cy"], where + ": cy");
       }
-      if (d.contains("k1")) c.k1 = d["k1"].cast<double>();
+      if (d.contains("k1")) c.k1 = finite_number_from(d["k1"], where + ": k1");
       if (!(std::isfinite(c.focal) && c.focal > 0))
         raise_error(ErrorCode::kInvalidArgument, where + ": focal must be a positive finite number");
       if (has_size) c.validate();
@@ -312,8 +365,10 @@ std::optional<PinholeCamera> intrinsics_from_python(const py::object& o) {
       const py::sequence s = o.cast<py::sequence>();
       if (s.size() != 4)
         raise_error(ErrorCode::kInvalidArgument, where + ": a COLMAP camera is (model, width, height, params)");
-      return PinholeCamera::from_colmap(s[0].cast<std::string>(), s[1].cast<int>(), s[2].cast<int>(),
-                                        s[3].cast<std::vector<double>>());
+      std::vector<double> params;
+      for (auto p : s[3].cast<py::sequence>()) params.push_back(finite_number_from(p, where + ": a parameter"));
+      return PinholeCamera::from_colmap(s[0].cast<std::string>(), integer_from<int>(s[1], where + ": width"),
+                                        integer_from<int>(s[2], where + ": height"), params);
     }
   } catch (const py::cast_error&) {
     raise_error(ErrorCode::kInvalidArgument, where + ": a value has the wrong type");
@@ -355,6 +410,14 @@ class PyMap {
   }
   const Map& map() const { return *map_; }
   size_t size() const { return segments_.size(); }
+  // A Python index (an integer, negative from the end) as a position.
+  size_t position(const py::object& index) const {
+    const long long i = integer_from<long long>(index, "Map: segment index");
+    const long long n = static_cast<long long>(segments_.size());
+    if (i < -n || i >= n)
+      throw py::index_error("segment index " + std::to_string(i) + " out of range (" + std::to_string(n) + " segments)");
+    return static_cast<size_t>(i < 0 ? i + n : i);
+  }
   // Segments are mapped on first use and kept while the Map lives.
   std::shared_ptr<PySegment> segment(size_t index) {
     if (index >= segments_.size())
@@ -398,11 +461,60 @@ py::object similarity_dict(const std::optional<Similarity3d>& s) {
   return d;
 }
 
+// --- Map building -----------------------------------------------------------------
+
+std::string number_text(double v) {
+  char text[32];
+  std::snprintf(text, sizeof(text), "%.17g", v);
+  return text;
+}
+
+// The `visloc map build` arguments that give these options, recorded in
+// MAP/work/build.json as the CLI records its own, so that `visloc map
+// build-segment` (a Slurm task, or a segment rebuilt by hand) builds a map
+// started from Python with the same options. Paths absolute.
+nlohmann::json build_record(const MapBuildOptions& o, const fs::path& map_dir) {
+  auto abs = [](const fs::path& p) { return fs::absolute(p).string(); };
+  std::vector<std::string> a = {"--images", abs(o.images_dir), "--out", abs(map_dir)};
+  auto add = [&a](const std::string& flag, const std::string& value) {
+    a.push_back(flag);
+    a.push_back(value);
+  };
+  add("--gps", o.gps_csv.empty() ? std::string("exif") : abs(o.gps_csv));
+  if (o.gps_lists_subset) a.push_back("--gps-subset");
+  add("--poses", o.poses == PoseSource::kKnown ? "known" : "sfm");
+  if (!o.known_poses.empty()) add("--known-poses", abs(o.known_poses));
+  if (!o.known_intrinsics.empty()) add("--known-intrinsics", abs(o.known_intrinsics));
+  add("--matcher", o.matcher == PairMatcher::kGuided ? "guided" : o.matcher == PairMatcher::kColmap ? "colmap" : "auto");
+  add("--sampson", number_text(o.guided.max_sampson_px));
+  add("--jobs", std::to_string(o.jobs));
+  add("--colmap", o.colmap.binary);
+  add("--colmap-threads", std::to_string(o.colmap.threads));
+  add("--exhaustive-max", std::to_string(o.exhaustive_max_images));
+  add("--spatial-neighbors", std::to_string(o.colmap.spatial_max_neighbors));
+  add("--min-placemarks", std::to_string(o.plan.min_placemarks));
+  add("--max-placemarks", std::to_string(o.plan.max_placemarks));
+  add("--overlap", std::to_string(o.plan.overlap));
+  add("--placemark-radius", number_text(o.plan.placemark_radius));
+  if (o.plan.order == PlacemarkOrder::kChain) a.push_back("--chain-order");
+  add("--registration-threshold", number_text(o.registration.inlier_threshold));
+  if (!o.build_retrieval) a.push_back("--no-retrieval");
+  add("--retrieval-dims", std::to_string(o.embedding.output_dims));
+  add("--pq-training-images", std::to_string(o.pq_training_images));
+  add("--hash-rotation", to_string(o.hash_rotation));
+  add("--max-side", std::to_string(o.sift.max_image_side));
+  add("--max-features", std::to_string(o.sift.max_features));
+  add("--contrast-threshold", number_text(o.sift.contrast_threshold));
+  if (!o.sift.root_sift) a.push_back("--no-root-sift");
+  add("--max-pixels", std::to_string(o.sift.image.max_pixels));
+  return {{"version", 1}, {"cwd", fs::current_path().string()}, {"args", a}, {"by", "python visloc.build_map"}};
+}
+
 // --- Module ----------------------------------------------------------------------
 
 std::vector<std::string> names_from(const py::object& o, const std::string& what) {
   if (o.is_none()) return {};
-  if (py::isinstance<py::str>(o) || py::hasattr(o, "__fspath__")) {
+  if (is_path_like(o)) {
     const fs::path p = path_from(o, what);
     return translate_errors([&] { return read_name_list(p); });
   }
@@ -526,7 +638,8 @@ Localizer(map_dir, **options): options are LocalizerOptions fields, named as
 the `visloc localize` flags: setting ('1', '2', '3', '3+'), top_images,
 max_segments, accept_inliers, early_stop, full_search_fallback, threshold_px,
 min_inliers, min_confidence, use_exif_focal, seed, cache_mib, max_image_side,
-max_features, contrast_threshold, root_sift, sift_threads, max_pixels.
+max_features, contrast_threshold, root_sift, max_pixels. OpenCV's thread count,
+which SIFT uses, is process-wide: see visloc.set_opencv_threads.
 Thread-safe: localize() releases the GIL, so threads localize in parallel.)doc")
       .def(py::init([](const py::object& map_dir, const py::kwargs& kwargs) {
              Kwargs k(kwargs, "Localizer");
@@ -546,15 +659,17 @@ Thread-safe: localize() releases the GIL, so threads localize in parallel.)doc")
           [](const Localizer& loc, const py::object& image, const py::object& intrinsics, bool bgr) {
             const std::optional<PinholeCamera> cam = intrinsics_from_python(intrinsics);
             Result out;
-            if (py::isinstance<py::array>(image)) {
-              GrayImage g = gray_from_array(image.cast<py::array>(), bgr);
+            if (py::isinstance<py::array>(image) || (!is_path_like(image) && py::hasattr(image, "__array__"))) {
+              // numpy arrays and what converts to one (e.g. a PIL image).
+              const py::array arr = py::module_::import("numpy").attr("asarray")(image);
+              GrayImage g = gray_from_array(arr, bgr);
               translate_errors([&] {
                 py::gil_scoped_release release;
                 out.r = loc.localize_image(g, cam);
               });
               return out;
             }
-            if (!py::isinstance<py::str>(image) && !py::hasattr(image, "__fspath__"))
+            if (!is_path_like(image))
               throw py::type_error("localize: expected a path or a numpy uint8 array, got " +
                                    py::str(py::type::of(image).attr("__name__")).cast<std::string>());
             const fs::path path = path_from(image, "localize: image");
@@ -568,7 +683,8 @@ Thread-safe: localize() releases the GIL, so threads localize in parallel.)doc")
           },
           py::arg("image"), py::arg("intrinsics") = py::none(), py::arg("bgr") = false,
           R"doc(Localizes one photo: a path (EXIF focal used when present), or a numpy uint8
-array H×W (grey) or H×W×3 (RGB; bgr=True for OpenCV's order).
+array H×W (grey), H×W×3 (RGB; bgr=True for OpenCV's order) or H×W×4 (alpha
+ignored), or anything numpy.asarray turns into one (e.g. a PIL image).
 intrinsics: None (EXIF, else the focal is estimated), a focal length in
 pixels, a dict {focal[, width, height, cx, cy][, k1]}, or a COLMAP camera
 (model, width, height, params). Returns a LocalizationResult; a bad file
@@ -622,7 +738,8 @@ raises visloc.Error.)doc")
         });
         return l;
       })
-      .def("segment", [](PyMap& m, size_t i) { return translate_errors([&] { return m.segment(i); }); }, py::arg("index"))
+      .def("segment", [](PyMap& m, const py::object& i) { return translate_errors([&] { return m.segment(m.position(i)); }); },
+           py::arg("index"), "Segment at this position of the manifest (negative: from the end).")
       .def_property_readonly("num_points", [](const PyMap& m) {
         size_t n = 0;
         for (const auto& s : m.map().manifest().segments) n += s.points;
@@ -643,7 +760,13 @@ raises visloc.Error.)doc")
         return l;
       }, "Every segment's images (a dict each, with its segment id).")
       .def("__len__", &PyMap::size)
-      .def("__getitem__", [](PyMap& m, size_t i) { return translate_errors([&] { return m.segment(i); }); });
+      .def("__getitem__", [](PyMap& m, const py::object& i) { return translate_errors([&] { return m.segment(m.position(i)); }); });
+
+  m.def(
+      "set_opencv_threads", [](int threads) { translate_errors([&] { set_opencv_threads(threads); }); },
+      py::arg("threads"),
+      "Sets OpenCV's thread count, which SIFT uses. It is process-wide (every OpenCV call of the program), "
+      "so visloc never changes it by itself: set 1 when several Python threads localize at once.");
 
   m.def(
       "read_image",
@@ -679,7 +802,7 @@ raises visloc.Error.)doc")
         std::string poses = "sfm", matcher = "auto", hash_rotation = "segment";
         const py::object gps = k.take_object("gps");  // None or 'exif': each image's EXIF; else a CSV
         if (!gps.is_none() && !(py::isinstance<py::str>(gps) && gps.cast<std::string>() == "exif")) {
-          if (!py::isinstance<py::str>(gps) && !py::hasattr(gps, "__fspath__"))
+          if (!is_path_like(gps))
             throw py::type_error("build_map: option 'gps' must be 'exif' or the path of a GPS CSV");
           o.gps_csv = path_from(gps, "build_map: gps");
         }
@@ -739,6 +862,7 @@ raises visloc.Error.)doc")
         }
         const MapBuildResult r = translate_errors([&] {
           o.validate();
+          o.build_record = build_record(o, map_dir).dump(2);
           py::gil_scoped_release release;
           return build_map(map_dir, o, callback);
         });
@@ -803,7 +927,10 @@ keep_descriptors, overwrite. Returns the import statistics as a dict.)doc");
         EvaluationRunOptions o;
         o.map = path_from(map_dir, "evaluate: map");
         o.out = path_from(out, "evaluate: out");
-        o.queries = names_from(k.take_object("queries"), "evaluate: queries");
+        const py::object queries = k.take_object("queries");
+        o.queries = names_from(queries, "evaluate: queries");
+        if (!queries.is_none() && o.queries.empty())
+          raise_error(ErrorCode::kInvalidArgument, "evaluate: queries: no query names");
         k.take("images", o.images_dir);
         k.take("truth", o.truth);
         const py::object intrinsics = k.take_object("intrinsics");
@@ -830,9 +957,10 @@ keep_descriptors, overwrite. Returns the import statistics as a dict.)doc");
           }
         }
         if (!negatives.is_none()) {
-          if (py::isinstance<py::str>(negatives) || py::hasattr(negatives, "__fspath__"))
+          if (is_path_like(negatives))
             o.negatives_source = path_from(negatives, "evaluate: negatives").string();
           o.negatives = names_from(negatives, "evaluate: negatives");
+          if (o.negatives.empty()) raise_error(ErrorCode::kInvalidArgument, "evaluate: negatives: no image paths");
         }
         const EvaluationRunResult r = translate_errors([&] {
           o.validate();

@@ -37,6 +37,12 @@ def test_public_api():
     assert issubclass(visloc.FormatError, ValueError)
 
 
+def test_set_opencv_threads():
+    visloc.set_opencv_threads(1)
+    with pytest.raises(ValueError, match="threads"):
+        visloc.set_opencv_threads(0)
+
+
 def test_missing_map_raises(tmp_path):
     with pytest.raises(visloc.Error) as e:
         visloc.Localizer(tmp_path / "nothing")
@@ -66,6 +72,12 @@ def test_not_a_map_raises_format_error(tmp_path):
         ({"top_images": "20"}, TypeError, "top_images"),
         ({"use_exif_focal": 1}, TypeError, "use_exif_focal"),
         ({"top_image": 20}, TypeError, "top_image"),
+        ({"top_images": 2**32 + 5}, ValueError, "top_images"),
+        ({"accept_inliers": 2**32}, ValueError, "accept_inliers"),
+        ({"seed": -1}, ValueError, "seed"),
+        ({"cache_mib": 1e300}, ValueError, "cache_mib"),
+        ({"top_images": np.bool_(True)}, TypeError, "top_images"),
+        ({"setting": b"3"}, TypeError, "setting"),
     ],
 )
 def test_bad_options_name_the_field(tmp_path, options, error, field):
@@ -133,8 +145,23 @@ def test_build_map_reports_and_progresses(street):
     assert info["total"]["points"] == sum(s["points"] for s in report["segments"])
 
 
+def test_python_build_records_its_options_for_the_cli(street):
+    # `map build-segment` (what a Slurm task runs) rebuilds a segment of a map
+    # started from Python with the options recorded in MAP/work/build.json.
+    record = json.loads((street["map"] / "work" / "build.json").read_text())
+    assert "--known-poses" in record["args"] and "--no-retrieval" in record["args"]
+    done = subprocess.run([CLI, "map", "build-segment", str(street["map"]), "0"], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.startswith("segment 0:"), done.stdout
+
+
 def test_map_exposes_segments_points_images(street):
     m = visloc.Map(street["map"])
+    assert m[-1].id == m.segments[-1].id
+    with pytest.raises(IndexError):
+        m[len(m)]
+    with pytest.raises(TypeError):
+        m[True]
     info = m.info()
     assert len(m) == len(info["segments"]) == len(m.segments)
     total = 0
@@ -245,6 +272,9 @@ def test_numpy_frame_equals_file(fountain):
     rgb = np.repeat(pixels[:, :, None], 3, axis=2)
     from_rgb = loc.localize(rgb, intrinsics=cam)
     assert np.array_equal(from_rgb.pose.tvec, from_file.pose.tvec)
+    # RGBA: the alpha channel is ignored.
+    rgba = np.concatenate([rgb, np.full(pixels.shape + (1,), 7, dtype=np.uint8)], axis=2)
+    assert np.array_equal(loc.localize(rgba, intrinsics=cam).pose.tvec, from_file.pose.tvec)
     # A non-contiguous view is accepted (copied).
     from_view = loc.localize(np.asfortranarray(pixels), intrinsics=cam)
     assert np.array_equal(from_view.pose.tvec, from_file.pose.tvec)
@@ -257,7 +287,7 @@ def test_bad_frames_and_intrinsics(fountain):
     with pytest.raises(ValueError, match="H×W"):
         loc.localize(np.zeros((4, 64, 64), dtype=np.uint8))
     with pytest.raises(ValueError, match="channels"):
-        loc.localize(np.zeros((64, 64, 4), dtype=np.uint8))
+        loc.localize(np.zeros((64, 64, 5), dtype=np.uint8))
     with pytest.raises(TypeError):
         loc.localize(12)
     with pytest.raises(ValueError, match="focal"):
@@ -272,6 +302,15 @@ def test_bad_frames_and_intrinsics(fountain):
         loc.localize(FOUNTAIN / "images" / "missing.jpg")
     r = loc.localize(np.zeros((64, 64), dtype=np.uint8))  # no features: not registered, no exception
     assert not r.registered and r.pose is None
+
+
+def test_numpy_scalars_are_numbers(fountain):
+    loc = visloc.Localizer(FOUNTAIN_MAP, top_images=np.int64(20), min_confidence=np.float32(0.5),
+                           max_features=np.int32(16384))
+    model, w, h, params = fountain_camera()
+    r = loc.localize(fountain["images"][0], intrinsics={"focal": np.float64(params[0]), "width": np.int64(w),
+                                                        "height": h, "cx": params[2], "cy": params[3]})
+    assert r.registered
 
 
 def test_two_threads_give_the_same_results(fountain):

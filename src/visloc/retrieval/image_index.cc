@@ -15,6 +15,7 @@
 
 #include "visloc/util/error.h"
 #include "visloc/util/section_file.h"
+#include "visloc/util/random.h"
 
 namespace visloc {
 
@@ -79,13 +80,9 @@ ImageIndex ImageIndex::train(std::span<const float> training, int dims, const Im
   std::vector<float> sample;
   std::span<const float> train_set = training;
   if (n > static_cast<size_t>(options.max_training_vectors)) {
-    std::vector<size_t> idx(n);
-    std::iota(idx.begin(), idx.end(), size_t{0});
-    std::mt19937_64 rng(options.seed);
+    RandomGenerator rng(options.seed);
     const size_t m = static_cast<size_t>(options.max_training_vectors);
-    for (size_t i = 0; i < m; ++i) std::swap(idx[i], idx[std::uniform_int_distribution<size_t>(i, n - 1)(rng)]);
-    idx.resize(m);
-    std::sort(idx.begin(), idx.end());
+    const std::vector<size_t> idx = sample_sorted_indices(n, m, rng);
     sample.resize(m * dims);
     for (size_t i = 0; i < m; ++i)
       std::copy_n(training.data() + idx[i] * dims, dims, sample.data() + i * dims);

@@ -13,6 +13,7 @@
 #include "visloc/util/error.h"
 #include "visloc/util/section_file.h"
 #include "visloc/util/timer.h"
+#include "visloc/util/random.h"
 
 // LAPACK / BLAS (Fortran interface), linked through FAISS's dependencies.
 extern "C" {
@@ -74,17 +75,8 @@ void centred_residuals(const RowMatrixF& x, const RowMatrixF& c, const Eigen::Ve
 // Uniform sample (without replacement) of `count` global descriptor indices
 // among `total`, sorted.
 std::vector<size_t> sample_indices(size_t total, size_t count, uint64_t seed) {
-  std::vector<size_t> idx(total);
-  std::iota(idx.begin(), idx.end(), size_t{0});
-  if (count >= total) return idx;
-  std::mt19937_64 rng(seed);
-  for (size_t i = 0; i < count; ++i) {
-    std::uniform_int_distribution<size_t> pick(i, total - 1);
-    std::swap(idx[i], idx[pick(rng)]);
-  }
-  idx.resize(count);
-  std::sort(idx.begin(), idx.end());
-  return idx;
+  RandomGenerator rng(seed);
+  return visloc::sample_sorted_indices(total, count, rng);
 }
 
 // Gathers the sampled rows of all images into one matrix.
