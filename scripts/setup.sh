@@ -8,7 +8,7 @@ cd "$(dirname "$0")/.."
 
 PACKAGES=(
   build-essential cmake ninja-build pkg-config git
-  libeigen3-dev libopencv-dev libceres-dev
+  libeigen3-dev libopencv-dev
   libopenblas-dev libfaiss-dev
   colmap
   libgeographiclib-dev libexiv2-dev libsqlite3-dev sqlite3

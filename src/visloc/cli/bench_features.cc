@@ -17,23 +17,13 @@
 #include "visloc/matching/exact_matcher.h"
 #include "visloc/util/error.h"
 #include "visloc/util/timer.h"
+#include "visloc/util/statistics.h"
+#include "visloc/image/image_io.h"
 
 namespace visloc::cli {
 namespace fs = std::filesystem;
 namespace {
 
-double median(std::vector<double> v) {
-  if (v.empty()) return 0;
-  std::sort(v.begin(), v.end());
-  const size_t n = v.size();
-  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
-}
-
-bool is_image(const fs::path& p) {
-  std::string e = p.extension().string();
-  std::transform(e.begin(), e.end(), e.begin(), ::tolower);
-  return e == ".jpg" || e == ".jpeg" || e == ".png";
-}
 
 std::vector<fs::path> expand_images(const std::vector<std::string>& inputs) {
   std::vector<fs::path> out;
@@ -41,7 +31,7 @@ std::vector<fs::path> expand_images(const std::vector<std::string>& inputs) {
     if (fs::is_directory(in)) {
       std::vector<fs::path> dir;
       for (const auto& e : fs::recursive_directory_iterator(in))
-        if (e.is_regular_file() && is_image(e.path())) dir.push_back(e.path());
+        if (e.is_regular_file() && is_image_file(e.path())) dir.push_back(e.path());
       std::sort(dir.begin(), dir.end());
       out.insert(out.end(), dir.begin(), dir.end());
     } else if (fs::exists(in)) {

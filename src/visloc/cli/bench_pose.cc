@@ -25,16 +25,10 @@
 #include "visloc/pose/synthetic_correspondences.h"
 #include "visloc/util/error.h"
 #include "visloc/util/timer.h"
+#include "visloc/util/statistics.h"
 
 namespace visloc::cli {
 namespace {
-
-double median(std::vector<double> v) {
-  if (v.empty()) return std::numeric_limits<double>::quiet_NaN();
-  std::sort(v.begin(), v.end());
-  const size_t n = v.size();
-  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
-}
 
 nlohmann::json number_or_null(double x) { return std::isfinite(x) ? nlohmann::json(x) : nlohmann::json(); }
 

@@ -49,6 +49,7 @@
 #include "visloc/util/error.h"
 #include "visloc/util/timer.h"
 #include "visloc/util/random.h"
+#include "visloc/image/image_io.h"
 
 namespace visloc::cli {
 namespace fs = std::filesystem;
@@ -62,12 +63,6 @@ std::vector<std::string> read_names(const fs::path& path) {
   std::vector<std::string> names = visloc::read_name_list(path);
   if (names.empty()) throw_error(ErrorCode::kInvalidArgument, path.string(), ": no image names");
   return names;
-}
-
-bool is_image_file(const fs::path& p) {
-  std::string e = p.extension().string();
-  std::transform(e.begin(), e.end(), e.begin(), ::tolower);
-  return e == ".jpg" || e == ".jpeg" || e == ".png";
 }
 
 std::vector<std::string> list_images(const fs::path& dir) {

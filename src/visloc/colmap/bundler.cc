@@ -14,6 +14,7 @@
 #include "visloc/image/image_io.h"
 #include "visloc/util/error.h"
 #include "visloc/util/timer.h"
+#include "visloc/util/statistics.h"
 
 namespace visloc {
 namespace fs = std::filesystem;
@@ -208,15 +209,6 @@ fs::path find_image_file(const fs::path& images_dir, const std::string& name) {
   if (fs::exists(b)) return b;
   throw_error(ErrorCode::kNotFound, "image ", name, " of the Bundler list is not in ", images_dir.string(), " (tried ",
               a.string(), (a == b ? "" : " and " + b.string()), ")");
-}
-
-double median(std::vector<double>& v) {
-  VISLOC_CHECK(!v.empty());
-  const size_t mid = v.size() / 2;
-  std::nth_element(v.begin(), v.begin() + mid, v.end());
-  double m = v[mid];
-  if (v.size() % 2 == 0) m = 0.5 * (m + *std::max_element(v.begin(), v.begin() + mid));
-  return m;
 }
 
 }  // namespace
@@ -491,6 +483,7 @@ BundlerModel read_bundler_model(const fs::path& bundle_file, const fs::path& lis
         ox.push_back(double(keys[view.key].x) - view.x);
         oy.push_back(double(keys[view.key].y) + view.y);
       }
+      VISLOC_CHECK(!ox.empty());
       cx = median(ox);
       cy = median(oy);
       camera.width = static_cast<uint64_t>(std::max(0.0, std::round(2 * cx)));

@@ -324,11 +324,4 @@ void write_report(const std::filesystem::path& dir, const EvaluationReport& repo
                         report.confidence_curve(), report.min_confidence);
 }
 
-double median(std::vector<double> v) {
-  if (v.empty()) return NAN;
-  std::sort(v.begin(), v.end());
-  const size_t n = v.size();
-  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
-}
-
 }  // namespace visloc

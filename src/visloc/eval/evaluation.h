@@ -15,6 +15,7 @@
 #include <nlohmann/json.hpp>
 
 #include "visloc/pipeline/localizer.h"
+#include "visloc/util/statistics.h"
 
 namespace visloc {
 
@@ -77,8 +78,7 @@ EvaluationReport evaluate(const std::vector<LocalizationResult>& results,
 void write_report(const std::filesystem::path& dir, const EvaluationReport& report,
                   const std::vector<LocalizationResult>& results, const nlohmann::json& context);
 
-// Median of a sample (NaN when empty); even sizes average the middle two.
-double median(std::vector<double> values);
+// median(): util/statistics.h.
 
 // Peak resident memory of this process image (bytes): VmHWM, which starts
 // afresh at exec; getrusage where /proc is absent.

@@ -1,5 +1,8 @@
 #include "visloc/image/image_io.h"
 
+#include <algorithm>
+#include <cctype>
+
 #include <exiv2/exiv2.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
@@ -145,6 +148,12 @@ void write_image(const std::filesystem::path& path, int width, int height, int c
   if (!cv::imencode(ext.empty() ? ".png" : ext, bgr, buffer, params))
     throw_error(ErrorCode::kIo, path.string(), ": cannot encode image as '", ext, "'");
   write_file_atomic(path, std::string_view(reinterpret_cast<const char*>(buffer.data()), buffer.size()));
+}
+
+bool is_image_file(const std::filesystem::path& path) {
+  std::string e = path.extension().string();
+  std::transform(e.begin(), e.end(), e.begin(), [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  return e == ".jpg" || e == ".jpeg" || e == ".png";
 }
 
 }  // namespace visloc

@@ -41,6 +41,9 @@ struct GrayImage {
   const uint8_t* row(int y) const { return pixels.data() + static_cast<size_t>(y) * width; }
 };
 
+// True for the image files visloc reads: .jpg, .jpeg, .png (any case).
+bool is_image_file(const std::filesystem::path& path);
+
 // Metadata only (no pixel decoding). Throws Error naming the file when it is
 // missing, not an image, or over the pixel limit.
 ImageMetadata read_image_metadata(const std::filesystem::path& path,

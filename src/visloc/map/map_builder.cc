@@ -95,12 +95,6 @@ std::string segment_stem(int id) {
   return s.str();
 }
 
-bool is_image_file(const fs::path& p) {
-  std::string e = p.extension().string();
-  std::transform(e.begin(), e.end(), e.begin(), ::tolower);
-  return e == ".jpg" || e == ".jpeg" || e == ".png";
-}
-
 nlohmann::json to_json(const SegmentBuildResult& r) {
   return {{"id", r.id},
           {"ok", r.ok},

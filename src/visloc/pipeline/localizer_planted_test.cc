@@ -1,0 +1,278 @@
+// The localizer's control flow on a map planted in the test, with no shared
+// data and no COLMAP: segments of random 3D points with random descriptors,
+// compressed like any map (ITQ, PQ), geo-registered by a known similarity,
+// and queries made of those points' projections through a known camera.
+// Covers: the right segment and pose, the ENU / heading output, the early
+// accept after a registered pose, the "cannot win" skip, the full-search
+// fallback, and that a pose that is not registered never ends the search.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <filesystem>
+#include <unistd.h>
+
+#include "visloc/geometry/pose.h"
+#include "visloc/map/map.h"
+#include "visloc/map/segment_builder.h"
+#include "visloc/pipeline/localizer.h"
+#include "visloc/util/crc32c.h"
+#include "visloc/util/mapped_file.h"
+#include "visloc/util/random.h"
+
+namespace fs = std::filesystem;
+using namespace visloc;
+
+namespace {
+
+constexpr int kWidth = 640, kHeight = 480;
+constexpr double kFocal = 500;
+
+PinholeCamera query_camera() { return PinholeCamera::centered(kWidth, kHeight, kFocal); }
+
+// A planted segment: points in front of cameras at the origin looking along
+// +z (the segment frame is a camera frame: x right, y down, z forward).
+struct PlantedSegment {
+  std::vector<Eigen::Vector3d> xyz;
+  std::vector<std::array<uint8_t, kDescriptorDim>> descriptors;
+};
+
+PlantedSegment random_segment(size_t n, RandomGenerator& rng) {
+  PlantedSegment s;
+  for (size_t i = 0; i < n; ++i) {
+    s.xyz.emplace_back(rng.uniform(-12, 12), rng.uniform(-8, 8), rng.uniform(15, 30));
+    std::array<uint8_t, kDescriptorDim> d{};
+    for (auto& v : d) v = static_cast<uint8_t>(rng.below(128));
+    s.descriptors.push_back(d);
+  }
+  return s;
+}
+
+// ENU from the segment frame: x → east, z (forward) → north, y (down) → −up;
+// scale 2, shifted. Segment k is shifted by 100 m east per k.
+Similarity3d enu_from_segment(int k) {
+  Similarity3d s;
+  s.scale = 2.0;
+  s.rotation << 1, 0, 0, 0, 0, 1, 0, -1, 0;
+  s.translation = Eigen::Vector3d(100.0 * k + 5, -7, 1.5);
+  return s;
+}
+
+class PlantedMap {
+ public:
+  // Segments in manifest order; each geo-registered by enu_from_segment(position).
+  PlantedMap(const std::string& name, const std::vector<PlantedSegment>& segments) {
+    dir_ = fs::temp_directory_path() / ("visloc_planted_" + name + "_" + std::to_string(::getpid()));
+    fs::remove_all(dir_);
+    fs::create_directories(dir_ / "segments");
+    std::vector<float> all;
+    for (const auto& s : segments)
+      for (const auto& d : s.descriptors) all.insert(all.end(), d.begin(), d.end());
+    PqTrainingOptions pq;
+    pq.iterations = 8;
+    const PqCodebook codebook = PqCodebook::train(all.data(), all.size() / kDescriptorDim, pq);
+    MapManifest man;
+    man.enu_origin_lat_lon_alt = std::array<double, 3>{55.7, 13.19, 20.0};
+    codebook.write(dir_ / man.pq_codebook_file, "{}");
+    for (size_t k = 0; k < segments.size(); ++k) {
+      const PlantedSegment& s = segments[k];
+      ColmapModel model;
+      model.cameras.push_back({1, 1, kWidth, kHeight, {kFocal, kFocal, kWidth / 2.0, kHeight / 2.0}});
+      for (int c = 0; c < 4; ++c) {  // map cameras 2 m apart along x, at the query's height, looking north
+        ColmapImage im;
+        im.image_id = static_cast<uint32_t>(c + 1);
+        im.name = "seg" + std::to_string(k) + "_" + std::to_string(c) + ".jpg";
+        im.camera_id = 1;
+        im.cam_from_world_t = {-(2.0 * c - 3.0), 0, 0};
+        model.images.push_back(im);
+      }
+      PointDescriptors desc;
+      desc.num_points = s.xyz.size();
+      for (size_t i = 0; i < s.xyz.size(); ++i) {
+        ColmapPoint3D p;
+        p.point3d_id = static_cast<int64_t>(i + 1);
+        p.xyz = {s.xyz[i].x(), s.xyz[i].y(), s.xyz[i].z()};
+        model.points.push_back(p);
+        desc.mean.insert(desc.mean.end(), s.descriptors[i].begin(), s.descriptors[i].end());
+        desc.track_size.push_back(3);
+      }
+      ItqOptions itq;
+      itq.iterations = 10;
+      SegmentData data = make_segment_data(model, desc, codebook, itq, static_cast<uint32_t>(k));
+      const Similarity3d e = enu_from_segment(static_cast<int>(k));
+      nlohmann::json r = nlohmann::json::array();
+      for (int i = 0; i < 3; ++i)
+        for (int j = 0; j < 3; ++j) r.push_back(e.rotation(i, j));
+      data.extra_meta["enu_from_segment"] = {{"scale", e.scale},
+                                             {"rotation_row_major", r},
+                                             {"translation", {e.translation.x(), e.translation.y(), e.translation.z()}}};
+      const std::string file = "segments/" + std::to_string(k) + ".vlseg";
+      write_segment_file(dir_ / file, data);
+      const MappedFile mapped(dir_ / file);
+      man.segments.push_back({static_cast<uint32_t>(k), file, "", s.xyz.size(), model.images.size(),
+                              static_cast<uint64_t>(mapped.size()), crc32c(mapped.data(), mapped.size())});
+    }
+    write_manifest(dir_, man);
+  }
+  ~PlantedMap() { fs::remove_all(dir_); }
+  const fs::path& dir() const { return dir_; }
+
+ private:
+  fs::path dir_;
+};
+
+// What the query camera sees of a segment: projections (with 0.3 px noise)
+// and the points' descriptors (with ±2 of noise per byte).
+FeatureSet view_of(const PlantedSegment& s, const CameraPose& cam_from_segment, RandomGenerator& rng) {
+  const PinholeCamera cam = query_camera();
+  FeatureSet f;
+  f.image = "query.jpg";
+  f.image_width = kWidth;
+  f.image_height = kHeight;
+  std::vector<uint8_t> bytes;
+  for (size_t i = 0; i < s.xyz.size(); ++i) {
+    const Eigen::Vector3d pc = cam_from_segment.transform(s.xyz[i]);
+    if (pc.z() <= 0.1) continue;
+    const Eigen::Vector2d px = cam.project(pc) + Eigen::Vector2d(rng.normal(), rng.normal()) * 0.3;
+    if (px.x() < 0 || px.y() < 0 || px.x() >= kWidth || px.y() >= kHeight) continue;
+    f.keypoints.push_back({static_cast<float>(px.x()), static_cast<float>(px.y()), 2.0f, 0.0f});
+    for (uint8_t v : s.descriptors[i]) bytes.push_back(static_cast<uint8_t>(std::clamp<int>(v + int(rng.below(5)) - 2, 0, 255)));
+  }
+  f.descriptors = DescriptorMatrix(bytes.data(), f.keypoints.size());
+  return f;
+}
+
+// The query's pose: 0.6 m right of the map cameras' line, 1 m forward,
+// turned 4° to the right (yaw about the segment's down axis).
+CameraPose query_pose() {
+  const Eigen::Vector3d center(0.6, 0.0, 1.0);
+  const Eigen::Matrix3d world_from_cam = Eigen::AngleAxisd(4.0 * M_PI / 180.0, Eigen::Vector3d::UnitY()).toRotationMatrix();
+  return CameraPose::from_world_from_cam(world_from_cam, center);
+}
+
+struct Fixture {
+  RandomGenerator rng{7};
+  PlantedSegment a = random_segment(600, rng);
+  PlantedSegment b = random_segment(600, rng);
+};
+
+LocalizerOptions options() {
+  LocalizerOptions o;
+  o.sift.max_image_side = 0;
+  return o;
+}
+
+}  // namespace
+
+TEST(LocalizerPlanted, RightSegmentPoseAndGeoRegistration) {
+  Fixture fx;
+  PlantedMap map("right", {fx.a, fx.b});
+  LocalizerOptions o = options();
+  o.accept_inliers = 0;  // search both
+  Localizer loc(map.dir(), o);
+  EXPECT_FALSE(loc.has_retrieval());
+  for (int k : {0, 1}) {
+    const CameraPose truth = query_pose();
+    const LocalizationResult r = loc.localize_features(view_of(k == 0 ? fx.a : fx.b, truth, fx.rng), query_camera());
+    ASSERT_TRUE(r.registered) << "segment " << k << ": " << r.inliers << " inliers, confidence " << r.confidence;
+    EXPECT_EQ(r.segment, k);
+    EXPECT_EQ(r.candidates, (std::vector<int>{0, 1}));
+    EXPECT_GE(r.inliers, 90u);  // the prioritized search stops at N_early = 100 matches
+    EXPECT_LT(position_error(r.cam_from_segment, truth), 0.02);
+    EXPECT_LT(rotation_error_deg(r.cam_from_segment, truth), 0.1);
+    // ENU: the segment's similarity applied to the camera centre; heading:
+    // north (the segment's +z) turned 4° clockwise.
+    ASSERT_TRUE(r.center_enu.has_value());
+    const Eigen::Vector3d expected = enu_from_segment(k).apply(truth.center());
+    EXPECT_LT((*r.center_enu - expected).norm(), 0.05) << r.center_enu->transpose() << " vs " << expected.transpose();
+    ASSERT_TRUE(r.heading_deg.has_value());
+    EXPECT_NEAR(*r.heading_deg, 4.0, 0.2);
+    ASSERT_TRUE(r.position.has_value());
+    EXPECT_NEAR(r.position->lat, 55.7, 0.01);
+    EXPECT_TRUE(r.uncertainty.valid);
+    ASSERT_TRUE(r.uncertainty.position_sigma_m.has_value());
+    EXPECT_LT(*r.uncertainty.position_sigma_m, 0.5);
+  }
+}
+
+TEST(LocalizerPlanted, EarlyAcceptEndsTheSearchAtARegisteredPose) {
+  Fixture fx;
+  PlantedMap map("accept", {fx.a, fx.b});
+  LocalizerOptions o = options();
+  o.accept_inliers = 50;
+  Localizer loc(map.dir(), o);
+  const LocalizationResult first = loc.localize_features(view_of(fx.a, query_pose(), fx.rng), query_camera());
+  ASSERT_TRUE(first.registered);
+  EXPECT_EQ(first.candidates, (std::vector<int>{0}));  // segment 1 is never searched
+  const LocalizationResult second = loc.localize_features(view_of(fx.b, query_pose(), fx.rng), query_camera());
+  ASSERT_TRUE(second.registered);
+  EXPECT_EQ(second.segment, 1);
+  EXPECT_EQ(second.candidates, (std::vector<int>{0, 1}));
+}
+
+TEST(LocalizerPlanted, APoseThatIsNotRegisteredNeverEndsTheSearch) {
+  Fixture fx;
+  PlantedMap map("unregistered", {fx.a, fx.b});
+  LocalizerOptions o = options();
+  o.accept_inliers = 50;
+  o.min_confidence = 1.0;  // no pose can be registered
+  Localizer loc(map.dir(), o);
+  const LocalizationResult r = loc.localize_features(view_of(fx.a, query_pose(), fx.rng), query_camera());
+  EXPECT_FALSE(r.registered);
+  EXPECT_EQ(r.segment, 0);  // the pose is still reported
+  EXPECT_GT(r.inliers, 300u);
+  EXPECT_EQ(r.candidates, (std::vector<int>{0, 1}));  // past the 50 inliers of segment 0
+  EXPECT_TRUE(r.full_search_fallback);  // and searched again in full before giving up
+}
+
+TEST(LocalizerPlanted, FullSearchFallbackAfterAFailedPrioritizedSearch) {
+  Fixture fx;
+  PlantedMap map("fallback", {fx.a});
+  LocalizerOptions o = options();
+  o.search.early_stop = 4;  // the prioritized search stops at 4 matches: too few for a pose
+  const FeatureSet query = view_of(fx.a, query_pose(), fx.rng);
+  {
+    Localizer loc(map.dir(), o);
+    const LocalizationResult r = loc.localize_features(query, query_camera());
+    EXPECT_TRUE(r.full_search_fallback);
+    EXPECT_TRUE(r.registered);
+    EXPECT_GT(r.inliers, 300u);
+  }
+  o.full_search_fallback = false;
+  {
+    Localizer loc(map.dir(), o);
+    const LocalizationResult r = loc.localize_features(query, query_camera());
+    EXPECT_FALSE(r.full_search_fallback);
+    EXPECT_FALSE(r.registered);
+    EXPECT_LT(r.inliers, 12u);
+  }
+}
+
+// A segment with no more matched features than the best pose's inliers
+// cannot win and gets no RANSAC: its inliers do not enter the margin to the
+// second-best segment. Segment "part" holds a third of segment A's points.
+TEST(LocalizerPlanted, ASegmentThatCannotWinIsSkipped) {
+  Fixture fx;
+  PlantedSegment part;
+  for (size_t i = 0; i < fx.a.xyz.size(); i += 3) {
+    part.xyz.push_back(fx.a.xyz[i]);
+    part.descriptors.push_back(fx.a.descriptors[i]);
+  }
+  LocalizerOptions o = options();
+  o.accept_inliers = 0;
+  const FeatureSet query = view_of(fx.a, query_pose(), fx.rng);
+  // Full segment first: the part, searched second, cannot win.
+  PlantedMap full_first("skip1", {fx.a, part});
+  const LocalizationResult skipped = Localizer(full_first.dir(), o).localize_features(query, query_camera());
+  // The part first: estimated (it could win then), then beaten.
+  PlantedMap part_first("skip2", {part, fx.a});
+  const LocalizationResult estimated = Localizer(part_first.dir(), o).localize_features(query, query_camera());
+  ASSERT_TRUE(skipped.registered);
+  ASSERT_TRUE(estimated.registered);
+  EXPECT_EQ(skipped.segment, 0);
+  EXPECT_EQ(estimated.segment, 1);
+  EXPECT_EQ(skipped.candidates, (std::vector<int>{0, 1}));
+  EXPECT_EQ(estimated.candidates, (std::vector<int>{0, 1}));
+  // The part's pose has about a third of the inliers: it shows in the margin only when estimated.
+  EXPECT_GT(estimated.confidence_features.margin, 0.2);
+  EXPECT_LT(skipped.confidence_features.margin, 0.2);
+}
