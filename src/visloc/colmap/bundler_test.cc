@@ -15,6 +15,7 @@
 #include "visloc/image/image_io.h"
 #include "visloc/util/error.h"
 #include "visloc/util/file_io.h"
+#include "visloc/util/test_support.h"
 
 namespace fs = std::filesystem;
 using namespace visloc;
@@ -22,7 +23,7 @@ using namespace visloc;
 namespace {
 
 fs::path temp_dir(const std::string& name) {
-  fs::path p = fs::temp_directory_path() / ("visloc_bundler_test_" + name);
+  fs::path p = unique_temp_path("visloc_bundler_test_" + name);
   fs::remove_all(p);
   fs::create_directories(p);
   return p;
@@ -140,15 +141,6 @@ Scene make_scene(const std::string& name) {
   write_gzip(s.dir / "images/c.key.gz", key_text(s.keys_c, s.keys_c.size()));
   // No key file for B: unregistered cameras need none.
   return s;
-}
-
-std::string error_of(const std::function<void()>& f) {
-  try {
-    f();
-  } catch (const Error& e) {
-    return e.what();
-  }
-  return "no error";
 }
 
 // COLMAP's RADIAL projection of a world point through an imported image.

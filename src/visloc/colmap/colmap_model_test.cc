@@ -9,6 +9,7 @@
 #include "visloc/colmap/point_descriptors.h"
 #include "visloc/util/error.h"
 #include "visloc/util/file_io.h"
+#include "visloc/util/test_support.h"
 
 namespace fs = std::filesystem;
 using namespace visloc;
@@ -16,7 +17,7 @@ using namespace visloc;
 namespace {
 
 fs::path temp_dir(const std::string& name) {
-  fs::path p = fs::temp_directory_path() / ("visloc_colmap_model_test_" + name);
+  fs::path p = unique_temp_path("visloc_colmap_model_test_" + name);
   fs::remove_all(p);
   fs::create_directories(p);
   return p;

@@ -5,6 +5,7 @@
 #include "visloc/colmap/colmap_database.h"
 #include "visloc/util/error.h"
 #include "visloc/util/file_io.h"
+#include "visloc/util/test_support.h"
 
 namespace fs = std::filesystem;
 using namespace visloc;
@@ -21,7 +22,7 @@ TEST(ColmapDatabase, RejectsMissingAndNonDatabaseFiles) {
   } catch (const Error& e) {
     EXPECT_NE(std::string(e.what()).find("/nonexistent/database.db"), std::string::npos);
   }
-  fs::path p = fs::temp_directory_path() / "visloc_colmap_test_not_db.db";
+  fs::path p = unique_temp_path("visloc_colmap_test_not_db.db");
   write_file_atomic(p, "hello, I am not SQLite");
   try {
     ColmapDatabase db(p);

@@ -8,6 +8,7 @@
 #include "visloc/sfm/process.h"
 #include "visloc/util/error.h"
 #include "visloc/util/file_io.h"
+#include "visloc/util/test_support.h"
 
 namespace fs = std::filesystem;
 using namespace visloc;
@@ -30,7 +31,7 @@ TEST(CityBenchmark, OptionsAreValidated) {
 // run resumes (the city is not rendered again, the map is reused).
 TEST(CityBenchmark, SmallCityRunsAndResumes) {
   if (!program_exists("colmap")) GTEST_SKIP() << "colmap is not installed";
-  const fs::path dir = fs::temp_directory_path() / "visloc_city_benchmark_test";
+  const fs::path dir = unique_temp_path("visloc_city_benchmark_test");
   fs::remove_all(dir);
   CityBenchmarkOptions o;
   o.city.layout.layout = synth::RoadLayout::kGrid;

@@ -8,6 +8,7 @@
 #include "visloc/eval/evaluation.h"
 #include "visloc/util/error.h"
 #include "visloc/util/file_io.h"
+#include "visloc/util/test_support.h"
 
 namespace visloc {
 namespace {
@@ -122,7 +123,7 @@ TEST(Evaluation, CountsWrongPosesApartFromMissesAndReadsBackAsSamples) {
   EXPECT_EQ(j["confidence"]["rejected_wrong_poses"], 1);  // n2
   EXPECT_DOUBLE_EQ(j["uncertainty"]["within_1_sigma"].get<double>(), 0.5);  // a within 0.1, b not
 
-  const auto dir = std::filesystem::temp_directory_path() / ("visloc_eval_conf_" + std::to_string(::getpid()));
+  const auto dir = unique_temp_path("visloc_eval_conf");
   write_report(dir, rep, results, {});
   EXPECT_TRUE(std::filesystem::exists(dir / "precision_recall.png"));
   const auto samples = read_confidence_samples(dir / "report.json", WrongPoseRule{});

@@ -5,6 +5,7 @@
 #include "visloc/eval/evaluation.h"
 #include "visloc/util/error.h"
 #include "visloc/util/file_io.h"
+#include "visloc/util/test_support.h"
 
 namespace fs = std::filesystem;
 using namespace visloc;
@@ -35,7 +36,7 @@ TEST(Evaluation, ErrorsRatesAndReportFiles) {
   EXPECT_NEAR(j["recall"]["0.25m_2deg"].get<double>(), 0.5, 1e-12);
   EXPECT_NEAR(j["recall"]["5m_10deg"].get<double>(), 0.75, 1e-12);
   EXPECT_EQ(j["map"], "test");
-  fs::path dir = fs::temp_directory_path() / "visloc_eval_test_report";
+  fs::path dir = unique_temp_path("visloc_eval_test_report");
   fs::remove_all(dir);
   write_report(dir, rep, results, {});
   for (const char* f : {"report.json", "report.md", "error_curve.svg", "error_curve.png", "top_view.svg", "top_view.png"})
@@ -73,7 +74,7 @@ TEST(Protocols, LeaveOneOutWithDatabaseFeatures) {
   o.import = fast_import();
   o.features = QueryFeatureSource::kDatabase;
   o.images = {"0000.jpg", "0005.jpg"};
-  o.work_dir = fs::temp_directory_path() / "visloc_eval_test_loo";
+  o.work_dir = unique_temp_path("visloc_eval_test_loo");
   size_t progress_calls = 0;
   o.progress = [&](size_t done, size_t total) {
     ++progress_calls;
@@ -101,7 +102,7 @@ TEST(Protocols, LeaveOneOutWithDatabaseFeatures) {
 }
 
 TEST(Protocols, FeatureStoreNeedsAnImportedMap) {
-  const fs::path dir = fs::temp_directory_path() / "visloc_eval_test_nostore";
+  const fs::path dir = unique_temp_path("visloc_eval_test_nostore");
   fs::remove_all(dir);
   fs::create_directories(dir);
   write_file_atomic(dir / "manifest.json", R"({"format":"visloc map","format_version":1,"segments":[]})");
@@ -134,7 +135,7 @@ TEST(Protocols, ColmapRegistersAHeldOutImage) {
   PreparedQuery bad;
   bad.name = "broken.jpg";
   bad.error = "not an image";
-  const fs::path work = fs::temp_directory_path() / "visloc_eval_test_colmap";
+  const fs::path work = unique_temp_path("visloc_eval_test_colmap");
   ColmapRunnerOptions co;
   const ColmapRegistrationResult r = register_with_colmap(model, scene / "colmap" / "database.db", {q, bad}, co, work);
   ASSERT_EQ(r.results.size(), 2u);

@@ -9,6 +9,7 @@
 #include "visloc/features/sift_extractor.h"
 #include "visloc/util/error.h"
 #include "visloc/util/file_io.h"
+#include "visloc/util/test_support.h"
 
 namespace fs = std::filesystem;
 using namespace visloc;
@@ -159,7 +160,7 @@ TEST(SiftOptions, ValidateNamesField) {
 TEST(FeatureFile, RoundTripAndTruncation) {
   FeatureSet f = SiftExtractor().extract(blob_image(200, 160));
   f.image = "blobs.png";
-  fs::path p = fs::temp_directory_path() / "visloc_features_test.vlfeat";
+  fs::path p = unique_temp_path("visloc_features_test.vlfeat");
   write_feature_file(p, f);
   FeatureSet g = read_feature_file(p);
   EXPECT_EQ(g.image, "blobs.png");

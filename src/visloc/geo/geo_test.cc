@@ -8,6 +8,7 @@
 #include "visloc/geo/similarity_transform.h"
 #include "visloc/util/error.h"
 #include "visloc/util/file_io.h"
+#include "visloc/util/test_support.h"
 
 namespace fs = std::filesystem;
 using namespace visloc;
@@ -15,7 +16,7 @@ using namespace visloc;
 namespace {
 
 fs::path write_temp(const std::string& name, const std::string& content) {
-  fs::path p = fs::temp_directory_path() / ("visloc_geo_test_" + name);
+  fs::path p = unique_temp_path("visloc_geo_test_" + name);
   write_file_atomic(p, content);
   return p;
 }
@@ -67,7 +68,7 @@ TEST(GpsCsv, ReadsWithAndWithoutPlacemark) {
   EXPECT_FALSE(r[1].placemark.has_value());
   EXPECT_DOUBLE_EQ(r[1].position.alt, 0.0);
   // Write and read back.
-  fs::path q = fs::temp_directory_path() / "visloc_geo_test_rt.csv";
+  fs::path q = unique_temp_path("visloc_geo_test_rt.csv");
   write_gps_csv(q, r);
   auto r2 = read_gps_csv(q);
   ASSERT_EQ(r2.size(), 2u);

@@ -95,10 +95,11 @@ TEST(CameraPose, RotationErrorDegrees) {
 
 #include "visloc/geometry/pose_list.h"
 #include "visloc/util/file_io.h"
+#include "visloc/util/test_support.h"
 
 TEST(PoseList, RoundTripAndErrors) {
   namespace fs = std::filesystem;
-  fs::path p = fs::temp_directory_path() / "visloc_geometry_test_poses.txt";
+  fs::path p = unique_temp_path("visloc_geometry_test_poses.txt");
   std::vector<NamedPose> poses = {{"a.jpg", CameraPose::from_wxyz({0.5, 0.5, -0.5, 0.5}, {1, 2, 3})},
                                   {"b.png", CameraPose{}}};
   write_pose_list(p, poses);
@@ -122,7 +123,7 @@ TEST(PoseList, RoundTripAndErrors) {
 
 TEST(PoseList, ReadsColmapImagesTxt) {
   namespace fs = std::filesystem;
-  fs::path p = fs::temp_directory_path() / "visloc_geometry_test_images.txt";
+  fs::path p = unique_temp_path("visloc_geometry_test_images.txt");
   // Second image has no 2D points: its POINTS2D line is empty.
   write_file_atomic(p,
                     "# Image list with two lines of data per image:\n"
@@ -159,7 +160,7 @@ TEST(PoseList, ReadsStrechaTruth) {
 
 TEST(IntrinsicsList, ReadsModelsAndRejectsBadLines) {
   namespace fs = std::filesystem;
-  fs::path p = fs::temp_directory_path() / "visloc_geometry_test_intrinsics.txt";
+  fs::path p = unique_temp_path("visloc_geometry_test_intrinsics.txt");
   write_file_atomic(p, "# q\nq1.jpg PINHOLE 800 600 500 502 400 300\nq2.jpg SIMPLE_RADIAL 640 480 400 320 240 -0.1\n");
   auto cams = read_intrinsics_list(p);
   ASSERT_EQ(cams.size(), 2u);
@@ -179,7 +180,7 @@ TEST(IntrinsicsList, ReadsModelsAndRejectsBadLines) {
 
 TEST(IntrinsicsList, RejectsConflictingLinesAndPrincipalPointsOutside) {
   namespace fs = std::filesystem;
-  fs::path p = fs::temp_directory_path() / "visloc_geometry_test_intrinsics_conflict.txt";
+  fs::path p = unique_temp_path("visloc_geometry_test_intrinsics_conflict.txt");
   write_file_atomic(p, "q1.jpg PINHOLE 800 600 500 502 400 300\nq1.jpg PINHOLE 800 600 700 702 400 300\n");
   try {
     read_intrinsics_list(p);

@@ -6,6 +6,7 @@
 #include "visloc/image/image_io.h"
 #include "visloc/util/error.h"
 #include "visloc/util/file_io.h"
+#include "visloc/util/test_support.h"
 
 namespace fs = std::filesystem;
 using namespace visloc;
@@ -13,16 +14,7 @@ using namespace visloc;
 namespace {
 
 fs::path temp_path(const std::string& name) {
-  return fs::temp_directory_path() / ("visloc_image_test_" + name);
-}
-
-std::string error_of(const std::function<void()>& f) {
-  try {
-    f();
-  } catch (const Error& e) {
-    return e.what();
-  }
-  return "";
+  return unique_temp_path("visloc_image_test_" + name);
 }
 
 }  // namespace

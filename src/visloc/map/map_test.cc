@@ -12,6 +12,7 @@
 #include "visloc/matching/faiss_baselines.h"
 #include "visloc/util/error.h"
 #include "visloc/util/file_io.h"
+#include "visloc/util/test_support.h"
 
 namespace fs = std::filesystem;
 using namespace visloc;
@@ -22,7 +23,7 @@ namespace {
 const int kOneThread = (set_faiss_threads(1), 1);
 
 fs::path temp_dir(const std::string& name) {
-  fs::path p = fs::temp_directory_path() / ("visloc_map_test_" + name);
+  fs::path p = unique_temp_path("visloc_map_test_" + name);
   fs::remove_all(p);
   fs::create_directories(p);
   return p;
@@ -42,15 +43,6 @@ SegmentData random_segment(size_t n, uint64_t seed) {
   s.extra_meta["enu_from_segment"] = {
       {"scale", 1.0}, {"rotation_row_major", {1, 0, 0, 0, 1, 0, 0, 0, 1}}, {"translation", {0, 0, 0}}};
   return s;
-}
-
-std::string error_of(const std::function<void()>& f) {
-  try {
-    f();
-  } catch (const Error& e) {
-    return e.what();
-  }
-  return "";
 }
 
 }  // namespace

@@ -13,6 +13,7 @@
 #include "visloc/matching/pq_codebook.h"
 #include "visloc/util/error.h"
 #include "visloc/util/file_io.h"
+#include "visloc/util/test_support.h"
 
 using namespace visloc;
 namespace fs = std::filesystem;
@@ -159,7 +160,7 @@ TEST(ProductQuantizer, AdcEqualsBruteForceDistanceAndFileRoundTrips) {
     const double other = cb.reconstruction_sqdist(&codes[(p + 1) * 16], &f[p * 128]);
     EXPECT_LE(own, other + 1e-3);
   }
-  fs::path path = fs::temp_directory_path() / "visloc_cascade_test.vlpq";
+  fs::path path = unique_temp_path("visloc_cascade_test.vlpq");
   cb.write(path, R"({"test":1})");
   std::string meta;
   PqCodebook back = PqCodebook::read(path, &meta);

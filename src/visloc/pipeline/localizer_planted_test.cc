@@ -18,6 +18,7 @@
 #include "visloc/util/crc32c.h"
 #include "visloc/util/mapped_file.h"
 #include "visloc/util/random.h"
+#include "visloc/util/test_support.h"
 
 namespace fs = std::filesystem;
 using namespace visloc;
@@ -61,7 +62,7 @@ class PlantedMap {
  public:
   // Segments in manifest order; each geo-registered by enu_from_segment(position).
   PlantedMap(const std::string& name, const std::vector<PlantedSegment>& segments) {
-    dir_ = fs::temp_directory_path() / ("visloc_planted_" + name + "_" + std::to_string(::getpid()));
+    dir_ = unique_temp_path("visloc_planted_" + name);
     fs::remove_all(dir_);
     fs::create_directories(dir_ / "segments");
     std::vector<float> all;

@@ -10,6 +10,7 @@
 #include "visloc/pipeline/localization_json.h"
 #include "visloc/pipeline/localizer.h"
 #include "visloc/util/error.h"
+#include "visloc/util/test_support.h"
 
 namespace fs = std::filesystem;
 using namespace visloc;
@@ -47,7 +48,7 @@ TEST(Localizer, MissingMapIsAClearError) {
 TEST(Localizer, LocalizesHeldOutFountainImages) {
   const fs::path scene = fs::path(VISLOC_SHARED_DATA_DIR) / "strecha" / "fountain-P11";
   if (!fs::exists(scene / "colmap" / "database.db")) GTEST_SKIP() << "shared data absent: " << scene;
-  const fs::path map_dir = fs::temp_directory_path() / "visloc_pipeline_test_fountain";
+  const fs::path map_dir = unique_temp_path("visloc_pipeline_test_fountain");
   fs::remove_all(map_dir);
   ColmapImportOptions io;
   io.holdout_images = read_name_list(scene / "queries.txt");
@@ -105,7 +106,7 @@ TEST(Localizer, LocalizesHeldOutFountainImages) {
 // when the colmap binary is absent.
 TEST(Localizer, EndToEndOnSyntheticStreet) {
   if (!program_exists("colmap")) GTEST_SKIP() << "colmap is not installed";
-  const fs::path dir = fs::temp_directory_path() / "visloc_pipeline_test_city";
+  const fs::path dir = unique_temp_path("visloc_pipeline_test_city");
   fs::remove_all(dir);
   synth::CityOptions city;
   city.layout.road_length_m = 60;
@@ -334,7 +335,7 @@ void write_bundler_export(const ColmapModel& m, const ColmapDatabase& db, const 
 TEST(Localizer, LocalizesFromABundlerImportOfFountain) {
   const fs::path scene = fs::path(VISLOC_SHARED_DATA_DIR) / "strecha" / "fountain-P11";
   if (!fs::exists(scene / "colmap" / "database.db")) GTEST_SKIP() << "shared data absent: " << scene;
-  const fs::path dir = fs::temp_directory_path() / "visloc_pipeline_test_bundler";
+  const fs::path dir = unique_temp_path("visloc_pipeline_test_bundler");
   fs::remove_all(dir);
   const ColmapModel colmap = read_colmap_model(scene / "colmap" / "sparse");
   ColmapDatabase db(scene / "colmap" / "database.db");

@@ -13,6 +13,7 @@
 #include "visloc/retrieval/segment_voter.h"
 #include "visloc/retrieval/triangulation_embedding.h"
 #include "visloc/util/error.h"
+#include "visloc/util/test_support.h"
 
 namespace visloc {
 namespace {
@@ -376,7 +377,7 @@ TEST(RetrievalTruth, NearestFacingImageDefinesCorrectSegments) {
 }
 
 fs::path temp_path(const std::string& name) {
-  return fs::temp_directory_path() / ("visloc_retrieval_test_" + std::to_string(::getpid()) + "_" + name);
+  return unique_temp_path("visloc_retrieval_test_" + name);
 }
 
 void flip_byte(const fs::path& p, size_t offset) {

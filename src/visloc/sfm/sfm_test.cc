@@ -14,13 +14,14 @@
 #include "visloc/sfm/segment_plan.h"
 #include "visloc/util/error.h"
 #include "visloc/util/file_io.h"
+#include "visloc/util/test_support.h"
 
 namespace fs = std::filesystem;
 using namespace visloc;
 
 namespace {
 fs::path temp_dir(const std::string& name) {
-  fs::path d = fs::temp_directory_path() / ("visloc_sfm_test_" + name);
+  fs::path d = unique_temp_path("visloc_sfm_test_" + name);
   fs::remove_all(d);
   fs::create_directories(d);
   return d;

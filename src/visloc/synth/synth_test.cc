@@ -22,6 +22,7 @@
 #include "visloc/synth/view_pair_check.h"
 #include "visloc/util/error.h"
 #include "visloc/util/file_io.h"
+#include "visloc/util/test_support.h"
 
 namespace visloc::synth {
 namespace {
@@ -29,7 +30,7 @@ namespace {
 namespace fs = std::filesystem;
 
 fs::path fresh_dir(const std::string& name) {
-  const fs::path p = fs::temp_directory_path() / ("visloc_synth_test_" + name + "_" + std::to_string(::getpid()));
+  const fs::path p = unique_temp_path("visloc_synth_test_" + name);
   fs::remove_all(p);
   return p;
 }

@@ -11,6 +11,7 @@
 #include "visloc/util/file_io.h"
 #include "visloc/util/mapped_file.h"
 #include "visloc/util/section_file.h"
+#include "visloc/util/test_support.h"
 
 namespace fs = std::filesystem;
 using namespace visloc;
@@ -18,21 +19,11 @@ using namespace visloc;
 namespace {
 
 fs::path temp_dir() {
-  fs::path dir = fs::temp_directory_path() /
-                 ("visloc_util_test_" + std::to_string(::testing::UnitTest::GetInstance()->random_seed()) +
-                  "_" + ::testing::UnitTest::GetInstance()->current_test_info()->name());
+  fs::path dir = unique_temp_path(std::string("visloc_util_test_") +
+                                  ::testing::UnitTest::GetInstance()->current_test_info()->name());
   fs::remove_all(dir);
   fs::create_directories(dir);
   return dir;
-}
-
-std::string error_message(const std::function<void()>& f) {
-  try {
-    f();
-  } catch (const Error& e) {
-    return e.what();
-  }
-  return "";
 }
 
 void write_sample(const fs::path& path) {
@@ -81,12 +72,12 @@ TEST(AtomicFileWriter, CommitReplacesTarget) {
 }
 
 TEST(AtomicFileWriter, UnwritableDirectoryNamesFile) {
-  std::string msg = error_message([] { AtomicFileWriter w("/nonexistent_dir_xyz/file.bin"); });
+  std::string msg = error_of([] { AtomicFileWriter w("/nonexistent_dir_xyz/file.bin"); });
   EXPECT_NE(msg.find("/nonexistent_dir_xyz/file.bin"), std::string::npos) << msg;
 }
 
 TEST(MappedFile, MissingFileNamesIt) {
-  std::string msg = error_message([] { MappedFile f("/nonexistent_file_xyz.bin"); });
+  std::string msg = error_of([] { MappedFile f("/nonexistent_file_xyz.bin"); });
   EXPECT_NE(msg.find("nonexistent_file_xyz.bin"), std::string::npos) << msg;
 }
 
@@ -111,9 +102,9 @@ TEST(SectionFile, RoundTrip) {
 TEST(SectionFile, RejectsWrongKindAndVersion) {
   fs::path p = temp_dir() / "sample.vl";
   write_sample(p);
-  EXPECT_NE(error_message([&] { SectionFileReader r(p, "SEGM", 1, 3); }).find("expected 'SEGM'"),
+  EXPECT_NE(error_of([&] { SectionFileReader r(p, "SEGM", 1, 3); }).find("expected 'SEGM'"),
             std::string::npos);
-  std::string msg = error_message([&] { SectionFileReader r(p, "TEST", 4, 5); });
+  std::string msg = error_of([&] { SectionFileReader r(p, "TEST", 4, 5); });
   EXPECT_NE(msg.find("format version 3"), std::string::npos) << msg;
   EXPECT_NE(msg.find(p.string()), std::string::npos) << msg;
 }
@@ -127,7 +118,7 @@ TEST(SectionFile, RejectsEveryTruncation) {
                      content.size() - 1}) {
     fs::path t = dir / ("trunc_" + std::to_string(len));
     write_file_atomic(t, std::string_view(content).substr(0, len));
-    std::string msg = error_message([&] { SectionFileReader r(t, "TEST", 1, 3); });
+    std::string msg = error_of([&] { SectionFileReader r(t, "TEST", 1, 3); });
     EXPECT_FALSE(msg.empty()) << "truncation to " << len << " bytes was accepted";
     EXPECT_NE(msg.find(t.string()), std::string::npos) << msg;
   }
@@ -154,7 +145,7 @@ TEST(SectionFile, RejectsAnySingleBitFlip) {
     bad[i] = static_cast<char>(bad[i] ^ (1 << (i % 8)));
     fs::path t = dir / "flipped.vl";
     write_file_atomic(t, bad);
-    if (!error_message([&] { SectionFileReader r(t, "TEST", 1, 3); }).empty()) ++rejected;
+    if (!error_of([&] { SectionFileReader r(t, "TEST", 1, 3); }).empty()) ++rejected;
   }
   EXPECT_EQ(rejected, meaningful);
 }
