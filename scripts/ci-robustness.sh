@@ -7,8 +7,11 @@
 #   2. every libFuzzer target for FUZZ_SECONDS (default 30) seconds
 #      (scripts/fuzz.sh; any crash, leak, out-of-memory or timeout fails).
 # Installs clang and its libFuzzer runtime when missing (Debian packages).
-# Environment: SANITIZE_CTEST_ARGS (extra ctest arguments, e.g. "-L map"),
-# FUZZ_SECONDS, JOBS. scripts/sanitize.sh is the same suite built with gcc.
+# Environment: SANITIZE_CTEST_ARGS (ctest arguments; default: every test but
+# the three slowest integration tests (the small city benchmark, map build
+# killed and resumed, map build on Slurm), minutes each under ASan, which
+# run unsanitized in scripts/test.sh; "" runs them all), FUZZ_SECONDS,
+# JOBS. scripts/sanitize.sh is the same suite built with gcc.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -34,8 +37,14 @@ export OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1
 export ASAN_OPTIONS="detect_leaks=1:abort_on_error=1:strict_string_checks=1:detect_stack_use_after_return=1"
 export UBSAN_OPTIONS="print_stacktrace=1:halt_on_error=1"
 export LSAN_OPTIONS="suppressions=$PWD/fuzz/lsan.supp:print_suppressions=0"
-# shellcheck disable=SC2086
-ctest --test-dir build-fuzz --output-on-failure -j "$(nproc)" --timeout 1800 ${SANITIZE_CTEST_ARGS:-}
+DEFAULT_EXCLUDE=(-E "eval.CityBenchmark.SmallCityRunsAndResumes|cli.map_build_kill_and_resume|cli.map_build_slurm")
+if [ -n "${SANITIZE_CTEST_ARGS+x}" ]; then
+  # shellcheck disable=SC2206
+  ctest_args=(${SANITIZE_CTEST_ARGS})
+else
+  ctest_args=("${DEFAULT_EXCLUDE[@]}")
+fi
+ctest --test-dir build-fuzz --output-on-failure -j "$(nproc)" --timeout 1800 "${ctest_args[@]}"
 unset ASAN_OPTIONS UBSAN_OPTIONS LSAN_OPTIONS
 t2=$(date +%s)
 echo "== ci-robustness: every fuzz target for ${FUZZ_SECONDS:-30} s"

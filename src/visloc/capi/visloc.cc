@@ -74,15 +74,26 @@ visloc_status guarded(char* error, size_t error_size, Body&& body) noexcept {
 
 [[noreturn]] void invalid(const char* message) { visloc::throw_error(ErrorCode::kInvalidArgument, message); }
 
-visloc::PaperSetting paper_setting(visloc_setting s) {
-  switch (s) {
+// The value of a C enum as the int a C caller may have stored in it: C lets
+// any int through, and loading an out-of-range value as the C++ enum type is
+// undefined behaviour, so the bytes are read as an int.
+template <typename E>
+int enum_value(const E& e) {
+  static_assert(sizeof(E) == sizeof(int), "C enums are ints");
+  int v;
+  std::memcpy(&v, &e, sizeof v);
+  return v;
+}
+
+visloc::PaperSetting paper_setting(const visloc_setting& s) {
+  switch (enum_value(s)) {
     case VISLOC_SETTING_1: return visloc::PaperSetting::k1;
     case VISLOC_SETTING_2: return visloc::PaperSetting::k2;
     case VISLOC_SETTING_3: return visloc::PaperSetting::k3;
     case VISLOC_SETTING_3_PLUS: return visloc::PaperSetting::k3Plus;
   }
   visloc::throw_error(ErrorCode::kInvalidArgument, "options: setting must be VISLOC_SETTING_1, _2, _3 or _3_PLUS, got ",
-                      static_cast<int>(s));
+                      enum_value(s));
 }
 
 visloc::LocalizerOptions localizer_options(const visloc_options& o) {
@@ -189,7 +200,7 @@ extern "C" {
 const char* visloc_version(void) { return VISLOC_VERSION_STRING; }
 
 const char* visloc_status_string(visloc_status status) {
-  switch (status) {
+  switch (enum_value(status)) {
     case VISLOC_OK: return "ok";
     case VISLOC_INVALID_ARGUMENT: return "invalid argument";
     case VISLOC_NOT_FOUND: return "not found";
