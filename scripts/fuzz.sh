@@ -22,7 +22,8 @@ DATA="${VISLOC_SHARED_DATA_DIR:-../shared/data}"
 note() { echo "fuzz: $*" >&2; }
 
 # --- Build (incremental) ---
-if ! grep -q "^VISLOC_FUZZ:BOOL=ON" "$BUILD/CMakeCache.txt" 2>/dev/null; then
+if ! grep -q "^VISLOC_FUZZ:BOOL=ON" "$BUILD/CMakeCache.txt" 2>/dev/null ||
+   ! grep -q "^VISLOC_BUILD_TESTS:BOOL=ON" "$BUILD/CMakeCache.txt" 2>/dev/null; then
   note "configuring $BUILD (clang, ASan + UBSan + libFuzzer)"
   CC=clang CXX=clang++ cmake -S . -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo \
     -DVISLOC_BUILD_TESTS=ON -DVISLOC_BUILD_BENCH=OFF -DVISLOC_BUILD_PYTHON=OFF -DVISLOC_FUZZ=ON >"$BUILD.configure.log" 2>&1 ||

@@ -179,7 +179,7 @@ void add_bench_pose(CLI::App& bench) {
                 co.threshold_px = args->ransac.threshold_px;
                 co.max_iterations = args->opencv_iterations;
                 co.confidence = args->ransac.confidence;
-                const OpenCvPnpResult r = estimate_pose_opencv(p.correspondences, p.camera, p.true_focal, co, so.seed);
+                const OpenCvPnpResult r = estimate_pose_opencv(p.correspondences, p.camera, p.true_focal, co);
                 t.ms = r.total_ms;
                 has_pose = r.has_pose;
                 registered = r.has_pose && r.num_inliers >= args->ransac.min_inliers;

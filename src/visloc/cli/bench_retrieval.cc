@@ -33,7 +33,6 @@
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <numeric>
-#include <random>
 #include <set>
 
 #include "visloc/cli/commands.h"

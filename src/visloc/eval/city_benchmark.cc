@@ -17,6 +17,7 @@
 #include "visloc/synth/ray_renderer.h"
 #include "visloc/util/error.h"
 #include "visloc/util/file_io.h"
+#include "visloc/image/image_io.h"
 
 namespace visloc {
 namespace fs = std::filesystem;
@@ -74,9 +75,7 @@ std::vector<fs::path> foreign_photos(const fs::path& shared, size_t n) {
     std::vector<fs::path> files;
     std::error_code ec;
     for (fs::directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec)) {
-      std::string e = it->path().extension().string();
-      std::transform(e.begin(), e.end(), e.begin(), ::tolower);
-      if (e == ".jpg" || e == ".jpeg" || e == ".png") files.push_back(it->path());
+      if (is_image_file(it->path())) files.push_back(it->path());
     }
     std::sort(files.begin(), files.end());
     return files;

@@ -4,7 +4,6 @@
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
-#include <random>
 
 #include "visloc/util/error.h"
 #include "visloc/util/random.h"

@@ -10,7 +10,6 @@
 #include "visloc/map/segment_builder.h"
 
 #include <iomanip>
-#include <random>
 #include <sstream>
 
 #include "visloc/colmap/colmap_database.h"

@@ -5,7 +5,6 @@
 #include <algorithm>
 #include <cmath>
 #include <numeric>
-#include <random>
 
 #include "visloc/matching/search_kernels.h"
 #include "visloc/util/crc32c.h"

@@ -6,7 +6,6 @@
 #include <cmath>
 
 #include "visloc/util/error.h"
-#include "visloc/util/opencv_seed.h"
 
 namespace visloc {
 
@@ -66,7 +65,7 @@ std::vector<RatioMatch> ExactMatcher::match(const DescriptorMatrix& queries, con
 
 std::vector<bool> fundamental_inliers(const std::vector<Keypoint>& points1, const std::vector<Keypoint>& points2,
                                       const std::vector<std::pair<uint32_t, uint32_t>>& matches,
-                                      double threshold_px, uint64_t seed) {
+                                      double threshold_px) {
   std::vector<bool> inlier(matches.size(), false);
   if (matches.size() < 8) return inlier;
   std::vector<cv::Point2f> a, b;
@@ -76,7 +75,6 @@ std::vector<bool> fundamental_inliers(const std::vector<Keypoint>& points1, cons
     b.emplace_back(points2[j].x, points2[j].y);
   }
   cv::Mat mask;
-  const ScopedOpenCvSeed seeded(seed);
   cv::Mat F = cv::findFundamentalMat(a, b, cv::FM_RANSAC, threshold_px, 0.999, 10000, mask);
   if (F.empty() || mask.empty()) return inlier;
   for (size_t k = 0; k < matches.size(); ++k) inlier[k] = mask.at<uchar>(static_cast<int>(k)) != 0;

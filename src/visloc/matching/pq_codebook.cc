@@ -6,7 +6,6 @@
 
 #include <algorithm>
 #include <numeric>
-#include <random>
 
 #include "visloc/matching/search_kernels.h"
 #include "visloc/util/error.h"

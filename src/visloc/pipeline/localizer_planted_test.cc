@@ -9,7 +9,6 @@
 
 #include <cmath>
 #include <filesystem>
-#include <unistd.h>
 
 #include "visloc/geometry/pose.h"
 #include "visloc/map/map.h"

@@ -6,7 +6,6 @@
 #include <vector>
 
 #include "visloc/util/error.h"
-#include "visloc/util/opencv_seed.h"
 #include "visloc/util/timer.h"
 
 namespace visloc {
@@ -27,7 +26,7 @@ void OpenCvPnpOptions::validate() const {
 }
 
 OpenCvPnpResult estimate_pose_opencv(const CorrespondenceSet& corr, const PinholeCamera& camera, double focal_px,
-                                     const OpenCvPnpOptions& options, uint64_t seed) {
+                                     const OpenCvPnpOptions& options) {
   options.validate();
   corr.validate();
   OpenCvPnpResult result;
@@ -48,7 +47,6 @@ OpenCvPnpResult estimate_pose_opencv(const CorrespondenceSet& corr, const Pinhol
   cv::Mat dist = (cv::Mat_<double>(1, 4) << camera.k1, 0, 0, 0);
   cv::Mat rvec, tvec;
   std::vector<int> inliers;
-  const ScopedOpenCvSeed seeded(seed);
   bool ok = false;
   try {
     const int flags = options.method == OpenCvPnpMethod::kP3pRansac ? static_cast<int>(cv::SOLVEPNP_P3P)

@@ -32,10 +32,10 @@ struct OpenCvPnpResult {
 };
 
 // `focal_px` is the focal length to give OpenCV (the camera's, or the true
-// one when the camera has none). OpenCV's RANSAC samples with the calling
-// thread's cv::theRNG(): it is seeded with `seed` for the call and restored
-// afterwards (util/opencv_seed.h), so the caller's OpenCV state is untouched.
+// one when the camera has none). OpenCV 4.6's RANSAC (P3P) and USAC (MAGSAC)
+// draw from their own fixed-seed generators, not cv::theRNG(): the result is
+// reproducible without a seed, and nothing global is touched.
 OpenCvPnpResult estimate_pose_opencv(const CorrespondenceSet& correspondences, const PinholeCamera& camera,
-                                     double focal_px, const OpenCvPnpOptions& options, uint64_t seed);
+                                     double focal_px, const OpenCvPnpOptions& options);
 
 }  // namespace visloc

@@ -882,8 +882,10 @@ sampson, jobs, colmap, colmap_threads, exhaustive_max, spatial_neighbors,
 min_placemarks, max_placemarks, overlap, placemark_radius, chain_order,
 registration_threshold, retrieval, retrieval_dims, pq_training_images,
 hash_rotation, keep_work and the SIFT options. progress(dict) is called as the
-build advances. Local executor only (Slurm builds: the CLI). Returns the
-build's statistics as a dict.)doc");
+build advances. Local executor only (Slurm builds: the CLI). Segments are
+built `jobs` at a time (default: one per core), each SIFT on OpenCV's
+process-wide pool: call visloc.set_opencv_threads(1) first, as the CLI does,
+so that they do not compete. Returns the build's statistics as a dict.)doc");
 
   m.def(
       "import_colmap",

@@ -11,7 +11,6 @@
 #include <cmath>
 #include <nlohmann/json.hpp>
 #include <numeric>
-#include <random>
 
 #include "visloc/util/error.h"
 #include "visloc/util/section_file.h"

@@ -6,6 +6,7 @@
 
 #include "visloc/synth/random.h"
 #include "visloc/util/error.h"
+#include "visloc/image/image_io.h"
 
 namespace visloc::synth {
 
@@ -38,9 +39,7 @@ PhotoCropSet load_photo_crops(const std::filesystem::path& folder, const PhotoCr
   for (auto it = fs::recursive_directory_iterator(folder, ec); !ec && it != fs::recursive_directory_iterator();
        it.increment(ec)) {
     if (!it->is_regular_file()) continue;
-    std::string ext = it->path().extension().string();
-    std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char ch) { return std::tolower(ch); });
-    if (ext == ".jpg" || ext == ".jpeg" || ext == ".png") files.push_back(it->path());
+    if (is_image_file(it->path())) files.push_back(it->path());
   }
   if (ec) throw_error(ErrorCode::kIo, folder.string(), ": cannot list photo folder: ", ec.message());
   std::sort(files.begin(), files.end());
