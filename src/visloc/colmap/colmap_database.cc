@@ -44,6 +44,10 @@ class Statement {
 }  // namespace
 
 int64_t colmap_pair_id(int64_t a, int64_t b) {
+  // COLMAP's image ids are in [1, 2^31 - 1]; others cannot form a pair id
+  // (their product overflowed: found by fuzzing).
+  if (a < 1 || b < 1 || a > 2147483647 || b > 2147483647)
+    throw_error(ErrorCode::kFormat, "COLMAP image ids ", a, " and ", b, " are outside [1, 2^31 - 1]");
   if (a > b) std::swap(a, b);
   return a * 2147483647 + b;
 }
@@ -83,8 +87,11 @@ std::vector<ColmapDbCamera> ColmapDatabase::cameras() const {
     c.width = s.integer(2);
     c.height = s.integer(3);
     auto [p, n] = s.blob(4);
+    if (n % sizeof(double) != 0)
+      throw_error(ErrorCode::kFormat, path_.string(), ": camera ", c.camera_id, " has a params blob of ", n,
+                  " bytes, not a whole number of doubles");
     c.params.resize(n / sizeof(double));
-    if (n) std::memcpy(c.params.data(), p, c.params.size() * sizeof(double));
+    if (!c.params.empty()) std::memcpy(c.params.data(), p, n);  // (found by fuzzing: 1-7 bytes copied to null)
     c.prior_focal_length = s.integer(5) != 0;
     out.push_back(std::move(c));
   }

@@ -5,7 +5,10 @@
 #include <faiss/MetaIndexes.h>
 #include <faiss/impl/FaissException.h>
 #include <faiss/impl/io.h>
+#include <faiss/invlists/InvertedLists.h>
 #include <faiss/index_io.h>
+
+#include <limits>
 
 #include <algorithm>
 #include <cmath>
@@ -195,22 +198,39 @@ ImageIndex ImageIndex::load(const std::filesystem::path& path) {
   auto fail = [&](const auto&... parts) { throw_error(ErrorCode::kFormat, path.string(), ": ", parts...); };
   ImageIndex out;
   size_t count = 0;
+  // Integers only, in the field's range (a double out of range is undefined
+  // behaviour to convert: the same bug fuzzing found in the T-embedding reader).
+  auto integer = [&]<typename T>(const nlohmann::json& m, const char* key, T*) -> T {
+    const nlohmann::json& v = m.at(key);
+    if (!v.is_number_integer()) fail("META ", key, " must be an integer");
+    if (v.is_number_unsigned()) {
+      const uint64_t u = v.get<uint64_t>();
+      if (u > static_cast<uint64_t>(std::numeric_limits<T>::max())) fail("META ", key, " is out of range");
+      return static_cast<T>(u);
+    }
+    const int64_t x = v.get<int64_t>();
+    if (x < 0 && std::is_unsigned_v<T>) fail("META ", key, " must not be negative");
+    if constexpr (std::is_signed_v<T>)
+      if (x < std::numeric_limits<T>::min() || x > std::numeric_limits<T>::max()) fail("META ", key, " is out of range");
+    return static_cast<T>(x);
+  };
+  auto as_int = [&](const nlohmann::json& m, const char* key) { return integer(m, key, static_cast<int*>(nullptr)); };
   try {
     const auto meta = nlohmann::json::parse(r.text("META"));
     const std::string type = meta.at("type").get<std::string>();
     if (type != "ivfpq" && type != "flat") fail("unknown index type '", type, "'");
     out.options_.type = type == "ivfpq" ? ImageIndexType::kIvfPq : ImageIndexType::kFlat;
-    out.dims_ = meta.at("dims").get<int>();
-    count = meta.at("count").get<size_t>();
-    out.options_.nlist = meta.at("nlist").get<int>();
-    out.options_.nprobe = meta.at("nprobe").get<int>();
-    out.options_.pq_bytes = meta.at("pq_bytes").get<int>();
-    out.options_.pq_bits = meta.at("pq_bits").get<int>();
+    out.dims_ = as_int(meta, "dims");
+    count = integer(meta, "count", static_cast<size_t*>(nullptr));
+    out.options_.nlist = as_int(meta, "nlist");
+    out.options_.nprobe = as_int(meta, "nprobe");
+    out.options_.pq_bytes = as_int(meta, "pq_bytes");
+    out.options_.pq_bits = as_int(meta, "pq_bits");
     out.options_.precomputed_tables = meta.at("precomputed_tables").get<bool>();
-    out.options_.max_training_vectors = meta.at("max_training_vectors").get<int>();
-    out.options_.seed = meta.at("seed").get<uint64_t>();
-    out.effective_nlist_ = meta.at("effective_nlist").get<int>();
-    out.effective_pq_bits_ = meta.at("effective_pq_bits").get<int>();
+    out.options_.max_training_vectors = as_int(meta, "max_training_vectors");
+    out.options_.seed = integer(meta, "seed", static_cast<uint64_t*>(nullptr));
+    out.effective_nlist_ = as_int(meta, "effective_nlist");
+    out.effective_pq_bits_ = as_int(meta, "effective_pq_bits");
   } catch (const nlohmann::json::exception& ex) {
     fail("META is not valid (", ex.what(), ")");
   }
@@ -235,14 +255,46 @@ ImageIndex ImageIndex::load(const std::filesystem::path& path) {
   if (index->d != out.dims_ || static_cast<size_t>(index->ntotal) != count)
     fail("FAISS index has dimension ", index->d, " and ", index->ntotal, " vectors, META says ", out.dims_, " and ",
          count);
+  // FAISS's reader trusts the sizes it reads; searching an index whose arrays
+  // disagree with its counts reads out of bounds (found by fuzzing): check
+  // every array the search touches against the counts.
+  auto check_flat = [&](const faiss::Index* idx, const char* what, faiss::Index::idx_t expected_ntotal) {
+    const auto* flat = dynamic_cast<const faiss::IndexFlat*>(idx);
+    if (!flat) fail(what, " is not a flat FAISS index");
+    if (flat->d != out.dims_ || flat->ntotal != expected_ntotal || flat->ntotal < 0 ||
+        flat->code_size != static_cast<size_t>(flat->d) * sizeof(float) ||
+        flat->codes.size() != static_cast<size_t>(flat->ntotal) * flat->code_size)
+      fail(what, ": its sizes disagree (d ", flat->d, ", ", flat->ntotal, " vectors, ", flat->codes.size(), " bytes)");
+  };
   if (out.options_.type == ImageIndexType::kIvfPq) {
     auto* ivfpq = dynamic_cast<faiss::IndexIVFPQ*>(index.get());
     if (!ivfpq) fail("META says ivfpq but the FAISS index is not an IndexIVFPQ");
+    if (ivfpq->nlist < 1 || !ivfpq->quantizer) fail("IVF-PQ index without lists or coarse quantizer");
+    check_flat(ivfpq->quantizer, "coarse quantizer", static_cast<faiss::Index::idx_t>(ivfpq->nlist));
+    const faiss::ProductQuantizer& pq = ivfpq->pq;
+    if (pq.M < 1 || pq.nbits < 1 || pq.nbits > 16 || pq.d != static_cast<size_t>(out.dims_) || pq.M * pq.dsub != pq.d ||
+        pq.ksub != (size_t{1} << pq.nbits) || pq.centroids.size() != pq.d * pq.ksub ||
+        ivfpq->code_size != pq.code_size || pq.code_size != (pq.M * pq.nbits + 7) / 8)
+      fail("product quantizer sizes disagree (M ", pq.M, ", ", pq.nbits, " bits, d ", pq.d, ")");
+    const auto* lists = dynamic_cast<const faiss::ArrayInvertedLists*>(ivfpq->invlists);
+    if (!lists || lists->nlist != ivfpq->nlist || lists->code_size != ivfpq->code_size ||
+        lists->codes.size() != lists->nlist || lists->ids.size() != lists->nlist)
+      fail("inverted lists disagree with the index (", ivfpq->nlist, " lists)");
+    size_t listed = 0;
+    for (size_t l = 0; l < lists->nlist; ++l) {
+      if (lists->codes[l].size() != lists->ids[l].size() * lists->code_size)
+        fail("inverted list ", l, " has ", lists->ids[l].size(), " ids and ", lists->codes[l].size(), " code bytes");
+      listed += lists->ids[l].size();
+    }
+    if (listed != static_cast<size_t>(ivfpq->ntotal)) fail("inverted lists hold ", listed, " vectors, the index ", ivfpq->ntotal);
     ivfpq->nprobe = static_cast<size_t>(out.options_.nprobe);
     configure_tables(ivfpq, out.options_.precomputed_tables);
     out.impl_->ivfpq = ivfpq;
-  } else if (!dynamic_cast<faiss::IndexIDMap*>(index.get())) {
-    fail("META says flat but the FAISS index is not an IndexIDMap");
+  } else {
+    const auto* idmap = dynamic_cast<faiss::IndexIDMap*>(index.get());
+    if (!idmap) fail("META says flat but the FAISS index is not an IndexIDMap");
+    if (idmap->id_map.size() != static_cast<size_t>(idmap->ntotal)) fail("id map disagrees with the vector count");
+    check_flat(idmap->index, "flat index", idmap->ntotal);
   }
   out.impl_->index = std::move(index);
   return out;

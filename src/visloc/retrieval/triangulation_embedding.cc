@@ -5,6 +5,7 @@
 
 #include <Eigen/Core>
 #include <algorithm>
+#include <limits>
 #include <cmath>
 #include <nlohmann/json.hpp>
 #include <numeric>
@@ -423,29 +424,46 @@ TriangulationEmbedding TriangulationEmbedding::load(const std::filesystem::path&
   } catch (const nlohmann::json::exception& ex) {
     fail("META is not valid JSON (", ex.what(), ")");
   }
+  // Integers only, in the field's range: nlohmann's get<int>() of 1e73 would
+  // convert a double out of range (undefined behaviour; found by fuzzing).
+  auto integer = [&]<typename T>(const nlohmann::json& v, const char* key, T*) -> T {
+    if (!v.is_number_integer()) fail("META ", key, " must be an integer");
+    if (v.is_number_unsigned()) {
+      const uint64_t u = v.get<uint64_t>();
+      if (u > static_cast<uint64_t>(std::numeric_limits<T>::max())) fail("META ", key, " is out of range");
+      return static_cast<T>(u);
+    }
+    const int64_t x = v.get<int64_t>();
+    if (x < 0 && std::is_unsigned_v<T>) fail("META ", key, " must not be negative");
+    if constexpr (std::is_signed_v<T>)
+      if (x < std::numeric_limits<T>::min() || x > std::numeric_limits<T>::max()) fail("META ", key, " is out of range");
+    return static_cast<T>(x);
+  };
+  auto as_int = [&](const nlohmann::json& o, const char* key) { return integer(o.at(key), key, static_cast<int*>(nullptr)); };
+  auto as_size = [&](const nlohmann::json& o, const char* key) { return integer(o.at(key), key, static_cast<size_t*>(nullptr)); };
   TriangulationEmbedding e;
   try {
-    e.k_ = meta.at("vocabulary_size").get<int>();
-    e.out_dims_ = meta.at("output_dims").get<int>();
+    e.k_ = as_int(meta, "vocabulary_size");
+    e.out_dims_ = as_int(meta, "output_dims");
     const auto& o = meta.at("options");
     auto& opt = e.options_;
-    opt.vocabulary_size = o.at("vocabulary_size").get<int>();
-    opt.output_dims = o.at("output_dims").get<int>();
+    opt.vocabulary_size = as_int(o, "vocabulary_size");
+    opt.output_dims = as_int(o, "output_dims");
     const std::string pooling = o.at("pooling").get<std::string>();
     if (pooling != "sum" && pooling != "democratic") fail("unknown pooling '", pooling, "'");
     opt.pooling = pooling == "sum" ? EmbeddingPooling::kSum : EmbeddingPooling::kDemocratic;
     opt.power_law_alpha = o.at("power_law_alpha").get<double>();
     opt.eigenvalue_floor = o.at("eigenvalue_floor").get<double>();
-    opt.kmeans_iterations = o.at("kmeans_iterations").get<int>();
-    opt.max_kmeans_descriptors = o.at("max_kmeans_descriptors").get<int>();
-    opt.max_whitening_descriptors = o.at("max_whitening_descriptors").get<int>();
-    opt.democratic_iterations = o.at("democratic_iterations").get<int>();
+    opt.kmeans_iterations = as_int(o, "kmeans_iterations");
+    opt.max_kmeans_descriptors = as_int(o, "max_kmeans_descriptors");
+    opt.max_whitening_descriptors = as_int(o, "max_whitening_descriptors");
+    opt.democratic_iterations = as_int(o, "democratic_iterations");
     opt.democratic_gamma = o.at("democratic_gamma").get<double>();
-    opt.seed = o.at("seed").get<uint64_t>();
+    opt.seed = integer(o.at("seed"), "seed", static_cast<uint64_t*>(nullptr));
     const auto& tr = meta.at("training");
-    e.train_stats_.images = tr.at("images").get<size_t>();
-    e.train_stats_.kmeans_descriptors = tr.at("kmeans_descriptors").get<size_t>();
-    e.train_stats_.whitening_descriptors = tr.at("whitening_descriptors").get<size_t>();
+    e.train_stats_.images = as_size(tr, "images");
+    e.train_stats_.kmeans_descriptors = as_size(tr, "kmeans_descriptors");
+    e.train_stats_.whitening_descriptors = as_size(tr, "whitening_descriptors");
     e.train_stats_.retained_variance = tr.at("retained_variance").get<double>();
   } catch (const nlohmann::json::exception& ex) {
     fail("META is missing a field or has a wrong type (", ex.what(), ")");
