@@ -18,6 +18,7 @@
 #include "visloc/util/error.h"
 #include "visloc/util/section_file.h"
 #include "visloc/util/random.h"
+#include "visloc/util/json_fields.h"
 
 namespace visloc {
 
@@ -198,39 +199,27 @@ ImageIndex ImageIndex::load(const std::filesystem::path& path) {
   auto fail = [&](const auto&... parts) { throw_error(ErrorCode::kFormat, path.string(), ": ", parts...); };
   ImageIndex out;
   size_t count = 0;
-  // Integers only, in the field's range (a double out of range is undefined
-  // behaviour to convert: the same bug fuzzing found in the T-embedding reader).
-  auto integer = [&]<typename T>(const nlohmann::json& m, const char* key, T*) -> T {
-    const nlohmann::json& v = m.at(key);
-    if (!v.is_number_integer()) fail("META ", key, " must be an integer");
-    if (v.is_number_unsigned()) {
-      const uint64_t u = v.get<uint64_t>();
-      if (u > static_cast<uint64_t>(std::numeric_limits<T>::max())) fail("META ", key, " is out of range");
-      return static_cast<T>(u);
-    }
-    const int64_t x = v.get<int64_t>();
-    if (x < 0 && std::is_unsigned_v<T>) fail("META ", key, " must not be negative");
-    if constexpr (std::is_signed_v<T>)
-      if (x < std::numeric_limits<T>::min() || x > std::numeric_limits<T>::max()) fail("META ", key, " is out of range");
-    return static_cast<T>(x);
-  };
-  auto as_int = [&](const nlohmann::json& m, const char* key) { return integer(m, key, static_cast<int*>(nullptr)); };
   try {
     const auto meta = nlohmann::json::parse(r.text("META"));
+    // Integers only, in range (json_fields.h): a double such as 1e73 is refused, not converted.
+    const JsonField m(meta, path.string(), "META");
+    auto as_int = [&m](const char* key) {
+      return static_cast<int>(m.at(key).integer(std::numeric_limits<int>::min(), std::numeric_limits<int>::max()));
+    };
     const std::string type = meta.at("type").get<std::string>();
     if (type != "ivfpq" && type != "flat") fail("unknown index type '", type, "'");
     out.options_.type = type == "ivfpq" ? ImageIndexType::kIvfPq : ImageIndexType::kFlat;
-    out.dims_ = as_int(meta, "dims");
-    count = integer(meta, "count", static_cast<size_t*>(nullptr));
-    out.options_.nlist = as_int(meta, "nlist");
-    out.options_.nprobe = as_int(meta, "nprobe");
-    out.options_.pq_bytes = as_int(meta, "pq_bytes");
-    out.options_.pq_bits = as_int(meta, "pq_bits");
+    out.dims_ = as_int("dims");
+    count = m.at("count").unsigned_integer(std::numeric_limits<size_t>::max());
+    out.options_.nlist = as_int("nlist");
+    out.options_.nprobe = as_int("nprobe");
+    out.options_.pq_bytes = as_int("pq_bytes");
+    out.options_.pq_bits = as_int("pq_bits");
     out.options_.precomputed_tables = meta.at("precomputed_tables").get<bool>();
-    out.options_.max_training_vectors = as_int(meta, "max_training_vectors");
-    out.options_.seed = integer(meta, "seed", static_cast<uint64_t*>(nullptr));
-    out.effective_nlist_ = as_int(meta, "effective_nlist");
-    out.effective_pq_bits_ = as_int(meta, "effective_pq_bits");
+    out.options_.max_training_vectors = as_int("max_training_vectors");
+    out.options_.seed = m.at("seed").unsigned_integer();
+    out.effective_nlist_ = as_int("effective_nlist");
+    out.effective_pq_bits_ = as_int("effective_pq_bits");
   } catch (const nlohmann::json::exception& ex) {
     fail("META is not valid (", ex.what(), ")");
   }

@@ -14,6 +14,7 @@
 #include "visloc/util/section_file.h"
 #include "visloc/util/timer.h"
 #include "visloc/util/random.h"
+#include "visloc/util/json_fields.h"
 
 // LAPACK / BLAS (Fortran interface), linked through FAISS's dependencies.
 extern "C" {
@@ -424,46 +425,39 @@ TriangulationEmbedding TriangulationEmbedding::load(const std::filesystem::path&
   } catch (const nlohmann::json::exception& ex) {
     fail("META is not valid JSON (", ex.what(), ")");
   }
-  // Integers only, in the field's range: nlohmann's get<int>() of 1e73 would
-  // convert a double out of range (undefined behaviour; found by fuzzing).
-  auto integer = [&]<typename T>(const nlohmann::json& v, const char* key, T*) -> T {
-    if (!v.is_number_integer()) fail("META ", key, " must be an integer");
-    if (v.is_number_unsigned()) {
-      const uint64_t u = v.get<uint64_t>();
-      if (u > static_cast<uint64_t>(std::numeric_limits<T>::max())) fail("META ", key, " is out of range");
-      return static_cast<T>(u);
-    }
-    const int64_t x = v.get<int64_t>();
-    if (x < 0 && std::is_unsigned_v<T>) fail("META ", key, " must not be negative");
-    if constexpr (std::is_signed_v<T>)
-      if (x < std::numeric_limits<T>::min() || x > std::numeric_limits<T>::max()) fail("META ", key, " is out of range");
-    return static_cast<T>(x);
+  // Integers only, in range (json_fields.h): get<int>() of 1e73 would convert a
+  // double out of range (undefined behaviour; found by fuzzing).
+  const JsonField m(meta, path.string(), "META");
+  auto as_int = [](const JsonField& f, const char* key) {
+    return static_cast<int>(f.at(key).integer(std::numeric_limits<int>::min(), std::numeric_limits<int>::max()));
   };
-  auto as_int = [&](const nlohmann::json& o, const char* key) { return integer(o.at(key), key, static_cast<int*>(nullptr)); };
-  auto as_size = [&](const nlohmann::json& o, const char* key) { return integer(o.at(key), key, static_cast<size_t*>(nullptr)); };
+  auto as_size = [](const JsonField& f, const char* key) {
+    return static_cast<size_t>(f.at(key).unsigned_integer(std::numeric_limits<size_t>::max()));
+  };
   TriangulationEmbedding e;
   try {
-    e.k_ = as_int(meta, "vocabulary_size");
-    e.out_dims_ = as_int(meta, "output_dims");
+    e.k_ = as_int(m, "vocabulary_size");
+    e.out_dims_ = as_int(m, "output_dims");
+    const JsonField mo = m.at("options"), mt = m.at("training");
     const auto& o = meta.at("options");
     auto& opt = e.options_;
-    opt.vocabulary_size = as_int(o, "vocabulary_size");
-    opt.output_dims = as_int(o, "output_dims");
+    opt.vocabulary_size = as_int(mo, "vocabulary_size");
+    opt.output_dims = as_int(mo, "output_dims");
     const std::string pooling = o.at("pooling").get<std::string>();
     if (pooling != "sum" && pooling != "democratic") fail("unknown pooling '", pooling, "'");
     opt.pooling = pooling == "sum" ? EmbeddingPooling::kSum : EmbeddingPooling::kDemocratic;
     opt.power_law_alpha = o.at("power_law_alpha").get<double>();
     opt.eigenvalue_floor = o.at("eigenvalue_floor").get<double>();
-    opt.kmeans_iterations = as_int(o, "kmeans_iterations");
-    opt.max_kmeans_descriptors = as_int(o, "max_kmeans_descriptors");
-    opt.max_whitening_descriptors = as_int(o, "max_whitening_descriptors");
-    opt.democratic_iterations = as_int(o, "democratic_iterations");
+    opt.kmeans_iterations = as_int(mo, "kmeans_iterations");
+    opt.max_kmeans_descriptors = as_int(mo, "max_kmeans_descriptors");
+    opt.max_whitening_descriptors = as_int(mo, "max_whitening_descriptors");
+    opt.democratic_iterations = as_int(mo, "democratic_iterations");
     opt.democratic_gamma = o.at("democratic_gamma").get<double>();
-    opt.seed = integer(o.at("seed"), "seed", static_cast<uint64_t*>(nullptr));
+    opt.seed = mo.at("seed").unsigned_integer();
     const auto& tr = meta.at("training");
-    e.train_stats_.images = as_size(tr, "images");
-    e.train_stats_.kmeans_descriptors = as_size(tr, "kmeans_descriptors");
-    e.train_stats_.whitening_descriptors = as_size(tr, "whitening_descriptors");
+    e.train_stats_.images = as_size(mt, "images");
+    e.train_stats_.kmeans_descriptors = as_size(mt, "kmeans_descriptors");
+    e.train_stats_.whitening_descriptors = as_size(mt, "whitening_descriptors");
     e.train_stats_.retained_variance = tr.at("retained_variance").get<double>();
   } catch (const nlohmann::json::exception& ex) {
     fail("META is missing a field or has a wrong type (", ex.what(), ")");
