@@ -15,6 +15,7 @@
 #include <nlohmann/json.hpp>
 #include <numeric>
 
+#include "visloc/retrieval/faiss_layout.h"
 #include "visloc/util/error.h"
 #include "visloc/util/section_file.h"
 #include "visloc/util/random.h"
@@ -229,6 +230,29 @@ ImageIndex ImageIndex::load(const std::filesystem::path& path) {
     fail("stored options are invalid: ", ex.what());
   }
   const auto bytes = r.bytes("FAIS");
+  // FAISS's reader allocates whatever sizes it reads before reading the data:
+  // walk the bytes first (faiss_layout.h), so that no count reaches it that
+  // the section's bytes do not back.
+  FaissLayoutFacts facts;
+  try {
+    facts = check_faiss_layout(bytes, out.options_.type == ImageIndexType::kIvfPq ? FaissLayout::kIvfPq
+                                                                                   : FaissLayout::kIdMapFlat);
+  } catch (const Error& ex) {
+    fail(ex.what());
+  }
+  if (facts.dims != out.dims_ || static_cast<uint64_t>(facts.count) != count)
+    fail("FAISS index has dimension ", facts.dims, " and ", facts.count, " vectors, META says ", out.dims_, " and ",
+         count);
+  if (out.options_.type == ImageIndexType::kIvfPq && out.options_.precomputed_tables) {
+    // nlist × M × 2^nbits floats, computed at load: refuse what FAISS itself
+    // would not precompute by default (faiss::precomputed_table_max_bytes).
+    const double table_bytes = 4.0 * static_cast<double>(facts.nlist) * static_cast<double>(facts.pq_m) *
+                               static_cast<double>(uint64_t{1} << facts.pq_nbits);
+    if (table_bytes > static_cast<double>(faiss::precomputed_table_max_bytes))
+      fail("precomputed tables would take ", table_bytes / (1 << 20), " MiB (", facts.nlist, " lists × ", facts.pq_m,
+           " × 2^", facts.pq_nbits, "), more than FAISS's limit of ",
+           faiss::precomputed_table_max_bytes >> 20, " MiB");
+  }
   faiss::VectorIOReader reader;
   reader.data.assign(bytes.begin(), bytes.end());
   std::unique_ptr<faiss::Index> index;
