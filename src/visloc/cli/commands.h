@@ -29,6 +29,7 @@ void record_build_for_tasks(MapBuildOptions& options, const std::filesystem::pat
 void add_localize_command(CLI::App& app);
 void add_eval_command(CLI::App& app);
 void add_synth_command(CLI::App& app);
+void add_view_command(CLI::App& app);
 void add_bench_command(CLI::App& app);
 // Standalone retrieval commands (until map building calls retrieval itself).
 void add_retrieval_command(CLI::App& app);

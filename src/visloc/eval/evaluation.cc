@@ -1,5 +1,8 @@
 #include "visloc/eval/evaluation.h"
 
+#include "visloc/map/map.h"
+#include "visloc/map/map_overview.h"
+
 #include <sys/resource.h>
 
 #include <opencv2/imgcodecs.hpp>
@@ -74,6 +77,12 @@ EvaluationReport evaluate(const std::vector<LocalizationResult>& results,
     // (Peers' results, e.g. COLMAP's, have a pose but no confidence inputs.)
     if (r.segment >= 0 && r.confidence_features.inliers > 0) q->confidence_features = r.confidence_features;
     q->uncertainty = r.uncertainty;
+    q->segment = r.segment;
+    q->times = r.times;
+  };
+  auto note_frame = [&rep](const char* frame) {
+    if (rep.frame.empty()) rep.frame = frame;
+    else if (rep.frame != frame) rep.frame = "mixed";
   };
   for (const auto& r : results) {
     auto it = truth.find(r.image);
@@ -81,8 +90,15 @@ EvaluationReport evaluate(const std::vector<LocalizationResult>& results,
     QueryEvaluation q;
     common(r, &q);
     const QueryTruth& t = it->second;
-    if (t.cam_from_world) q.true_center = t.cam_from_world->center();
-    else q.true_center = t.center;
+    const Eigen::Vector3d kViewAxis = Eigen::Vector3d::UnitZ();
+    if (t.cam_from_world) {
+      q.true_center = t.cam_from_world->center();
+      q.true_view_direction = t.cam_from_world->rotation.conjugate() * kViewAxis;
+      note_frame("segment");
+    } else {
+      q.true_center = t.center;
+      note_frame("enu");
+    }
     if (r.segment >= 0) {
       if (t.cam_from_world) {
         q.pose_position_error = position_error(r.cam_from_segment, *t.cam_from_world);
@@ -94,6 +110,7 @@ EvaluationReport evaluate(const std::vector<LocalizationResult>& results,
     }
     if (r.registered) {
       q.estimated_center = t.cam_from_world ? std::optional<Eigen::Vector3d>(r.cam_from_segment.center()) : r.center_enu;
+      if (t.cam_from_world) q.estimated_view_direction = r.cam_from_segment.rotation.conjugate() * kViewAxis;
       q.position_error = q.pose_position_error;
       q.rotation_error = q.pose_rotation_error;
       q.wrong = q.position_error > rule.position_m || q.rotation_error > rule.rotation_deg;
@@ -219,6 +236,14 @@ nlohmann::json EvaluationReport::to_json(const std::vector<LocalizationResult>& 
                         {"position_error_m", q.position_error},
                         {"rotation_error_deg", q.rotation_error}};
     if (q.negative) e["negative"] = true;
+    auto vec = [](const Eigen::Vector3d& v) { return nlohmann::json::array({v.x(), v.y(), v.z()}); };
+    if (q.true_center) e["true_center"] = vec(*q.true_center);
+    if (q.estimated_center) e["estimated_center"] = vec(*q.estimated_center);
+    if (q.true_view_direction) e["true_view_direction"] = vec(*q.true_view_direction);
+    if (q.estimated_view_direction) e["estimated_view_direction"] = vec(*q.estimated_view_direction);
+    e["segment"] = q.segment;
+    e["times_ms"] = {{"features", q.times.features}, {"retrieval", q.times.retrieval},
+                     {"matching", q.times.matching}, {"ransac", q.times.ransac}, {"total", q.times.total}};
     if (q.confidence_features) e["confidence_features"] = q.confidence_features->to_json();
     if (q.pose_position_error >= 0) e["pose_position_error_m"] = q.pose_position_error;
     if (q.pose_rotation_error >= 0) e["pose_rotation_error_deg"] = q.pose_rotation_error;
@@ -230,11 +255,116 @@ nlohmann::json EvaluationReport::to_json(const std::vector<LocalizationResult>& 
     per.push_back(e);
   }
   j["per_query"] = per;
+  j["frame"] = frame;
   return j;
 }
 
+namespace {
+
+// Top view (x-y; z up) of the queries: truth (green), estimate (red), wrong
+// poses (magenta ring), misses (black cross at the truth); over the map's
+// points and segment outlines when the map can be drawn in the report's frame.
+void write_top_view(const std::filesystem::path& stem, const EvaluationReport& report,
+                    const std::filesystem::path& map_dir) {
+  std::optional<MapOverview> overview;
+  std::string map_note;
+  if (!map_dir.empty() && (report.frame == "segment" || report.frame == "enu")) {
+    try {
+      MapOverviewOptions o;
+      o.max_points = 20000;
+      o.frame = report.frame == "enu" ? OverviewFrame::kEnu : OverviewFrame::kSegment;
+      overview = load_map_overview(Map::open(map_dir), o);
+    } catch (const Error& ex) {
+      map_note = std::string(" (map not drawn: ") + ex.what() + ")";
+    }
+  }
+  const Eigen::Matrix3d A = overview ? overview->aligned_from_frame : Eigen::Matrix3d::Identity();
+  std::vector<Eigen::Vector2d> extent;
+  for (const auto& q : report.per_query)
+    for (const auto& c : {q.true_center, q.estimated_center})
+      if (c) extent.push_back((A * *c).head<2>());
+  if (overview) {
+    // The map's 1st-99th percentile box, so that a few stray points do not shrink the streets.
+    std::vector<double> xs, ys;
+    for (size_t i = 0; i < overview->num_points(); ++i) {
+      xs.push_back(overview->xyz[3 * i]);
+      ys.push_back(overview->xyz[3 * i + 1]);
+    }
+    for (const auto& c : overview->cameras) {
+      xs.push_back(c.center.x());
+      ys.push_back(c.center.y());
+    }
+    if (!xs.empty()) {
+      std::sort(xs.begin(), xs.end());
+      std::sort(ys.begin(), ys.end());
+      extent.emplace_back(quantile(xs, 0.01), quantile(ys, 0.01));
+      extent.emplace_back(quantile(xs, 0.99), quantile(ys, 0.99));
+    }
+  }
+  double ax = INFINITY, bx = -INFINITY, ay = INFINITY, by = -INFINITY;
+  for (const auto& p : extent) {
+    ax = std::min(ax, p.x()), bx = std::max(bx, p.x());
+    ay = std::min(ay, p.y()), by = std::max(by, p.y());
+  }
+  if (!std::isfinite(ax)) ax = ay = 0, bx = by = 1;
+  const double span = std::max({bx - ax, by - ay, 1.0}) * 1.1;
+  const double cx = 0.5 * (ax + bx), cy = 0.5 * (ay + by);
+  const std::string frame_name = report.frame == "enu" ? "east, north (m)" : "x, y (m; z up)";
+  Plot top("Top view: truth (green), estimate (red), wrong (ring), miss (x)" + map_note, frame_name, "",
+           cx - span / 2, cx + span / 2, cy - span / 2, cy + span / 2);
+  auto inside = [&](double x, double y) {
+    return x >= top.x0 && x <= top.x1 && y >= top.y0 && y <= top.y1;
+  };
+  if (overview) {
+    for (size_t i = 0; i < overview->num_points(); ++i) {
+      const double x = overview->xyz[3 * i], y = overview->xyz[3 * i + 1];
+      if (inside(x, y)) top.point(x, y, "#ccc", {204, 204, 204}, 1);
+    }
+    static const char* kColors[] = {"#1f77b4", "#ff7f0e", "#9467bd", "#8c564b", "#17becf", "#bcbd22"};
+    static const cv::Scalar kBgr[] = {{180, 119, 31}, {14, 127, 255}, {189, 103, 148},
+                                      {75, 86, 140},  {207, 190, 23}, {34, 189, 188}};
+    for (size_t s = 0; s < overview->segments.size(); ++s) {
+      const auto& outline = overview->segments[s].outline;
+      if (outline.empty()) continue;
+      Eigen::Vector2d centroid = Eigen::Vector2d::Zero();
+      for (size_t k = 0; k < outline.size(); ++k) {
+        const auto& a = outline[k];
+        const auto& b = outline[(k + 1) % outline.size()];
+        top.line(a.x(), a.y(), b.x(), b.y(), kColors[s % 6], kBgr[s % 6]);
+        centroid += a;
+      }
+      centroid /= static_cast<double>(outline.size());
+      if (inside(centroid.x(), centroid.y()))
+        top.label(centroid.x(), centroid.y(), std::to_string(overview->segments[s].id), -4, 4);
+    }
+  }
+  for (const auto& q : report.per_query) {
+    const std::optional<Eigen::Vector3d> t = q.true_center ? std::optional<Eigen::Vector3d>(A * *q.true_center) : std::nullopt;
+    const std::optional<Eigen::Vector3d> e =
+        q.estimated_center ? std::optional<Eigen::Vector3d>(A * *q.estimated_center) : std::nullopt;
+    if (t) top.point(t->x(), t->y(), "#2ca02c", {44, 160, 44});
+    if (e) {
+      if (t) top.line(t->x(), t->y(), e->x(), e->y(), "#999", {150, 150, 150});
+      top.point(e->x(), e->y(), "#d62728", {40, 39, 214}, 2);
+      if (q.wrong) {
+        top.svg << "<circle cx='" << top.px(e->x()) << "' cy='" << top.py(e->y())
+                << "' r='7' fill='none' stroke='#e377c2' stroke-width='2'/>\n";
+        cv::circle(top.png, {int(top.px(e->x())), int(top.py(e->y()))}, 7, {194, 119, 227}, 2, cv::LINE_AA);
+      }
+    } else if (t && !q.negative) {  // a miss
+      const double d = span / 120;
+      top.line(t->x() - d, t->y() - d, t->x() + d, t->y() + d, "#000", {0, 0, 0});
+      top.line(t->x() - d, t->y() + d, t->x() + d, t->y() - d, "#000", {0, 0, 0});
+    }
+  }
+  top.save(stem);
+}
+
+}  // namespace
+
 void write_report(const std::filesystem::path& dir, const EvaluationReport& report,
-                  const std::vector<LocalizationResult>& results, const nlohmann::json& context) {
+                  const std::vector<LocalizationResult>& results, const nlohmann::json& context,
+                  const std::filesystem::path& map_dir) {
   std::filesystem::create_directories(dir);
   const nlohmann::json j = report.to_json(results, context);
   write_file_atomic(dir / "report.json", j.dump(2));
@@ -278,13 +408,22 @@ void write_report(const std::filesystem::path& dir, const EvaluationReport& repo
         "![precision-recall of the confidence](precision_recall.png)\n";
   write_file_atomic(dir / "report.md", md.str());
 
-  // Cumulative position error curve (fraction of all queries).
+  // Cumulative position error curve (fraction of all queries), with the
+  // thresholds the report counts under: 0.25 / 0.5 / 5 m (the recall
+  // thresholds) and the paper's 18.3 m, where they fall on the axis.
   std::vector<double> pos;
   for (const auto& q : report.per_query)
     if (q.position_error >= 0) pos.push_back(q.position_error);
   std::sort(pos.begin(), pos.end());
   const double xmax = pos.empty() ? 1.0 : std::max(0.1, quantile(pos, 0.95) * 1.2);
   Plot curve("Cumulative position error", "position error (m)", "fraction of queries", 0, xmax, 0, 1);
+  for (const double threshold : {0.25, 0.5, 5.0, 18.3}) {
+    if (threshold > xmax) continue;
+    const double under = static_cast<double>(std::count_if(pos.begin(), pos.end(), [&](double e) { return e < threshold; })) /
+                         static_cast<double>(std::max<size_t>(1, report.queries));
+    curve.line(threshold, 0, threshold, 1, "#bbb", {187, 187, 187});
+    curve.label(threshold, 1, Plot::fmt(threshold) + " m: " + Plot::fmt(100 * under) + "%", 3, 12);
+  }
   double prev_x = 0, prev_y = 0;
   for (size_t i = 0; i < pos.size(); ++i) {
     const double x = std::min(pos[i], xmax), y = double(i + 1) / std::max<size_t>(1, report.queries);
@@ -295,30 +434,7 @@ void write_report(const std::filesystem::path& dir, const EvaluationReport& repo
   }
   curve.line(prev_x, prev_y, xmax, prev_y, "#1f77b4", {180, 119, 31}, 2);
   curve.save(dir / "error_curve");
-
-  // Top view: truth (green) and estimate (red), x-y plane of the truth frame.
-  double ax = INFINITY, bx = -INFINITY, ay = INFINITY, by = -INFINITY;
-  for (const auto& q : report.per_query)
-    for (const auto& c : {q.true_center, q.estimated_center})
-      if (c) {
-        ax = std::min(ax, c->x()), bx = std::max(bx, c->x());
-        ay = std::min(ay, c->y()), by = std::max(by, c->y());
-      }
-  if (!std::isfinite(ax)) ax = ay = 0, bx = by = 1;
-  const double span = std::max({bx - ax, by - ay, 1.0}) * 1.1;
-  const double cx = 0.5 * (ax + bx), cy = 0.5 * (ay + by);
-  Plot top("Top view: truth (green), estimate (red)", "x (m)", "y (m)", cx - span / 2, cx + span / 2, cy - span / 2,
-           cy + span / 2);
-  for (const auto& q : report.per_query) {
-    if (q.true_center) top.point(q.true_center->x(), q.true_center->y(), "#2ca02c", {44, 160, 44});
-    if (q.estimated_center) {
-      top.point(q.estimated_center->x(), q.estimated_center->y(), "#d62728", {40, 39, 214}, 2);
-      if (q.true_center)
-        top.line(q.true_center->x(), q.true_center->y(), q.estimated_center->x(), q.estimated_center->y(), "#999",
-                 {150, 150, 150});
-    }
-  }
-  top.save(dir / "top_view");
+  write_top_view(dir / "top_view", report, map_dir);
 
   plot_precision_recall(dir / "precision_recall", "Confidence: precision-recall (threshold marked)",
                         report.confidence_curve(), report.min_confidence);

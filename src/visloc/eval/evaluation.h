@@ -45,6 +45,11 @@ struct QueryEvaluation {
   PoseUncertainty uncertainty;
   bool uncertainty_in_metres = false;  // GPS truth: the error is compared with the ENU σ
   std::optional<Eigen::Vector3d> estimated_center, true_center;
+  // The cameras' viewing directions (their z axes) in the same frame, where
+  // known: pose truth gives both; GPS truth neither.
+  std::optional<Eigen::Vector3d> estimated_view_direction, true_view_direction;
+  int segment = -1;   // the best pose's segment id (-1: none)
+  StageTimes times;   // milliseconds per stage
 };
 
 struct EvaluationReport {
@@ -55,6 +60,9 @@ struct EvaluationReport {
   size_t min_inliers = 12;             // the localizer's, for the precision-recall curve
   double min_confidence = 0;           // the localizer's threshold, marked on the curve
   std::vector<QueryEvaluation> per_query;  // positives, then negatives
+  // The frame of the centres: "segment" (pose truth: the frame the map's
+  // segments share), "enu" (GPS truth), "mixed" or "" (no positives).
+  std::string frame;
   // Precision-recall of the confidence over the poses with ≥ min_inliers
   // (recall over the positives).
   std::vector<PrecisionRecallPoint> confidence_curve() const;
@@ -75,8 +83,13 @@ EvaluationReport evaluate(const std::vector<LocalizationResult>& results,
 // Writes report.json, report.md, error_curve.svg/.png, top_view.svg/.png and
 // precision_recall.svg/.png (the confidence over the positives' and the
 // negatives' poses, the threshold marked).
+// With `map_dir`, the top view draws the map under the queries: its points
+// (grey), each segment's outline and id (map_overview.h), in the frame of the
+// report's centres; without it, or when the map cannot be drawn in that frame,
+// the queries alone.
 void write_report(const std::filesystem::path& dir, const EvaluationReport& report,
-                  const std::vector<LocalizationResult>& results, const nlohmann::json& context);
+                  const std::vector<LocalizationResult>& results, const nlohmann::json& context,
+                  const std::filesystem::path& map_dir = {});
 
 // median(): util/statistics.h.
 

@@ -41,8 +41,8 @@ namespace {
 
 void write_results(const fs::path& dir, const std::vector<LocalizationResult>& results,
                    const std::vector<LocalizationResult>& negative_results, const EvaluationReport& rep,
-                   const nlohmann::json& context) {
-  write_report(dir, rep, results, context);
+                   const nlohmann::json& context, const fs::path& map_dir) {
+  write_report(dir, rep, results, context, map_dir);
   std::vector<NamedPose> poses;  // registered queries, visuallocalization.net format
   for (const auto& r : results)
     if (r.registered) poses.push_back({r.image, r.cam_from_segment});
@@ -178,7 +178,7 @@ EvaluationRunResult run_evaluation(const EvaluationRunOptions& o) {
 
   EvaluationRunResult result;
   const EvaluationReport rep = evaluate(results, truth, negative_results, o.localizer);
-  write_results(out, results, negative_results, rep, context);
+  write_results(out, results, negative_results, rep, context, o.map);
   result.report = nlohmann::json::parse(read_file(out / "report.json"));
   result.report_markdown = read_file(out / "report.md");
   if (peer) {
@@ -187,7 +187,7 @@ EvaluationRunResult run_evaluation(const EvaluationRunOptions& o) {
     peer_context["method"] = "COLMAP 3.8 image_registrator (matches_importer against every model image)";
     peer_context["seconds_matching"] = peer->seconds_matching;
     peer_context["seconds_registration"] = peer->seconds_registration;
-    write_results(out / "colmap", peer->results, {}, peer_rep, peer_context);
+    write_results(out / "colmap", peer->results, {}, peer_rep, peer_context, o.map);
     result.colmap_report = nlohmann::json::parse(read_file(out / "colmap" / "report.json"));
     std::vector<double> ours_ms, peer_ms;
     for (const auto& r : results) ours_ms.push_back(r.times.total - r.times.features);

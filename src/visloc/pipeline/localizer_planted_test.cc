@@ -12,6 +12,7 @@
 
 #include "visloc/geometry/pose.h"
 #include "visloc/map/map.h"
+#include "visloc/map/planted_map.h"
 #include "visloc/map/segment_builder.h"
 #include "visloc/pipeline/localizer.h"
 #include "visloc/util/crc32c.h"
@@ -28,97 +29,6 @@ constexpr int kWidth = 640, kHeight = 480;
 constexpr double kFocal = 500;
 
 PinholeCamera query_camera() { return PinholeCamera::centered(kWidth, kHeight, kFocal); }
-
-// A planted segment: points in front of cameras at the origin looking along
-// +z (the segment frame is a camera frame: x right, y down, z forward).
-struct PlantedSegment {
-  std::vector<Eigen::Vector3d> xyz;
-  std::vector<std::array<uint8_t, kDescriptorDim>> descriptors;
-};
-
-PlantedSegment random_segment(size_t n, RandomGenerator& rng) {
-  PlantedSegment s;
-  for (size_t i = 0; i < n; ++i) {
-    s.xyz.emplace_back(rng.uniform(-12, 12), rng.uniform(-8, 8), rng.uniform(15, 30));
-    std::array<uint8_t, kDescriptorDim> d{};
-    for (auto& v : d) v = static_cast<uint8_t>(rng.below(128));
-    s.descriptors.push_back(d);
-  }
-  return s;
-}
-
-// ENU from the segment frame: x → east, z (forward) → north, y (down) → −up;
-// scale 2, shifted. Segment k is shifted by 100 m east per k.
-Similarity3d enu_from_segment(int k) {
-  Similarity3d s;
-  s.scale = 2.0;
-  s.rotation << 1, 0, 0, 0, 0, 1, 0, -1, 0;
-  s.translation = Eigen::Vector3d(100.0 * k + 5, -7, 1.5);
-  return s;
-}
-
-class PlantedMap {
- public:
-  // Segments in manifest order; each geo-registered by enu_from_segment(position).
-  PlantedMap(const std::string& name, const std::vector<PlantedSegment>& segments) {
-    dir_ = unique_temp_path("visloc_planted_" + name);
-    fs::remove_all(dir_);
-    fs::create_directories(dir_ / "segments");
-    std::vector<float> all;
-    for (const auto& s : segments)
-      for (const auto& d : s.descriptors) all.insert(all.end(), d.begin(), d.end());
-    PqTrainingOptions pq;
-    pq.iterations = 8;
-    const PqCodebook codebook = PqCodebook::train(all.data(), all.size() / kDescriptorDim, pq);
-    MapManifest man;
-    man.enu_origin_lat_lon_alt = std::array<double, 3>{55.7, 13.19, 20.0};
-    codebook.write(dir_ / man.pq_codebook_file, "{}");
-    for (size_t k = 0; k < segments.size(); ++k) {
-      const PlantedSegment& s = segments[k];
-      ColmapModel model;
-      model.cameras.push_back({1, 1, kWidth, kHeight, {kFocal, kFocal, kWidth / 2.0, kHeight / 2.0}});
-      for (int c = 0; c < 4; ++c) {  // map cameras 2 m apart along x, at the query's height, looking north
-        ColmapImage im;
-        im.image_id = static_cast<uint32_t>(c + 1);
-        im.name = "seg" + std::to_string(k) + "_" + std::to_string(c) + ".jpg";
-        im.camera_id = 1;
-        im.cam_from_world_t = {-(2.0 * c - 3.0), 0, 0};
-        model.images.push_back(im);
-      }
-      PointDescriptors desc;
-      desc.num_points = s.xyz.size();
-      for (size_t i = 0; i < s.xyz.size(); ++i) {
-        ColmapPoint3D p;
-        p.point3d_id = static_cast<int64_t>(i + 1);
-        p.xyz = {s.xyz[i].x(), s.xyz[i].y(), s.xyz[i].z()};
-        model.points.push_back(p);
-        desc.mean.insert(desc.mean.end(), s.descriptors[i].begin(), s.descriptors[i].end());
-        desc.track_size.push_back(3);
-      }
-      ItqOptions itq;
-      itq.iterations = 10;
-      SegmentData data = make_segment_data(model, desc, codebook, itq, static_cast<uint32_t>(k));
-      const Similarity3d e = enu_from_segment(static_cast<int>(k));
-      nlohmann::json r = nlohmann::json::array();
-      for (int i = 0; i < 3; ++i)
-        for (int j = 0; j < 3; ++j) r.push_back(e.rotation(i, j));
-      data.extra_meta["enu_from_segment"] = {{"scale", e.scale},
-                                             {"rotation_row_major", r},
-                                             {"translation", {e.translation.x(), e.translation.y(), e.translation.z()}}};
-      const std::string file = "segments/" + std::to_string(k) + ".vlseg";
-      write_segment_file(dir_ / file, data);
-      const MappedFile mapped(dir_ / file);
-      man.segments.push_back({static_cast<uint32_t>(k), file, "", s.xyz.size(), model.images.size(),
-                              static_cast<uint64_t>(mapped.size()), crc32c(mapped.data(), mapped.size())});
-    }
-    write_manifest(dir_, man);
-  }
-  ~PlantedMap() { fs::remove_all(dir_); }
-  const fs::path& dir() const { return dir_; }
-
- private:
-  fs::path dir_;
-};
 
 // What the query camera sees of a segment: projections (with 0.3 px noise)
 // and the points' descriptors (with ±2 of noise per byte).
@@ -151,8 +61,8 @@ CameraPose query_pose() {
 
 struct Fixture {
   RandomGenerator rng{7};
-  PlantedSegment a = random_segment(600, rng);
-  PlantedSegment b = random_segment(600, rng);
+  PlantedSegment a = random_planted_segment(600, rng);
+  PlantedSegment b = random_planted_segment(600, rng);
 };
 
 LocalizerOptions options() {
@@ -182,7 +92,7 @@ TEST(LocalizerPlanted, RightSegmentPoseAndGeoRegistration) {
     // ENU: the segment's similarity applied to the camera centre; heading:
     // north (the segment's +z) turned 4° clockwise.
     ASSERT_TRUE(r.center_enu.has_value());
-    const Eigen::Vector3d expected = enu_from_segment(k).apply(truth.center());
+    const Eigen::Vector3d expected = planted_enu_from_segment(k).apply(truth.center());
     EXPECT_LT((*r.center_enu - expected).norm(), 0.05) << r.center_enu->transpose() << " vs " << expected.transpose();
     ASSERT_TRUE(r.heading_deg.has_value());
     EXPECT_NEAR(*r.heading_deg, 4.0, 0.2);

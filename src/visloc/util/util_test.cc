@@ -6,6 +6,7 @@
 #include <numeric>
 #include <vector>
 
+#include "visloc/util/base64.h"
 #include "visloc/util/crc32c.h"
 #include "visloc/util/error.h"
 #include "visloc/util/file_io.h"
@@ -148,4 +149,21 @@ TEST(SectionFile, RejectsAnySingleBitFlip) {
     if (!error_of([&] { SectionFileReader r(t, "TEST", 1, 3); }).empty()) ++rejected;
   }
   EXPECT_EQ(rejected, meaningful);
+}
+
+TEST(Base64, KnownVectorsRoundTripAndRejects) {
+  // RFC 4648, section 10.
+  const std::pair<const char*, const char*> vectors[] = {{"", ""},         {"f", "Zg=="},         {"fo", "Zm8="},
+                                                          {"foo", "Zm9v"}, {"foob", "Zm9vYg=="},   {"fooba", "Zm9vYmE="},
+                                                          {"foobar", "Zm9vYmFy"}};
+  for (const auto& [plain, encoded] : vectors) {
+    EXPECT_EQ(visloc::base64_encode(plain, std::strlen(plain)), encoded);
+    const auto back = visloc::base64_decode(encoded);
+    ASSERT_TRUE(back.has_value());
+    EXPECT_EQ(std::string(back->begin(), back->end()), plain);
+  }
+  std::vector<uint8_t> all(256 * 3 + 1);
+  for (size_t i = 0; i < all.size(); ++i) all[i] = static_cast<uint8_t>(i * 7 + 3);
+  EXPECT_EQ(*visloc::base64_decode(visloc::base64_encode(all.data(), all.size())), all);
+  for (const char* bad : {"Zg=", "Z===", "Zg==Zg==", "Zm9v!A==", "=Zm9"}) EXPECT_FALSE(visloc::base64_decode(bad)) << bad;
 }

@@ -1,0 +1,321 @@
+#include "visloc/viewer/viewer.h"
+
+#include <Eigen/Core>
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <optional>
+#include <vector>
+
+#include "visloc/map/map.h"
+#include "visloc/util/base64.h"
+#include "visloc/util/error.h"
+#include "visloc/util/file_io.h"
+#include "visloc/viewer/viewer_assets.h"
+
+namespace visloc {
+namespace fs = std::filesystem;
+
+void ViewerOptions::validate() const {
+  if (max_points < 1) throw_error(ErrorCode::kInvalidArgument, "viewer option max_points = 0: must be at least 1");
+}
+
+nlohmann::json ViewerSummary::to_json() const {
+  return {{"points_drawn", points_drawn}, {"points_in_map", points_in_map}, {"cameras", cameras},
+          {"segments", segments},         {"queries", queries},             {"file_bytes", file_bytes},
+          {"frame", frame},               {"three_version", three_version}};
+}
+
+namespace {
+
+struct ReportQueries {
+  std::string frame;  // "segment", "enu", "mixed" or "" (no positives)
+  std::vector<nlohmann::json> queries;
+};
+
+ReportQueries read_report(const fs::path& report_dir) {
+  const fs::path path = fs::is_directory(report_dir) ? report_dir / "report.json" : report_dir;
+  if (!fs::is_regular_file(path))
+    throw_error(ErrorCode::kNotFound, path.string(), ": no report.json (give the folder `visloc eval --out` wrote)");
+  nlohmann::json j;
+  try {
+    j = nlohmann::json::parse(read_file(path));
+  } catch (const nlohmann::json::exception& ex) {
+    throw_error(ErrorCode::kFormat, path.string(), ": not valid JSON (", ex.what(), ")");
+  }
+  if (!j.is_object() || !j.contains("per_query") || !j["per_query"].is_array())
+    throw_error(ErrorCode::kFormat, path.string(), ": no per_query array (is it a `visloc eval` report?)");
+  if (!j.contains("frame") || !j["frame"].is_string())
+    throw_error(ErrorCode::kFormat, path.string(),
+                ": no frame and no query centres (a report written before the viewer existed); run `visloc eval` again");
+  ReportQueries out;
+  out.frame = j["frame"].get<std::string>();
+  for (size_t i = 0; i < j["per_query"].size(); ++i) {
+    const nlohmann::json& q = j["per_query"][i];
+    const std::string where = "per_query[" + std::to_string(i) + "]";
+    if (!q.is_object() || !q.contains("image") || !q["image"].is_string())
+      throw_error(ErrorCode::kFormat, path.string(), ": ", where, " has no image name");
+    for (const char* key : {"true_center", "estimated_center", "true_view_direction", "estimated_view_direction"}) {
+      if (!q.contains(key)) continue;
+      const auto& v = q[key];
+      if (!v.is_array() || v.size() != 3 || !std::all_of(v.begin(), v.end(), [](const nlohmann::json& x) {
+            return x.is_number() && std::isfinite(x.get<double>());
+          }))
+        throw_error(ErrorCode::kFormat, path.string(), ": ", where, ".", key, " is not 3 finite numbers");
+    }
+    out.queries.push_back(q);
+  }
+  return out;
+}
+
+Eigen::Vector3d vec3(const nlohmann::json& v) { return {v[0].get<double>(), v[1].get<double>(), v[2].get<double>()}; }
+nlohmann::json json3(const Eigen::Vector3d& v) { return nlohmann::json::array({v.x(), v.y(), v.z()}); }
+
+// 1, 2 or 5 × 10^k, the smallest not below x.
+double round_up_nice(double x) {
+  const double p = std::pow(10.0, std::floor(std::log10(std::max(x, 1e-6))));
+  for (double m : {1.0, 2.0, 5.0, 10.0})
+    if (m * p >= x * (1 - 1e-9)) return m * p;
+  return 10 * p;
+}
+
+double percentile(std::vector<double> v, double q) {
+  if (v.empty()) return 0;
+  const size_t k = std::min(v.size() - 1, static_cast<size_t>(q * static_cast<double>(v.size() - 1) + 0.5));
+  std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(k), v.end());
+  return v[k];
+}
+
+std::string html_escape(const std::string& s) {
+  std::string out;
+  for (char c : s) {
+    switch (c) {
+      case '<': out += "&lt;"; break;
+      case '>': out += "&gt;"; break;
+      case '&': out += "&amp;"; break;
+      case '"': out += "&quot;"; break;
+      default: out += c;
+    }
+  }
+  return out;
+}
+
+// JSON inside <script>: "</" must not appear (it could close the element).
+std::string script_safe(std::string json) {
+  for (size_t at = 0; (at = json.find("</", at)) != std::string::npos; at += 3) json.replace(at, 2, "<\\/");
+  return json;
+}
+
+std::string data_url(std::string_view javascript) {
+  return "data:text/javascript;base64," + base64_encode(javascript.data(), javascript.size());
+}
+
+// Fills @NAME@ placeholders in one pass over the template (what is inserted
+// is never scanned again).
+std::string fill(std::string_view tpl, const std::vector<std::pair<std::string, std::string>>& values) {
+  std::string out;
+  size_t at = 0;
+  while (at < tpl.size()) {
+    const size_t open = tpl.find('@', at);
+    if (open == std::string_view::npos) break;
+    bool replaced = false;
+    for (const auto& [name, value] : values) {
+      const std::string key = "@" + name + "@";
+      if (tpl.substr(open, key.size()) == key) {
+        out.append(tpl.substr(at, open - at));
+        out += value;
+        at = open + key.size();
+        replaced = true;
+        break;
+      }
+    }
+    if (!replaced) {
+      out.append(tpl.substr(at, open + 1 - at));
+      at = open + 1;
+    }
+  }
+  out.append(tpl.substr(std::min(at, tpl.size())));
+  return out;
+}
+
+}  // namespace
+
+ViewerSummary write_viewer(const fs::path& map_dir, const fs::path& report_dir, const fs::path& out,
+                           const ViewerOptions& options) {
+  options.validate();
+  if (!viewer_assets::available())
+    throw_error(ErrorCode::kNotImplemented,
+                "visloc view: this build has no three.js. Run `npm ci --prefix src/visloc/viewer` (scripts/setup.sh "
+                "does it), then configure and build again");
+  if (out.empty()) throw_error(ErrorCode::kInvalidArgument, "visloc view: an output file (--out) is needed");
+  std::optional<ReportQueries> report;
+  if (!report_dir.empty()) report = read_report(report_dir);
+
+  OverviewFrame frame = options.frame;
+  if (report && (report->frame == "segment" || report->frame == "enu")) {
+    const OverviewFrame report_frame = report->frame == "enu" ? OverviewFrame::kEnu : OverviewFrame::kSegment;
+    if (frame == OverviewFrame::kAuto) frame = report_frame;
+    else if (frame != report_frame)
+      throw_error(ErrorCode::kInvalidArgument, "visloc view: frame ", overview_frame_name(frame),
+                  " was asked, but the report's centres are in the ", report->frame, " frame");
+  } else if (report && report->frame == "mixed") {
+    throw_error(ErrorCode::kFormat, report_dir.string(),
+                ": the report mixes pose truth (segment frame) and GPS truth (ENU); it cannot be drawn in one frame");
+  }
+  MapOverviewOptions mo;
+  mo.max_points = options.max_points;
+  mo.frame = frame;
+  const Map map = Map::open(map_dir);
+  const MapOverview ov = load_map_overview(map, mo);
+  const Eigen::Matrix3d& A = ov.aligned_from_frame;
+
+  // Extent: 1st-99th percentiles of the points, and every camera and query
+  // (stray points do not shrink the view); the origin at its centre.
+  std::vector<double> xs, ys, zs;
+  for (size_t i = 0; i < ov.num_points(); ++i) {
+    xs.push_back(ov.xyz[3 * i]);
+    ys.push_back(ov.xyz[3 * i + 1]);
+    zs.push_back(ov.xyz[3 * i + 2]);
+  }
+  Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity()), hi = -lo;
+  auto grow = [&](const Eigen::Vector3d& p) {
+    lo = lo.cwiseMin(p);
+    hi = hi.cwiseMax(p);
+  };
+  if (!xs.empty()) {
+    grow({percentile(xs, 0.01), percentile(ys, 0.01), percentile(zs, 0.01)});
+    grow({percentile(xs, 0.99), percentile(ys, 0.99), percentile(zs, 0.99)});
+  }
+  for (const auto& c : ov.cameras) grow(c.center);
+  nlohmann::json queries = nlohmann::json::array();
+  if (report) {
+    for (nlohmann::json q : report->queries) {
+      for (const char* key : {"true_center", "estimated_center"})
+        if (q.contains(key)) {
+          const Eigen::Vector3d p = A * vec3(q[key]);
+          grow(p);
+          q[key] = json3(p);  // made relative to the origin below
+        }
+      for (const char* key : {"true_view_direction", "estimated_view_direction"})
+        if (q.contains(key)) q[key] = json3(A * vec3(q[key]));
+      q.erase("confidence_features");
+      queries.push_back(std::move(q));
+    }
+  }
+  if (!std::isfinite(lo.x())) lo = hi = Eigen::Vector3d::Zero();
+  const Eigen::Vector3d origin = 0.5 * (lo + hi);
+  const double extent = std::max({hi.x() - lo.x(), hi.y() - lo.y(), 1.0});
+  for (auto& q : queries)
+    for (const char* key : {"true_center", "estimated_center"})
+      if (q.contains(key)) q[key] = json3(vec3(q[key]) - origin);
+
+  // Points, quantized to 16 bits per axis over their own bounding box.
+  Eigen::Vector3d pmin = Eigen::Vector3d::Zero(), pstep = Eigen::Vector3d::Constant(1e-6);
+  std::vector<uint16_t> quantized(ov.xyz.size());
+  if (ov.num_points() > 0) {
+    Eigen::Vector3d a = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity()), b = -a;
+    for (size_t i = 0; i < ov.num_points(); ++i) {
+      const Eigen::Vector3d p(ov.xyz[3 * i], ov.xyz[3 * i + 1], ov.xyz[3 * i + 2]);
+      a = a.cwiseMin(p);
+      b = b.cwiseMax(p);
+    }
+    pmin = a - origin;
+    pstep = ((b - a) / 65535.0).cwiseMax(Eigen::Vector3d::Constant(1e-6));
+    for (size_t i = 0; i < ov.num_points(); ++i)
+      for (int k = 0; k < 3; ++k) {
+        const double q = std::round((ov.xyz[3 * i + k] - a[k]) / pstep[k]);
+        quantized[3 * i + k] = static_cast<uint16_t>(std::clamp(q, 0.0, 65535.0));
+      }
+  }
+  std::vector<uint16_t> point_segment(ov.point_segment.begin(), ov.point_segment.end());
+  if (ov.segments.size() > 65536)
+    throw_error(ErrorCode::kInvalidArgument, "visloc view: ", ov.segments.size(), " segments; at most 65,536 can be drawn");
+
+  // Cameras: centre (3), world_from_camera columns (9), width, height, focal, segment index.
+  std::vector<float> cameras;
+  cameras.reserve(16 * ov.cameras.size());
+  for (const auto& c : ov.cameras) {
+    const Eigen::Vector3d p = c.center - origin;
+    for (int k = 0; k < 3; ++k) cameras.push_back(static_cast<float>(p[k]));
+    for (int col = 0; col < 3; ++col)
+      for (int k = 0; k < 3; ++k) cameras.push_back(static_cast<float>(c.world_from_camera(k, col)));
+    cameras.insert(cameras.end(), {static_cast<float>(c.width), static_cast<float>(c.height),
+                                   static_cast<float>(c.focal), static_cast<float>(c.segment)});
+  }
+
+  nlohmann::json segments = nlohmann::json::array();
+  double ground = std::numeric_limits<double>::infinity();
+  for (const auto& s : ov.segments) {
+    nlohmann::json outline = nlohmann::json::array();
+    for (const auto& p : s.outline) outline.push_back({p.x() - origin.x(), p.y() - origin.y()});
+    segments.push_back({{"id", s.id},
+                        {"points", s.points},
+                        {"points_shown", s.points_shown},
+                        {"cameras", s.cameras},
+                        {"outline", outline},
+                        {"ground_z", s.ground_z - origin.z()}});
+    ground = std::min(ground, s.ground_z - origin.z());
+  }
+  if (!std::isfinite(ground)) ground = lo.z() - origin.z();
+  const double spacing = round_up_nice(extent / 12);
+  const double gx0 = std::floor((lo.x() - origin.x()) / spacing - 1) * spacing;
+  const double gy0 = std::floor((lo.y() - origin.y()) / spacing - 1) * spacing;
+  const double gx1 = std::ceil((hi.x() - origin.x()) / spacing + 1) * spacing;
+  const double gy1 = std::ceil((hi.y() - origin.y()) / spacing + 1) * spacing;
+
+  std::string map_name = map_dir.filename().string();
+  if (map_name.empty()) map_name = map_dir.parent_path().filename().string();  // "maps/city/"
+  std::string title = options.title;
+  if (title.empty()) {
+    title = "visloc: " + map_name;
+    if (report) title += " + report";
+  }
+  nlohmann::json data = {
+      {"title", title},
+      {"frame", overview_frame_name(ov.frame)},
+      {"north", ov.frame == OverviewFrame::kEnu},
+      {"origin_in_frame", json3(A.transpose() * origin)},
+      {"extent", extent},
+      {"view_target", json3(Eigen::Vector3d(0, 0, ground))},
+      {"ground_z", ground},
+      {"grid_spacing", spacing},
+      {"grid_box", {gx0, gy0, gx1, gy1}},
+      {"camera_depth", std::clamp(extent * 0.012, 0.05, 5.0)},
+      {"query_marker_radius", std::clamp(extent * 0.004, 0.02, 3.0)},
+      {"points",
+       {{"count", ov.num_points()},
+        {"in_map", ov.total_points},
+        {"min", json3(pmin)},
+        {"step", json3(pstep)},
+        {"xyz_u16", base64_encode(quantized.data(), quantized.size() * sizeof(uint16_t))},
+        {"segment_u16", base64_encode(point_segment.data(), point_segment.size() * sizeof(uint16_t))}}},
+      {"cameras", {{"count", ov.cameras.size()}, {"data_f32", base64_encode(cameras.data(), cameras.size() * sizeof(float))}}},
+      {"segments", segments},
+      {"has_report", report.has_value()},
+      {"queries", queries}};
+
+  std::string module = std::string(viewer_assets::three_module());
+  for (size_t at = 0; (at = module.find("'./three.core.js'", at)) != std::string::npos;)
+    module.replace(at, 17, "'three/core'");
+  const std::string page = fill(viewer_assets::page_template(),
+                                {{"TITLE", html_escape(title)},
+                                 {"THREE_MODULE", data_url(module)},
+                                 {"THREE_CORE", data_url(viewer_assets::three_core())},
+                                 {"DATA", script_safe(data.dump())},
+                                 {"APP", std::string(viewer_assets::app_script())}});
+  if (out.has_parent_path()) fs::create_directories(out.parent_path());
+  write_file_atomic(out, page);
+
+  ViewerSummary summary;
+  summary.points_drawn = ov.num_points();
+  summary.points_in_map = ov.total_points;
+  summary.cameras = ov.cameras.size();
+  summary.segments = ov.segments.size();
+  summary.queries = queries.size();
+  summary.file_bytes = page.size();
+  summary.frame = overview_frame_name(ov.frame);
+  summary.three_version = viewer_assets::three_version();
+  return summary;
+}
+
+}  // namespace visloc
