@@ -57,11 +57,13 @@ int main(int argc, char** argv) {
       const std::string dom = read_file(log);
       const std::string open = "<pre id=\"visloc-stats\">";
       const size_t at = dom.find(open);
-      if (at == std::string::npos) {
-        std::cerr << "run " << r << ": the page did not finish (no #visloc-stats); log " << log << "\n";
+      const std::string text =
+          at == std::string::npos ? "" : dom.substr(at + open.size(), dom.find("</pre>", at) - at - open.size());
+      if (text.empty()) {
+        std::cerr << "run " << r << ": the page did not finish (#visloc-stats empty or missing); log " << log << "\n";
         return 1;
       }
-      const auto stats = nlohmann::json::parse(dom.substr(at + open.size(), dom.find("</pre>", at) - at - open.size()));
+      const auto stats = nlohmann::json::parse(text);
       if (!stats["errors"].empty()) {
         std::cerr << "run " << r << ": JavaScript errors " << stats["errors"].dump() << "\n";
         return 1;

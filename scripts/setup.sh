@@ -39,7 +39,8 @@ fi
 # (built into the library; without it `visloc view` says how to get it).
 VIEWER=src/visloc/viewer
 json_field() {  # FILE KEY... → the value, or nothing
-  /usr/bin/python3 - "$@" <<'PY'
+  command -v python3 >/dev/null 2>&1 || return 0
+  python3 - "$@" <<'PY'
 import json, sys
 try:
     value = json.load(open(sys.argv[1]))
@@ -54,7 +55,9 @@ want=$(json_field "$VIEWER/package-lock.json" packages node_modules/three versio
 have=$(json_field "$VIEWER/node_modules/three/package.json" version)
 if ! command -v npm >/dev/null 2>&1 && [ "${SKIP_APT:-0}" != "1" ] && [ "$want" != "$have" ]; then
   echo "setup: installing Debian's npm for the viewer's three.js"
-  $SUDO apt-get install -y -qq --no-install-recommends npm >/dev/null || true
+  $SUDO apt-get update -qq || true
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends npm >/dev/null ||
+    echo "setup: WARNING: could not install npm" >&2
 fi
 if [ -n "$want" ] && [ "$want" = "$have" ]; then
   echo "setup: three.js $have present for the viewer"

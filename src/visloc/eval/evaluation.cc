@@ -261,11 +261,32 @@ nlohmann::json EvaluationReport::to_json(const std::vector<LocalizationResult>& 
 
 namespace {
 
+// The part of segment a-b inside the plot's axes (Liang-Barsky), if any.
+std::optional<std::pair<Eigen::Vector2d, Eigen::Vector2d>> clip_to(const Plot& plot, const Eigen::Vector2d& a,
+                                                                   const Eigen::Vector2d& b) {
+  double t0 = 0, t1 = 1;
+  const Eigen::Vector2d d = b - a;
+  const double p[4] = {-d.x(), d.x(), -d.y(), d.y()};
+  const double q[4] = {a.x() - plot.x0, plot.x1 - a.x(), a.y() - plot.y0, plot.y1 - a.y()};
+  for (int i = 0; i < 4; ++i) {
+    if (p[i] == 0) {
+      if (q[i] < 0) return std::nullopt;
+      continue;
+    }
+    const double r = q[i] / p[i];
+    if (p[i] < 0) t0 = std::max(t0, r);
+    else t1 = std::min(t1, r);
+    if (t0 > t1) return std::nullopt;
+  }
+  return std::make_pair(Eigen::Vector2d(a + t0 * d), Eigen::Vector2d(a + t1 * d));
+}
+
 // Top view (x-y; z up) of the queries: truth (green), estimate (red), wrong
 // poses (magenta ring), misses (black cross at the truth); over the map's
 // points and segment outlines when the map can be drawn in the report's frame.
-void write_top_view(const std::filesystem::path& stem, const EvaluationReport& report,
-                    const std::filesystem::path& map_dir) {
+// Returns why the map is not drawn ("" when it is, or when no map was given).
+std::string write_top_view(const std::filesystem::path& stem, const EvaluationReport& report,
+                           const std::filesystem::path& map_dir) {
   std::optional<MapOverview> overview;
   std::string map_note;
   if (!map_dir.empty() && (report.frame == "segment" || report.frame == "enu")) {
@@ -275,8 +296,10 @@ void write_top_view(const std::filesystem::path& stem, const EvaluationReport& r
       o.frame = report.frame == "enu" ? OverviewFrame::kEnu : OverviewFrame::kSegment;
       overview = load_map_overview(Map::open(map_dir), o);
     } catch (const Error& ex) {
-      map_note = std::string(" (map not drawn: ") + ex.what() + ")";
+      map_note = ex.what();
     }
+  } else if (!map_dir.empty()) {
+    map_note = "the report mixes or lacks truth frames (" + (report.frame.empty() ? std::string("none") : report.frame) + ")";
   }
   const Eigen::Matrix3d A = overview ? overview->aligned_from_frame : Eigen::Matrix3d::Identity();
   std::vector<Eigen::Vector2d> extent;
@@ -287,8 +310,8 @@ void write_top_view(const std::filesystem::path& stem, const EvaluationReport& r
     // The map's 1st-99th percentile box, so that a few stray points do not shrink the streets.
     std::vector<double> xs, ys;
     for (size_t i = 0; i < overview->num_points(); ++i) {
-      xs.push_back(overview->xyz[3 * i]);
-      ys.push_back(overview->xyz[3 * i + 1]);
+      xs.push_back(overview->xyz[3 * i] + overview->origin.x());
+      ys.push_back(overview->xyz[3 * i + 1] + overview->origin.y());
     }
     for (const auto& c : overview->cameras) {
       xs.push_back(c.center.x());
@@ -310,14 +333,16 @@ void write_top_view(const std::filesystem::path& stem, const EvaluationReport& r
   const double span = std::max({bx - ax, by - ay, 1.0}) * 1.1;
   const double cx = 0.5 * (ax + bx), cy = 0.5 * (ay + by);
   const std::string frame_name = report.frame == "enu" ? "east, north (m)" : "x, y (m; z up)";
-  Plot top("Top view: truth (green), estimate (red), wrong (ring), miss (x)" + map_note, frame_name, "",
+  Plot top(overview ? "Top view over the map: truth (green), estimate (red), wrong (ring), miss (x)"
+                    : "Top view: truth (green), estimate (red), wrong (ring), miss (x)",
+           frame_name, "",
            cx - span / 2, cx + span / 2, cy - span / 2, cy + span / 2);
   auto inside = [&](double x, double y) {
     return x >= top.x0 && x <= top.x1 && y >= top.y0 && y <= top.y1;
   };
   if (overview) {
     for (size_t i = 0; i < overview->num_points(); ++i) {
-      const double x = overview->xyz[3 * i], y = overview->xyz[3 * i + 1];
+      const double x = overview->xyz[3 * i] + overview->origin.x(), y = overview->xyz[3 * i + 1] + overview->origin.y();
       if (inside(x, y)) top.point(x, y, "#ccc", {204, 204, 204}, 1);
     }
     static const char* kColors[] = {"#1f77b4", "#ff7f0e", "#9467bd", "#8c564b", "#17becf", "#bcbd22"};
@@ -330,7 +355,8 @@ void write_top_view(const std::filesystem::path& stem, const EvaluationReport& r
       for (size_t k = 0; k < outline.size(); ++k) {
         const auto& a = outline[k];
         const auto& b = outline[(k + 1) % outline.size()];
-        top.line(a.x(), a.y(), b.x(), b.y(), kColors[s % 6], kBgr[s % 6]);
+        if (auto clipped = clip_to(top, a, b)) top.line(clipped->first.x(), clipped->first.y(), clipped->second.x(),
+                                                         clipped->second.y(), kColors[s % 6], kBgr[s % 6]);
         centroid += a;
       }
       centroid /= static_cast<double>(outline.size());
@@ -358,6 +384,7 @@ void write_top_view(const std::filesystem::path& stem, const EvaluationReport& r
     }
   }
   top.save(stem);
+  return map_note;
 }
 
 }  // namespace
@@ -417,12 +444,13 @@ void write_report(const std::filesystem::path& dir, const EvaluationReport& repo
   std::sort(pos.begin(), pos.end());
   const double xmax = pos.empty() ? 1.0 : std::max(0.1, quantile(pos, 0.95) * 1.2);
   Plot curve("Cumulative position error", "position error (m)", "fraction of queries", 0, xmax, 0, 1);
+  int shown = 0;
   for (const double threshold : {0.25, 0.5, 5.0, 18.3}) {
     if (threshold > xmax) continue;
     const double under = static_cast<double>(std::count_if(pos.begin(), pos.end(), [&](double e) { return e < threshold; })) /
                          static_cast<double>(std::max<size_t>(1, report.queries));
     curve.line(threshold, 0, threshold, 1, "#bbb", {187, 187, 187});
-    curve.label(threshold, 1, Plot::fmt(threshold) + " m: " + Plot::fmt(100 * under) + "%", 3, 12);
+    curve.label(threshold, 1, Plot::fmt(threshold) + " m: " + Plot::fmt(100 * under) + "%", 3, 12 + 14 * (shown++ % 3));
   }
   double prev_x = 0, prev_y = 0;
   for (size_t i = 0; i < pos.size(); ++i) {
@@ -434,7 +462,11 @@ void write_report(const std::filesystem::path& dir, const EvaluationReport& repo
   }
   curve.line(prev_x, prev_y, xmax, prev_y, "#1f77b4", {180, 119, 31}, 2);
   curve.save(dir / "error_curve");
-  write_top_view(dir / "top_view", report, map_dir);
+  const std::string top_view_note = write_top_view(dir / "top_view", report, map_dir);
+  if (!top_view_note.empty()) {
+    md << "\nTop view: the map is not drawn under the queries (" << top_view_note << ").\n";
+    write_file_atomic(dir / "report.md", md.str());
+  }
 
   plot_precision_recall(dir / "precision_recall", "Confidence: precision-recall (threshold marked)",
                         report.confidence_curve(), report.min_confidence);

@@ -28,10 +28,10 @@ struct Plot {
       : x0(xa), x1(xb), y0(ya), y1(yb), png(h, w, CV_8UC3, cv::Scalar(255, 255, 255)) {
     svg << "<svg xmlns='http://www.w3.org/2000/svg' width='" << w << "' height='" << h << "' font-family='sans-serif' "
         << "font-size='12'>\n<rect width='100%' height='100%' fill='white'/>\n"
-        << "<text x='" << w / 2 << "' y='18' text-anchor='middle' font-size='14'>" << title << "</text>\n"
-        << "<text x='" << w / 2 << "' y='" << h - 10 << "' text-anchor='middle'>" << xlabel << "</text>\n"
+        << "<text x='" << w / 2 << "' y='18' text-anchor='middle' font-size='14'>" << xml(title) << "</text>\n"
+        << "<text x='" << w / 2 << "' y='" << h - 10 << "' text-anchor='middle'>" << xml(xlabel) << "</text>\n"
         << "<text x='14' y='" << h / 2 << "' transform='rotate(-90 14 " << h / 2 << ")' text-anchor='middle'>"
-        << ylabel << "</text>\n";
+        << xml(ylabel) << "</text>\n";
     int baseline = 0;
     const int title_width = cv::getTextSize(title, cv::FONT_HERSHEY_SIMPLEX, 0.5, 1, &baseline).width;
     cv::putText(png, title, {std::max(left + 60, (w - title_width) / 2), 18}, cv::FONT_HERSHEY_SIMPLEX, 0.5,
@@ -46,6 +46,17 @@ struct Plot {
       label(xv, y0, fmt(xv), 0, 16);
       label(x0, yv, fmt(yv), -30, 4);
     }
+  }
+  // Text for SVG: &, < and > escaped (titles and labels may hold paths).
+  static std::string xml(const std::string& text) {
+    std::string out;
+    for (char c : text) {
+      if (c == '&') out += "&amp;";
+      else if (c == '<') out += "&lt;";
+      else if (c == '>') out += "&gt;";
+      else out += c;
+    }
+    return out;
   }
   static std::string fmt(double v) {
     std::ostringstream s;
@@ -64,7 +75,7 @@ struct Plot {
     cv::circle(png, {int(px(x)), int(py(y))}, r, bgr, cv::FILLED, cv::LINE_AA);
   }
   void label(double x, double y, const std::string& text, int dx, int dy) {
-    svg << "<text x='" << px(x) + dx << "' y='" << py(y) + dy << "'>" << text << "</text>\n";
+    svg << "<text x='" << px(x) + dx << "' y='" << py(y) + dy << "'>" << xml(text) << "</text>\n";
     cv::putText(png, text, {int(px(x)) + dx, int(py(y)) + dy}, cv::FONT_HERSHEY_SIMPLEX, 0.4, {0, 0, 0}, 1,
                 cv::LINE_AA);
   }

@@ -4,7 +4,10 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <memory>
+#include <optional>
 
+#include "visloc/geo/similarity_transform.h"
 #include "visloc/geometry/pose.h"
 #include "visloc/map/map.h"
 #include "visloc/map/segment_file.h"
@@ -68,12 +71,48 @@ MapOverview load_map_overview(const Map& map, const MapOverviewOptions& options)
   options.validate();
   MapOverview out;
   const auto& entries = map.manifest().segments;
-  std::vector<std::unique_ptr<Segment>> segments;
+  for (const auto& e : entries) out.total_points += e.points;
+  // Each segment keeps its share of max_points, evenly spaced.
+  const double keep = out.total_points > options.max_points
+                          ? static_cast<double>(options.max_points) / static_cast<double>(out.total_points)
+                          : 1.0;
+  // One pass, one segment open at a time: the kept points and the cameras in
+  // each segment's own frame, with its enu_from_segment.
+  std::vector<std::optional<Similarity3d>> enu_from_segment;
+  std::vector<Eigen::Vector3d> raw_points;  // segment frame
   bool all_enu = !entries.empty();
-  for (size_t i = 0; i < entries.size(); ++i) {
-    segments.push_back(map.open_segment(i));
-    all_enu = all_enu && segments.back()->enu_from_segment().has_value();
-    out.total_points += segments.back()->num_points();
+  for (size_t s = 0; s < entries.size(); ++s) {
+    const std::unique_ptr<Segment> seg = map.open_segment(s);
+    enu_from_segment.push_back(seg->enu_from_segment());
+    all_enu = all_enu && seg->enu_from_segment().has_value();
+    for (const SegmentImage& im : seg->images()) {
+      const CameraPose pose = CameraPose::from_wxyz(
+          im.cam_from_world_q_wxyz,
+          Eigen::Vector3d(im.cam_from_world_t[0], im.cam_from_world_t[1], im.cam_from_world_t[2]));
+      OverviewCamera c;
+      c.name = im.name;
+      c.segment = static_cast<uint32_t>(s);
+      c.center = pose.center();
+      c.world_from_camera = pose.rotation_matrix().transpose();
+      c.width = static_cast<double>(im.width);
+      c.height = static_cast<double>(im.height);
+      c.focal = im.camera_params.empty() ? 0.0 : im.camera_params[0];
+      out.cameras.push_back(c);
+    }
+    OverviewSegment o;
+    o.id = seg->id();
+    o.points = seg->num_points();
+    o.points_shown = std::min(o.points, static_cast<size_t>(std::floor(keep * static_cast<double>(o.points))));
+    const auto xyz = seg->xyz();
+    for (size_t k = 0; k < o.points_shown; ++k) {
+      const size_t i = o.points_shown == o.points
+                           ? k
+                           : static_cast<size_t>((static_cast<double>(k) + 0.5) * static_cast<double>(o.points) /
+                                                 static_cast<double>(o.points_shown));
+      raw_points.emplace_back(xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2]);
+      out.point_segment.push_back(static_cast<uint32_t>(s));
+    }
+    out.segments.push_back(std::move(o));
   }
   out.georegistered = all_enu;
   if (options.frame == OverviewFrame::kEnu && !all_enu)
@@ -82,79 +121,97 @@ MapOverview load_map_overview(const Map& map, const MapOverviewOptions& options)
   out.frame = options.frame == OverviewFrame::kAuto ? (all_enu ? OverviewFrame::kEnu : OverviewFrame::kSegment)
                                                     : options.frame;
   const bool enu = out.frame == OverviewFrame::kEnu;
-
-  // Cameras, in the chosen frame (before alignment).
-  for (size_t s = 0; s < segments.size(); ++s) {
-    const Segment& seg = *segments[s];
-    for (const SegmentImage& im : seg.images()) {
-      const CameraPose pose = CameraPose::from_wxyz(im.cam_from_world_q_wxyz, Eigen::Vector3d(im.cam_from_world_t[0], im.cam_from_world_t[1], im.cam_from_world_t[2]));
-      OverviewCamera c;
-      c.name = im.name;
-      c.segment = static_cast<uint32_t>(s);
-      c.center = pose.center();
-      c.world_from_camera = pose.rotation_matrix().transpose();
-      if (enu) {
-        const auto& e = *seg.enu_from_segment();
-        c.center = e.apply(c.center);
-        c.world_from_camera = e.rotation * c.world_from_camera;
-      }
-      c.width = static_cast<double>(im.width);
-      c.height = static_cast<double>(im.height);
-      c.focal = im.camera_params.empty() ? 0.0 : im.camera_params[0];
-      out.cameras.push_back(c);
+  if (enu)
+    for (auto& c : out.cameras) {
+      const Similarity3d& e = *enu_from_segment[c.segment];
+      c.center = e.apply(c.center);
+      c.world_from_camera = e.rotation * c.world_from_camera;
     }
-  }
-  if (!enu) {
+  else {
     // Up: the mean of the cameras' −y axes (image rows run down the world).
     Eigen::Vector3d up = Eigen::Vector3d::Zero();
     for (const auto& c : out.cameras) up -= c.world_from_camera.col(1);
     if (up.norm() > 1e-9) out.aligned_from_frame = rotation_to_z(up);
   }
   const Eigen::Matrix3d& A = out.aligned_from_frame;
+  if (enu) {
+    out.north = Eigen::Vector3d::UnitY();
+  } else if (all_enu) {
+    // North (ENU +y) seen from each segment's frame; shown when they agree.
+    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+    std::vector<Eigen::Vector3d> each;
+    for (const auto& e : enu_from_segment) {
+      Eigen::Vector3d n = A * (e->rotation.transpose() * Eigen::Vector3d::UnitY());
+      n.z() = 0;
+      if (n.norm() < 1e-6) continue;
+      each.push_back(n.normalized());
+      sum += each.back();
+    }
+    const bool agree = !each.empty() && std::all_of(each.begin(), each.end(), [&](const Eigen::Vector3d& n) {
+      return n.dot(sum.normalized()) > std::cos(5.0 * M_PI / 180.0);
+    });
+    if (agree) out.north = sum.normalized();
+  }
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
   for (auto& c : out.cameras) {
     c.center = A * c.center;
     c.world_from_camera = A * c.world_from_camera;
+    mean += c.center;
   }
+  if (!out.cameras.empty()) out.origin = mean / static_cast<double>(out.cameras.size());
 
-  // Points: each segment keeps its share of max_points, evenly spaced.
-  const double keep = out.total_points > options.max_points
-                          ? static_cast<double>(options.max_points) / static_cast<double>(out.total_points)
-                          : 1.0;
-  for (size_t s = 0; s < segments.size(); ++s) {
-    const Segment& seg = *segments[s];
-    OverviewSegment o;
-    o.id = seg.id();
-    o.points = seg.num_points();
-    const size_t shown = std::min(o.points, static_cast<size_t>(std::floor(keep * static_cast<double>(o.points))));
-    o.points_shown = shown;
-    std::vector<Eigen::Vector2d> footprint;
-    std::vector<double> heights;
-    const auto xyz = seg.xyz();
-    for (size_t k = 0; k < shown; ++k) {
-      const size_t i = shown == o.points ? k : static_cast<size_t>((static_cast<double>(k) + 0.5) * static_cast<double>(o.points) / static_cast<double>(shown));
-      Eigen::Vector3d p(xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2]);
-      if (enu) p = seg.enu_from_segment()->apply(p);
-      p = A * p;
-      out.xyz.insert(out.xyz.end(), {static_cast<float>(p.x()), static_cast<float>(p.y()), static_cast<float>(p.z())});
-      out.point_segment.push_back(static_cast<uint32_t>(s));
-      footprint.emplace_back(p.x(), p.y());
-      heights.push_back(p.z());
-    }
+  // Points to the aligned frame, relative to the origin; footprints and ground.
+  out.xyz.reserve(3 * raw_points.size());
+  std::vector<std::vector<Eigen::Vector2d>> footprint(out.segments.size());
+  std::vector<std::vector<double>> heights(out.segments.size());
+  for (size_t i = 0; i < raw_points.size(); ++i) {
+    const uint32_t s = out.point_segment[i];
+    Eigen::Vector3d p = raw_points[i];
+    if (enu) p = enu_from_segment[s]->apply(p);
+    p = A * p;
+    footprint[s].emplace_back(p.x(), p.y());
+    heights[s].push_back(p.z());
+    p -= out.origin;
+    out.xyz.insert(out.xyz.end(), {static_cast<float>(p.x()), static_cast<float>(p.y()), static_cast<float>(p.z())});
+  }
+  for (const auto& c : out.cameras) footprint[c.segment].emplace_back(c.center.x(), c.center.y());
+  for (size_t s = 0; s < out.segments.size(); ++s) {
+    OverviewSegment& o = out.segments[s];
     double ground = std::numeric_limits<double>::infinity();
-    if (!heights.empty()) {  // the 1st percentile: a few stray points below the street do not sink it
-      auto nth = heights.begin() + static_cast<std::ptrdiff_t>(heights.size() / 100);
-      std::nth_element(heights.begin(), nth, heights.end());
+    if (!heights[s].empty()) {  // the 5th percentile: stray points below the street do not sink it
+      auto nth = heights[s].begin() + static_cast<std::ptrdiff_t>(heights[s].size() / 20);
+      std::nth_element(heights[s].begin(), nth, heights[s].end());
       ground = *nth;
+    } else {
+      for (const auto& c : out.cameras)
+        if (c.segment == s) ground = std::min(ground, c.center.z());
     }
-    for (const auto& c : out.cameras) {
-      if (c.segment != s) continue;
-      ++o.cameras;
-      footprint.emplace_back(c.center.x(), c.center.y());
-      if (heights.empty()) ground = std::min(ground, c.center.z());
+    for (const auto& c : out.cameras) o.cameras += c.segment == s;
+    // The outline leaves out the 10% of points farthest from the segment's
+    // median (in x-y): stray triangulations would stretch it far off the street.
+    std::vector<Eigen::Vector2d>& f = footprint[s];
+    const size_t num_point_footprints = f.size() - static_cast<size_t>(o.cameras);
+    if (num_point_footprints >= 20) {
+      std::vector<double> xs, ys;
+      for (size_t i = 0; i < num_point_footprints; ++i) {
+        xs.push_back(f[i].x());
+        ys.push_back(f[i].y());
+      }
+      std::nth_element(xs.begin(), xs.begin() + static_cast<std::ptrdiff_t>(xs.size() / 2), xs.end());
+      std::nth_element(ys.begin(), ys.begin() + static_cast<std::ptrdiff_t>(ys.size() / 2), ys.end());
+      const Eigen::Vector2d centre(xs[xs.size() / 2], ys[ys.size() / 2]);
+      std::vector<double> dist;
+      for (size_t i = 0; i < num_point_footprints; ++i) dist.push_back((f[i] - centre).norm());
+      std::vector<double> sorted = dist;
+      const auto q90 = sorted.begin() + static_cast<std::ptrdiff_t>(sorted.size() * 9 / 10);
+      std::nth_element(sorted.begin(), q90, sorted.end());
+      std::vector<Eigen::Vector2d> kept;
+      for (size_t i = 0; i < f.size(); ++i)
+        if (i >= num_point_footprints || dist[i] <= *q90) kept.push_back(f[i]);
+      f = std::move(kept);
     }
-    o.outline = convex_hull(std::move(footprint));
+    o.outline = convex_hull(std::move(f));
     o.ground_z = std::isfinite(ground) ? ground : 0.0;
-    out.segments.push_back(std::move(o));
   }
   return out;
 }

@@ -10,12 +10,14 @@
 // segment is georegistered, else kSegment. A segment frame has no known up:
 // it is estimated from the cameras (their image y axes point down in the
 // world, COLMAP's convention) and everything is rotated so that it is +z;
+// Segments are opened one at a time (only the kept points stay in memory).
 // `aligned_from_frame` is that rotation, to apply to anything else drawn in
 // the same frame (query centres).
 
 #include <Eigen/Core>
 #include <cstdint>
 #include <filesystem>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -48,15 +50,23 @@ struct OverviewSegment {
   size_t points = 0;        // in the segment
   size_t points_shown = 0;  // kept in the overview
   size_t cameras = 0;
-  std::vector<Eigen::Vector2d> outline;  // convex hull in x-y of the kept points and the cameras, counter-clockwise
-  double ground_z = 0;                   // 1st percentile of the kept points' heights (no points: the lowest camera)
+  // Convex hull in x-y of the cameras and the kept points within the 90th
+  // percentile of distance from the segment's median, counter-clockwise.
+  std::vector<Eigen::Vector2d> outline;
+  double ground_z = 0;                   // 5th percentile of the kept points' heights (no points: the lowest camera)
 };
 
 struct MapOverview {
   OverviewFrame frame = OverviewFrame::kSegment;  // kEnu or kSegment (never kAuto)
   bool georegistered = false;                     // every segment has enu_from_segment
   Eigen::Matrix3d aligned_from_frame = Eigen::Matrix3d::Identity();
-  std::vector<float> xyz;                 // kept points, N × 3, aligned frame
+  // North in the aligned frame (unit, horizontal): +y in ENU; in a segment
+  // frame, when every segment is georegistered and they agree within 5°.
+  std::optional<Eigen::Vector3d> north;
+  // `xyz` is relative to this point of the aligned frame (the mean camera
+  // centre), so that floats keep millimetres in UTM-sized coordinates.
+  Eigen::Vector3d origin = Eigen::Vector3d::Zero();
+  std::vector<float> xyz;                 // kept points, N × 3, aligned frame minus origin
   std::vector<uint32_t> point_segment;    // index into `segments` per kept point
   std::vector<OverviewCamera> cameras;    // aligned frame
   std::vector<OverviewSegment> segments;  // manifest order

@@ -76,7 +76,8 @@ IndexHeader read_header(Cursor& c, const char* what) {
   h.ntotal = c.read<int64_t>(what);
   c.read<int64_t>(what);
   c.read<int64_t>(what);
-  c.read<uint8_t>(what);
+  const uint8_t trained = c.read<uint8_t>(what);
+  if (trained > 1) Cursor::fail(what, ": is_trained byte ", int{trained}, " (FAISS reads it as a bool)");
   const int32_t metric = c.read<int32_t>(what);
   if (metric != 1) Cursor::fail(what, ": metric ", metric, ", visloc writes L2 (1)");
   if (h.d < 1) Cursor::fail(what, ": dimension ", h.d);
@@ -91,7 +92,10 @@ IndexHeader read_flat_l2(Cursor& c, const char* what) {
   if (h != fourcc("IxF2")) Cursor::fail(what, ": index type '", printable_fourcc(h), "', expected IxF2 (flat L2)");
   const IndexHeader header = read_header(c, what);
   const uint64_t quarter_bytes = c.vector(4, what);
-  if (quarter_bytes != static_cast<uint64_t>(header.ntotal) * static_cast<uint64_t>(header.d))
+  // Compared by division: ntotal × d can wrap around in 64 bits (a crafted
+  // ntotal of 2^60 with d = 16 would match 0 floats).
+  const uint64_t d = static_cast<uint64_t>(header.d);
+  if (quarter_bytes % d != 0 || quarter_bytes / d != static_cast<uint64_t>(header.ntotal))
     Cursor::fail(what, ": ", quarter_bytes, " floats stored for ", header.ntotal, " vectors of dimension ", header.d);
   return header;
 }
@@ -128,7 +132,8 @@ FaissLayoutFacts read_ivfpq(Cursor& c) {
   const uint8_t direct_map = c.read<uint8_t>("direct map type");
   if (direct_map != 0) Cursor::fail("direct map type ", int{direct_map}, ", visloc writes none (0)");
   if (c.vector(8, "direct map") != 0) Cursor::fail("a direct map without a type has entries");
-  c.read<uint8_t>("IVF-PQ by_residual");
+  const uint8_t by_residual = c.read<uint8_t>("IVF-PQ by_residual");
+  if (by_residual > 1) Cursor::fail("IVF-PQ by_residual byte ", int{by_residual}, " (FAISS reads it as a bool)");
   const uint64_t code_size = c.read<uint64_t>("IVF-PQ code size");
   // read_ProductQuantizer: d, M, nbits (uint64 each), centroids.
   const uint64_t pq_d = c.read<uint64_t>("product quantizer");
@@ -152,7 +157,9 @@ FaissLayoutFacts read_ivfpq(Cursor& c) {
   if (lists_nlist != nlist || lists_code_size != code_size)
     Cursor::fail("inverted lists of ", lists_nlist, " lists and ", lists_code_size, " bytes per code, the index has ",
                  nlist, " and ", code_size);
-  std::vector<uint64_t> sizes(nlist, 0);  // nlist is backed by the quantizer's nlist × d floats
+  // nlist is backed by the quantizer's nlist × d floats (checked above
+  // without overflow), so this allocation is bounded by the section's size.
+  std::vector<uint64_t> sizes(nlist, 0);
   const uint32_t sizes_type = c.read<uint32_t>("inverted list sizes");
   if (sizes_type == fourcc("full")) {
     const uint64_t n = c.read<uint64_t>("inverted list sizes");

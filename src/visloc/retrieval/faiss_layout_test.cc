@@ -154,5 +154,53 @@ TEST(FaissLayout, PlantedHugeCountsAreRefusedBeforeFaissAllocates) {
   }
 }
 
+TEST(FaissLayout, CountsThatWrapAroundIn64BitsAreRefused) {
+  // An IVF-PQ whose coarse quantizer claims 2^60 centroids of dimension 16
+  // and stores none: 2^60 × 16 wraps to 0 in 64 bits. The walk must refuse it
+  // before anything is sized by that count.
+  auto put = [](std::vector<uint8_t>& b, auto v) {
+    const auto* p = reinterpret_cast<const uint8_t*>(&v);
+    b.insert(b.end(), p, p + sizeof(v));
+  };
+  auto header = [&](std::vector<uint8_t>& b, int32_t d, int64_t ntotal) {
+    put(b, d);
+    put(b, ntotal);
+    put(b, int64_t{1} << 20);
+    put(b, int64_t{1} << 20);
+    put(b, uint8_t{1});
+    put(b, int32_t{1});
+  };
+  const uint64_t huge = uint64_t{1} << 60;
+  std::vector<uint8_t> b;
+  b.insert(b.end(), {'I', 'w', 'P', 'Q'});
+  header(b, kDims, 0);
+  put(b, huge);          // nlist
+  put(b, uint64_t{1});   // nprobe
+  b.insert(b.end(), {'I', 'x', 'F', '2'});
+  header(b, kDims, static_cast<int64_t>(huge));
+  put(b, uint64_t{0});   // no floats
+  put(b, uint8_t{0});    // direct map: none
+  put(b, uint64_t{0});
+  put(b, uint8_t{1});    // by_residual
+  put(b, uint64_t{2});   // code size: 4 × 4 bits
+  put(b, uint64_t{kDims});
+  put(b, uint64_t{4});
+  put(b, uint64_t{4});
+  put(b, uint64_t{kDims << 4});
+  for (int i = 0; i < (kDims << 4); ++i) put(b, 0.0f);
+  b.insert(b.end(), {'i', 'l', 'a', 'r'});
+  put(b, huge);
+  put(b, uint64_t{2});
+  b.insert(b.end(), {'f', 'u', 'l', 'l'});
+  put(b, huge);
+  try {
+    check_faiss_layout(b, FaissLayout::kIvfPq);
+    ADD_FAILURE() << "a quantizer of 2^60 centroids and no data was accepted";
+  } catch (const Error& ex) {
+    EXPECT_EQ(ex.code(), ErrorCode::kFormat);
+    EXPECT_NE(std::string(ex.what()).find("coarse quantizer"), std::string::npos) << ex.what();
+  }
+}
+
 }  // namespace
 }  // namespace visloc

@@ -95,6 +95,13 @@ ImageIndex ImageIndex::train(std::span<const float> training, int dims, const Im
   const size_t nt = train_set.size() / dims;
   out.effective_nlist_ = static_cast<int>(std::min<size_t>(options.nlist, std::max<size_t>(1, nt / 39)));
   out.effective_pq_bits_ = std::min(options.pq_bits, static_cast<int>(std::floor(std::log2(static_cast<double>(nt)))));
+  if (options.precomputed_tables) {  // the limit load() enforces: never write an index that cannot be read
+    const double table_bytes = 4.0 * out.effective_nlist_ * options.pq_bytes * std::ldexp(1.0, out.effective_pq_bits_);
+    if (table_bytes > static_cast<double>(faiss::precomputed_table_max_bytes))
+      throw_error(ErrorCode::kInvalidArgument, "image index: precomputed tables would take ", table_bytes / (1 << 20),
+                  " MiB, more than FAISS's limit of ", faiss::precomputed_table_max_bytes >> 20,
+                  " MiB; use fewer lists or bits, or no precomputed tables");
+  }
   auto* quantizer = new faiss::IndexFlatL2(dims);
   auto ivfpq = std::make_unique<faiss::IndexIVFPQ>(quantizer, dims, out.effective_nlist_, options.pq_bytes,
                                                    out.effective_pq_bits_);
@@ -243,6 +250,12 @@ ImageIndex ImageIndex::load(const std::filesystem::path& path) {
   if (facts.dims != out.dims_ || static_cast<uint64_t>(facts.count) != count)
     fail("FAISS index has dimension ", facts.dims, " and ", facts.count, " vectors, META says ", out.dims_, " and ",
          count);
+  if (out.options_.type == ImageIndexType::kIvfPq &&
+      (facts.nlist != static_cast<uint64_t>(out.effective_nlist_) ||
+       facts.pq_m != static_cast<uint64_t>(out.options_.pq_bytes) ||
+       facts.pq_nbits != static_cast<uint64_t>(out.effective_pq_bits_)))
+    fail("FAISS index has ", facts.nlist, " lists and ", facts.pq_m, " sub-quantizers of ", facts.pq_nbits,
+         " bits, META says ", out.effective_nlist_, ", ", out.options_.pq_bytes, " and ", out.effective_pq_bits_);
   if (out.options_.type == ImageIndexType::kIvfPq && out.options_.precomputed_tables) {
     // nlist × M × 2^nbits floats, computed at load: refuse what FAISS itself
     // would not precompute by default (faiss::precomputed_table_max_bytes).

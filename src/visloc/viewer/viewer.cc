@@ -21,7 +21,7 @@ void ViewerOptions::validate() const {
 }
 
 nlohmann::json ViewerSummary::to_json() const {
-  return {{"points_drawn", points_drawn}, {"points_in_map", points_in_map}, {"cameras", cameras},
+  return {{"points_drawn", points_drawn}, {"points_in_map", points_in_map}, {"points_far", points_far}, {"cameras", cameras},
           {"segments", segments},         {"queries", queries},             {"file_bytes", file_bytes},
           {"frame", frame},               {"three_version", three_version}};
 }
@@ -47,7 +47,8 @@ ReportQueries read_report(const fs::path& report_dir) {
     throw_error(ErrorCode::kFormat, path.string(), ": no per_query array (is it a `visloc eval` report?)");
   if (!j.contains("frame") || !j["frame"].is_string())
     throw_error(ErrorCode::kFormat, path.string(),
-                ": no frame and no query centres (a report written before the viewer existed); run `visloc eval` again");
+                ": no frame and no query centres: not a `visloc eval` report (a `bench city` report has its own "
+                "format), or one written before `visloc view` existed (run `visloc eval` again)");
   ReportQueries out;
   out.frame = j["frame"].get<std::string>();
   for (size_t i = 0; i < j["per_query"].size(); ++i) {
@@ -100,10 +101,19 @@ std::string html_escape(const std::string& s) {
   return out;
 }
 
-// JSON inside <script>: "</" must not appear (it could close the element).
-std::string script_safe(std::string json) {
-  for (size_t at = 0; (at = json.find("</", at)) != std::string::npos; at += 3) json.replace(at, 2, "<\\/");
-  return json;
+// JSON inside <script>: no '<', '>' or '&' at all ("</script>" would close
+// the element, "<!--" with "<script" would keep it open), written as JSON's
+// \u escapes; they occur only inside strings.
+std::string script_safe(const std::string& json) {
+  std::string out;
+  out.reserve(json.size());
+  for (char c : json) {
+    if (c == '<') out += "\\u003c";
+    else if (c == '>') out += "\\u003e";
+    else if (c == '&') out += "\\u0026";
+    else out += c;
+  }
+  return out;
 }
 
 std::string data_url(std::string_view javascript) {
@@ -169,22 +179,28 @@ ViewerSummary write_viewer(const fs::path& map_dir, const fs::path& report_dir, 
   const MapOverview ov = load_map_overview(map, mo);
   const Eigen::Matrix3d& A = ov.aligned_from_frame;
 
-  // Extent: 1st-99th percentiles of the points, and every camera and query
+  // Extent: 5th-95th percentiles of the points, and every camera and query
   // (stray points do not shrink the view); the origin at its centre.
-  std::vector<double> xs, ys, zs;
-  for (size_t i = 0; i < ov.num_points(); ++i) {
-    xs.push_back(ov.xyz[3 * i]);
-    ys.push_back(ov.xyz[3 * i + 1]);
-    zs.push_back(ov.xyz[3 * i + 2]);
+  auto point = [&ov](size_t i) -> Eigen::Vector3d {
+    return Eigen::Vector3d(ov.xyz[3 * i], ov.xyz[3 * i + 1], ov.xyz[3 * i + 2]) + ov.origin;
+  };
+  Eigen::Vector3d robust_lo = Eigen::Vector3d::Zero(), robust_hi = Eigen::Vector3d::Zero();
+  if (ov.num_points() > 0) {
+    std::vector<double> axis(ov.num_points());
+    for (int k = 0; k < 3; ++k) {
+      for (size_t i = 0; i < ov.num_points(); ++i) axis[i] = point(i)[k];
+      robust_lo[k] = percentile(axis, 0.05);
+      robust_hi[k] = percentile(axis, 0.95);
+    }
   }
   Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity()), hi = -lo;
   auto grow = [&](const Eigen::Vector3d& p) {
     lo = lo.cwiseMin(p);
     hi = hi.cwiseMax(p);
   };
-  if (!xs.empty()) {
-    grow({percentile(xs, 0.01), percentile(ys, 0.01), percentile(zs, 0.01)});
-    grow({percentile(xs, 0.99), percentile(ys, 0.99), percentile(zs, 0.99)});
+  if (ov.num_points() > 0) {
+    grow(robust_lo);
+    grow(robust_hi);
   }
   for (const auto& c : ov.cameras) grow(c.center);
   nlohmann::json queries = nlohmann::json::array();
@@ -204,30 +220,48 @@ ViewerSummary write_viewer(const fs::path& map_dir, const fs::path& report_dir, 
   }
   if (!std::isfinite(lo.x())) lo = hi = Eigen::Vector3d::Zero();
   const Eigen::Vector3d origin = 0.5 * (lo + hi);
+  // The view turns around the cameras and queries (where the streets are),
+  // else around the points.
+  Eigen::Vector3d cam_lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity()), cam_hi = -cam_lo;
+  for (const auto& c : ov.cameras) {
+    cam_lo = cam_lo.cwiseMin(c.center);
+    cam_hi = cam_hi.cwiseMax(c.center);
+  }
+  for (const auto& q : queries)
+    for (const char* key : {"true_center", "estimated_center"})
+      if (q.contains(key)) {
+        cam_lo = cam_lo.cwiseMin(vec3(q[key]));
+        cam_hi = cam_hi.cwiseMax(vec3(q[key]));
+      }
+  const Eigen::Vector3d view_centre = std::isfinite(cam_lo.x()) ? Eigen::Vector3d(0.5 * (cam_lo + cam_hi)) : origin;
   const double extent = std::max({hi.x() - lo.x(), hi.y() - lo.y(), 1.0});
   for (auto& q : queries)
     for (const char* key : {"true_center", "estimated_center"})
       if (q.contains(key)) q[key] = json3(vec3(q[key]) - origin);
 
-  // Points, quantized to 16 bits per axis over their own bounding box.
-  Eigen::Vector3d pmin = Eigen::Vector3d::Zero(), pstep = Eigen::Vector3d::Constant(1e-6);
-  std::vector<uint16_t> quantized(ov.xyz.size());
-  if (ov.num_points() > 0) {
-    Eigen::Vector3d a = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity()), b = -a;
-    for (size_t i = 0; i < ov.num_points(); ++i) {
-      const Eigen::Vector3d p(ov.xyz[3 * i], ov.xyz[3 * i + 1], ov.xyz[3 * i + 2]);
-      a = a.cwiseMin(p);
-      b = b.cwiseMax(p);
+  // Points, quantized to 16 bits per axis over the view's box widened by its
+  // own size on every side (and at least 10 m): a stray point kilometres
+  // away (SfM outliers) would otherwise make the step metres. Points beyond
+  // that box are not drawn (`points_far` counts them).
+  const Eigen::Vector3d margin = ((hi - lo).cwiseMax(Eigen::Vector3d::Constant(10.0)));
+  const Eigen::Vector3d box_lo = lo - margin, box_hi = hi + margin;
+  const Eigen::Vector3d pmin = box_lo - origin;
+  const Eigen::Vector3d pstep = ((box_hi - box_lo) / 65535.0).cwiseMax(Eigen::Vector3d::Constant(1e-6));
+  std::vector<uint16_t> quantized;
+  std::vector<uint16_t> point_segment;
+  quantized.reserve(ov.xyz.size());
+  point_segment.reserve(ov.num_points());
+  size_t points_far = 0;
+  for (size_t i = 0; i < ov.num_points(); ++i) {
+    const Eigen::Vector3d p = point(i);
+    if ((p.array() < box_lo.array()).any() || (p.array() > box_hi.array()).any()) {
+      ++points_far;
+      continue;
     }
-    pmin = a - origin;
-    pstep = ((b - a) / 65535.0).cwiseMax(Eigen::Vector3d::Constant(1e-6));
-    for (size_t i = 0; i < ov.num_points(); ++i)
-      for (int k = 0; k < 3; ++k) {
-        const double q = std::round((ov.xyz[3 * i + k] - a[k]) / pstep[k]);
-        quantized[3 * i + k] = static_cast<uint16_t>(std::clamp(q, 0.0, 65535.0));
-      }
+    for (int k = 0; k < 3; ++k)
+      quantized.push_back(static_cast<uint16_t>(std::clamp(std::round((p[k] - box_lo[k]) / pstep[k]), 0.0, 65535.0)));
+    point_segment.push_back(static_cast<uint16_t>(ov.point_segment[i]));
   }
-  std::vector<uint16_t> point_segment(ov.point_segment.begin(), ov.point_segment.end());
   if (ov.segments.size() > 65536)
     throw_error(ErrorCode::kInvalidArgument, "visloc view: ", ov.segments.size(), " segments; at most 65,536 can be drawn");
 
@@ -257,6 +291,13 @@ ViewerSummary write_viewer(const fs::path& map_dir, const fs::path& report_dir, 
     ground = std::min(ground, s.ground_z - origin.z());
   }
   if (!std::isfinite(ground)) ground = lo.z() - origin.z();
+  if (std::isfinite(cam_lo.z())) {
+    // The grid stays within a tenth of the map's extent below the lowest
+    // camera (triangulations below the street would sink it), and not above it.
+    const double lowest_camera = cam_lo.z() - origin.z();
+    ground = std::clamp(ground, lowest_camera - 0.1 * extent, lowest_camera);
+  }
+  for (auto& seg : segments) seg["ground_z"] = ground;  // outlines on the grid
   const double spacing = round_up_nice(extent / 12);
   const double gx0 = std::floor((lo.x() - origin.x()) / spacing - 1) * spacing;
   const double gy0 = std::floor((lo.y() - origin.y()) / spacing - 1) * spacing;
@@ -273,17 +314,18 @@ ViewerSummary write_viewer(const fs::path& map_dir, const fs::path& report_dir, 
   nlohmann::json data = {
       {"title", title},
       {"frame", overview_frame_name(ov.frame)},
-      {"north", ov.frame == OverviewFrame::kEnu},
+      {"north", ov.north ? json3(*ov.north) : nlohmann::json()},
       {"origin_in_frame", json3(A.transpose() * origin)},
       {"extent", extent},
-      {"view_target", json3(Eigen::Vector3d(0, 0, ground))},
+      {"view_target", json3(view_centre - origin)},
       {"ground_z", ground},
       {"grid_spacing", spacing},
       {"grid_box", {gx0, gy0, gx1, gy1}},
-      {"camera_depth", std::clamp(extent * 0.012, 0.05, 5.0)},
-      {"query_marker_radius", std::clamp(extent * 0.004, 0.02, 3.0)},
+      {"camera_depth", std::clamp(extent * 0.025, 0.1, 8.0)},
+      {"query_marker_radius", std::clamp(extent * 0.008, 0.05, 5.0)},
       {"points",
-       {{"count", ov.num_points()},
+       {{"count", point_segment.size()},
+        {"far_not_drawn", points_far},
         {"in_map", ov.total_points},
         {"min", json3(pmin)},
         {"step", json3(pstep)},
@@ -301,13 +343,14 @@ ViewerSummary write_viewer(const fs::path& map_dir, const fs::path& report_dir, 
                                 {{"TITLE", html_escape(title)},
                                  {"THREE_MODULE", data_url(module)},
                                  {"THREE_CORE", data_url(viewer_assets::three_core())},
-                                 {"DATA", script_safe(data.dump())},
+                                 {"DATA", script_safe(data.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace))},
                                  {"APP", std::string(viewer_assets::app_script())}});
   if (out.has_parent_path()) fs::create_directories(out.parent_path());
   write_file_atomic(out, page);
 
   ViewerSummary summary;
-  summary.points_drawn = ov.num_points();
+  summary.points_drawn = point_segment.size();
+  summary.points_far = points_far;
   summary.points_in_map = ov.total_points;
   summary.cameras = ov.cameras.size();
   summary.segments = ov.segments.size();

@@ -33,6 +33,7 @@ struct ViewerOptions {
 
 struct ViewerSummary {
   size_t points_drawn = 0, points_in_map = 0, cameras = 0, segments = 0, queries = 0;
+  size_t points_far = 0;  // kept but beyond the drawn box (stray points far from the map): not drawn
   uint64_t file_bytes = 0;
   std::string frame;  // "enu" or "segment"
   std::string three_version;

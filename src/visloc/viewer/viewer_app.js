@@ -110,12 +110,10 @@ const spacing = data.grid_spacing;
   grid.name = 'grid';
   layers.grid = grid;
   scene.add(grid);
-  if (data.north) {  // a north arrow on the grid's corner, when the frame is east-north-up
-    const group = new THREE.Group();
+  if (data.north) {  // a north arrow on the grid's corner, when the map is georegistered
     const len = 2 * spacing;
     const base = new THREE.Vector3(x0 + spacing, y0 + spacing, ground);
-    group.add(new THREE.ArrowHelper(new THREE.Vector3(0, 1, 0), base, len, 0xffffff, 0.3 * len, 0.15 * len));
-    grid.add(group);
+    grid.add(new THREE.ArrowHelper(new THREE.Vector3(...data.north), base, len, 0xffffff, 0.3 * len, 0.15 * len));
   }
 }
 
@@ -195,7 +193,7 @@ const queryMarkers = [];
 
 // Camera control: orbit (left drag), pan (right or shift drag), zoom (wheel),
 // around a target, z up.
-const view = { target: new THREE.Vector3(...data.view_target), distance: 1.6 * extent, azimuth: -Math.PI / 2, elevation: 0.7 };
+const view = { target: new THREE.Vector3(...data.view_target), distance: 1.3 * extent, azimuth: -Math.PI / 2, elevation: 0.95 };
 const home = { ...view, target: view.target.clone() };
 function placeCamera() {
   const ce = Math.cos(view.elevation);
@@ -315,7 +313,7 @@ function updateOverlay() {
   document.getElementById('scaletext').textContent = `${spacing} m (grid)`;
   const compass = document.getElementById('compass');
   if (data.north) {
-    const n = toScreen(view.target.clone().add(new THREE.Vector3(0, spacing, 0)));
+    const n = toScreen(view.target.clone().addScaledVector(new THREE.Vector3(...data.north), spacing));
     const angle = Math.atan2(n[0] - a[0], a[1] - n[1]) * 180 / Math.PI;
     compass.innerHTML = `<g transform="rotate(${angle.toFixed(1)})"><path d="M0,-18 L6,6 L0,2 L-6,6 Z" fill="#e8e8e8"/>` +
       '<text y="17" text-anchor="middle" fill="#e8e8e8" font-size="10">N</text></g>';
@@ -340,12 +338,37 @@ function render() {
 }
 function requestRender() { if (!pending) { pending = true; requestAnimationFrame(render); } }
 
+// What the canvas shows, read back from WebGL after the first frame: the
+// fraction of pixels that are not background, and how many are strongly
+// coloured (the segments' colours; panels are HTML, not on the canvas).
+function canvasContent() {
+  const gl = renderer.getContext();
+  const w = gl.drawingBufferWidth, h = gl.drawingBufferHeight;
+  const px = new Uint8Array(w * h * 4);
+  gl.readPixels(0, 0, w, h, gl.RGBA, gl.UNSIGNED_BYTE, px);
+  const bg = [0x16, 0x18, 0x1d];
+  let drawn = 0, coloured = 0;
+  for (let i = 0; i < w * h; ++i) {
+    const r = px[4 * i], g = px[4 * i + 1], b = px[4 * i + 2];
+    if (Math.abs(r - bg[0]) + Math.abs(g - bg[1]) + Math.abs(b - bg[2]) <= 6) continue;
+    ++drawn;
+    if (Math.max(r, g, b) - Math.min(r, g, b) > 60) ++coloured;
+  }
+  return { drawn_fraction: drawn / (w * h), coloured_pixels: coloured };
+}
+
 // What a test reads (window.visloc_scene, and #visloc-stats for --dump-dom).
 let loadMs = null;
+let canvas = null;
 function publishStats() {
-  window.visloc_scene = { ...counts, load_ms: loadMs, errors: errors.slice(), frame: data.frame };
+  window.visloc_scene = { ...counts, load_ms: loadMs, errors: errors.slice(), frame: data.frame, canvas };
   document.getElementById('visloc-stats').textContent = JSON.stringify(window.visloc_scene);
+}
+// #noui: the canvas alone (screenshots for tests and the README).
+if (location.hash === '#noui') {
+  for (const el of document.querySelectorAll('.panel, #labels')) el.style.display = 'none';
 }
 render();
 loadMs = performance.now();
+canvas = canvasContent();
 publishStats();

@@ -101,7 +101,8 @@ TEST(Viewer, PageCarriesTheMapInEnuAndTheReport) {
   EXPECT_EQ(s.three_version, "0.187.0");
 
   const nlohmann::json d = page_data(html);
-  EXPECT_TRUE(d["north"].get<bool>());
+  ASSERT_TRUE(d["north"].is_array());  // ENU: north is +y
+  EXPECT_DOUBLE_EQ(d["north"][1].get<double>(), 1.0);
   EXPECT_TRUE(d["has_report"].get<bool>());
   // Every point comes back, within the 16-bit quantization, at its ENU position.
   const Eigen::Vector3d origin(d["origin_in_frame"][0], d["origin_in_frame"][1], d["origin_in_frame"][2]);
@@ -138,7 +139,7 @@ TEST(Viewer, PageCarriesTheMapInEnuAndTheReport) {
   fs::remove_all(report);
 }
 
-TEST(Viewer, SubsamplesToMaxPointsAndDrawsTheSegmentFrameWithoutNorth) {
+TEST(Viewer, SubsamplesToMaxPointsAndDrawsTheSegmentFrame) {
   if (!viewer_assets::available()) GTEST_SKIP() << "built without three.js (npm ci --prefix src/visloc/viewer)";
   const fs::path html = unique_temp_path("visloc_viewer_small.html");
   ViewerOptions o;
@@ -149,7 +150,10 @@ TEST(Viewer, SubsamplesToMaxPointsAndDrawsTheSegmentFrameWithoutNorth) {
   EXPECT_GE(s.points_drawn, 96u);  // each segment keeps floor(its share)
   EXPECT_EQ(s.frame, "segment");
   const nlohmann::json d = page_data(html);
-  EXPECT_FALSE(d["north"].get<bool>());
+  // The segment frame of this planted map: its segments agree on north
+  // (segment +z is north; after the up alignment, still horizontal).
+  ASSERT_TRUE(d["north"].is_array());
+  EXPECT_NEAR(d["north"][2].get<double>(), 0.0, 1e-9);
   EXPECT_FALSE(d["has_report"].get<bool>());
   fs::remove(html);
 }
@@ -204,9 +208,11 @@ TEST(Viewer, RealBrowserDrawsTheMap) {
   const std::string dom = read_file(dom_log);
   const std::string open = "<pre id=\"visloc-stats\">";
   const size_t a = dom.find(open);
-  ASSERT_NE(a, std::string::npos) << "no #visloc-stats in the DOM; the page's script did not run:\n" << tail_of_file(dom_log, 30);
+  ASSERT_NE(a, std::string::npos) << "no DOM dumped:\n" << tail_of_file(dom_log, 30);
   const size_t b = dom.find("</pre>", a);
-  const nlohmann::json stats = nlohmann::json::parse(dom.substr(a + open.size(), b - a - open.size()));
+  const std::string text = dom.substr(a + open.size(), b - a - open.size());
+  ASSERT_FALSE(text.empty()) << "#visloc-stats is empty: the page's script did not run:\n" << tail_of_file(dom_log, 30);
+  const nlohmann::json stats = nlohmann::json::parse(text);
   EXPECT_EQ(stats["points"].get<size_t>(), s.points_drawn);
   EXPECT_EQ(stats["cameras"].get<size_t>(), s.cameras);
   EXPECT_EQ(stats["queries"].get<size_t>(), s.queries);
@@ -214,10 +220,15 @@ TEST(Viewer, RealBrowserDrawsTheMap) {
   EXPECT_TRUE(stats["errors"].empty()) << stats["errors"].dump();
   EXPECT_GT(stats["load_ms"].get<double>(), 0);
   EXPECT_EQ(dom.find("Uncaught"), std::string::npos) << tail_of_file(dom_log, 30);
-  // A screenshot: not blank, and points in the segments' colours.
+  // What WebGL drew (read back on the canvas, without the HTML panels).
+  EXPECT_GT(stats["canvas"]["drawn_fraction"].get<double>(), 0.005) << stats.dump();
+  EXPECT_GT(stats["canvas"]["coloured_pixels"].get<double>(), 100) << stats.dump();
+  // A screenshot of the canvas alone (#noui hides the panels): not blank,
+  // and points in the segments' colours.
   const fs::path png = unique_temp_path("visloc_viewer_shot.png");
   argv = common;
-  argv.insert(argv.end(), {"--screenshot=" + png.string(), "--virtual-time-budget=3000", "file://" + html.string()});
+  argv.insert(argv.end(),
+              {"--screenshot=" + png.string(), "--virtual-time-budget=3000", "file://" + html.string() + "#noui"});
   run_process(argv, unique_temp_path("visloc_viewer_shot.log"));
   const cv::Mat shot = cv::imread(png.string(), cv::IMREAD_COLOR);
   ASSERT_FALSE(shot.empty()) << "no screenshot";
