@@ -30,6 +30,7 @@ void add_localize_command(CLI::App& app);
 void add_eval_command(CLI::App& app);
 void add_synth_command(CLI::App& app);
 void add_view_command(CLI::App& app);
+void add_match_command(CLI::App& app);
 void add_bench_command(CLI::App& app);
 // Standalone retrieval commands (until map building calls retrieval itself).
 void add_retrieval_command(CLI::App& app);

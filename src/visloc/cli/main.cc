@@ -46,6 +46,7 @@ int main(int argc, char** argv) {
   cli::add_synth_command(app);
   cli::add_retrieval_command(app);
   cli::add_view_command(app);
+  cli::add_match_command(app);
   require_finite_numbers(app);
   // OpenCV's thread pool (SIFT) is process-wide and the program's to set:
   // one thread unless a command's --threads says otherwise.

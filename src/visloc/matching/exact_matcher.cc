@@ -35,16 +35,22 @@ ExactMatcher::ExactMatcher(const DescriptorMatrix& database) : impl_(std::make_u
 
 ExactMatcher::~ExactMatcher() = default;
 
-void ExactMatcher::knn2(const DescriptorMatrix& queries, std::vector<int64_t>& out_index,
-                        std::vector<float>& out_sqdist) const {
-  const size_t n = queries.rows();
-  out_index.assign(n * 2, -1);
-  out_sqdist.assign(n * 2, INFINITY);
+void ExactMatcher::knn(const DescriptorMatrix& queries, int k, std::vector<int64_t>& out_index,
+                       std::vector<float>& out_sqdist) const {
+  VISLOC_CHECK(k >= 1, "knn: k must be at least 1");
+  const size_t n = queries.rows(), kk = static_cast<size_t>(k);
+  out_index.assign(n * kk, -1);
+  out_sqdist.assign(n * kk, INFINITY);
   if (n == 0 || size_ == 0) return;
   auto q = to_float(queries);
-  std::vector<faiss::Index::idx_t> labels(n * 2);
-  impl_->index.search(static_cast<faiss::Index::idx_t>(n), q.data(), 2, out_sqdist.data(), labels.data());
+  std::vector<faiss::Index::idx_t> labels(n * kk);
+  impl_->index.search(static_cast<faiss::Index::idx_t>(n), q.data(), k, out_sqdist.data(), labels.data());
   for (size_t i = 0; i < labels.size(); ++i) out_index[i] = labels[i];
+}
+
+void ExactMatcher::knn2(const DescriptorMatrix& queries, std::vector<int64_t>& out_index,
+                        std::vector<float>& out_sqdist) const {
+  knn(queries, 2, out_index, out_sqdist);
 }
 
 std::vector<RatioMatch> ExactMatcher::match(const DescriptorMatrix& queries, const ExactMatcherOptions& options) const {

@@ -34,6 +34,10 @@ class ExactMatcher {
   // are rows × 2 (index -1 when the database has fewer than 2 rows).
   void knn2(const DescriptorMatrix& queries, std::vector<int64_t>& out_index,
             std::vector<float>& out_sqdist) const;
+  // k nearest neighbours of every query row, nearest first (rows × k; index
+  // -1 and distance ∞ past the database's size).
+  void knn(const DescriptorMatrix& queries, int k, std::vector<int64_t>& out_index,
+           std::vector<float>& out_sqdist) const;
   std::vector<RatioMatch> match(const DescriptorMatrix& queries, const ExactMatcherOptions& options = {}) const;
   size_t size() const { return size_; }
 

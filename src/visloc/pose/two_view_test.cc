@@ -5,6 +5,8 @@
 #include <cmath>
 
 #include "visloc/pose/solvers/two_view.h"
+#include "visloc/pose/two_view_ransac.h"
+#include "visloc/util/error.h"
 #include "visloc/util/random.h"
 
 namespace visloc {
@@ -134,6 +136,103 @@ TEST(TwoViewSolvers, EpipolarDistancesOfTheTrueFundamentalAreZero) {
   }
   const Eigen::Vector2d off = v.project2(v.points[0]) + Eigen::Vector2d(0, 5);
   EXPECT_GT(symmetric_epipolar_distance(v.fundamental(), v.project1(v.points[0]), off), 0.5);
+}
+
+}  // namespace
+}  // namespace visloc
+
+// ---- estimate_two_view -----------------------------------------------------
+
+namespace visloc {
+namespace {
+
+// Matches of a synthetic pair: `n` features; a fraction `outliers` of the
+// hypothesis set matched to random points; `ambiguous` features (a repeated
+// facade) have a wrong best candidate (one period to the side) and the true
+// match second, and fail the strict ratio test (not in the hypothesis set).
+TwoViewCorrespondences synthetic_matches(const TwoViews& v, double outliers, double ambiguous, RandomGenerator& rng,
+                                         double noise_px = 0.5) {
+  TwoViewCorrespondences m;
+  for (size_t i = 0; i < v.points.size(); ++i) {
+    const Eigen::Vector2d a = v.project1(v.points[i]) + noise_px * Eigen::Vector2d(rng.normal(), rng.normal());
+    const Eigen::Vector2d b = v.project2(v.points[i]) + noise_px * Eigen::Vector2d(rng.normal(), rng.normal());
+    const Eigen::Vector2d random(rng.uniform(0, 640), rng.uniform(0, 480));
+    m.points1.push_back(a);
+    m.feature1.push_back(static_cast<uint32_t>(i));
+    const double u = rng.uniform();
+    if (u < ambiguous) {
+      m.candidates.push_back(b + Eigen::Vector2d(40, 0));  // the neighbouring window
+      m.candidates.push_back(b);
+      m.in_hypothesis_set.push_back(0);
+    } else if (u < ambiguous + (1 - ambiguous) * outliers) {
+      m.candidates.push_back(random);
+      m.in_hypothesis_set.push_back(1);
+    } else {
+      m.candidates.push_back(b);
+      m.in_hypothesis_set.push_back(1);
+    }
+    while (m.candidates.size() < m.candidate_offsets.back() + 3) m.candidates.emplace_back(rng.uniform(0, 640), rng.uniform(0, 480));
+    for (size_t k = m.candidate_feature2.size(); k < m.candidates.size(); ++k) m.candidate_feature2.push_back(static_cast<uint32_t>(k));
+    m.candidate_offsets.push_back(static_cast<uint32_t>(m.candidates.size()));
+  }
+  return m;
+}
+
+double median_epipolar_error(const TwoViews& v, const Eigen::Matrix3d& F) {
+  std::vector<double> e;
+  for (const auto& X : v.points) e.push_back(symmetric_epipolar_distance(F, v.project1(X), v.project2(X)));
+  std::nth_element(e.begin(), e.begin() + static_cast<std::ptrdiff_t>(e.size() / 2), e.end());
+  return e[e.size() / 2];
+}
+
+TEST(TwoViewRansac, FundamentalThroughOutliersAndOneManyAddsTheRepeatedFacade) {
+  RandomGenerator rng(31);
+  const TwoViews v = random_views(rng, 400, false);
+  const TwoViewCorrespondences m = synthetic_matches(v, 0.4, 0.4, rng);
+  TwoViewOptions o;
+  o.seed = 3;
+  o.variant = RansacVariant::kClassic11;
+  const TwoViewEstimate classic = estimate_two_view(m, o);
+  o.variant = RansacVariant::kOneManySprt;
+  const TwoViewEstimate one_many = estimate_two_view(m, o);
+  ASSERT_TRUE(classic.found);
+  ASSERT_TRUE(one_many.found);
+  EXPECT_LT(median_epipolar_error(v, classic.fundamental), 1.0);
+  EXPECT_LT(median_epipolar_error(v, one_many.fundamental), 1.0);
+  // ~144 true 1-1 matches; 1-M also verifies ~160 ambiguous features through their second candidate.
+  EXPECT_GT(one_many.inliers, classic.inliers * 3 / 2) << one_many.inliers << " vs " << classic.inliers;
+  EXPECT_GT(one_many.extra_inliers, 100u);
+  EXPECT_EQ(classic.extra_inliers, 0u);
+  // The same seed gives the same result.
+  const TwoViewEstimate again = estimate_two_view(m, o);
+  EXPECT_EQ(again.inliers, one_many.inliers);
+  EXPECT_EQ(again.matrix, one_many.matrix);
+}
+
+TEST(TwoViewRansac, HomographyOfAFacadeAndEssentialWithCalibrations) {
+  RandomGenerator rng(32);
+  const TwoViews plane = random_views(rng, 300, true);
+  const TwoViewCorrespondences mp = synthetic_matches(plane, 0.3, 0.2, rng);
+  TwoViewOptions o;
+  o.model = TwoViewModel::kHomography;
+  const TwoViewEstimate h = estimate_two_view(mp, o);
+  ASSERT_TRUE(h.found);
+  std::vector<double> transfer;
+  for (const auto& X : plane.points) transfer.push_back(std::sqrt(transfer_error2(h.matrix, plane.project1(X), plane.project2(X))));
+  std::nth_element(transfer.begin(), transfer.begin() + 150, transfer.end());
+  EXPECT_LT(transfer[150], 1.0);
+
+  const TwoViews scene = random_views(rng, 300, false);
+  const TwoViewCorrespondences ms = synthetic_matches(scene, 0.3, 0.2, rng);
+  o = {};
+  o.model = TwoViewModel::kEssential;
+  EXPECT_THROW(estimate_two_view(ms, o), Error);  // no calibrations
+  o.calibration1 = scene.K1;
+  o.calibration2 = scene.K2;
+  const TwoViewEstimate e = estimate_two_view(ms, o);
+  ASSERT_TRUE(e.found);
+  EXPECT_LT(median_epipolar_error(scene, e.fundamental), 1.0);
+  EXPECT_LT(projective_distance(e.matrix, scene.essential()), 0.05);
 }
 
 }  // namespace

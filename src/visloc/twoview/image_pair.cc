@@ -1,0 +1,181 @@
+#include "visloc/twoview/image_pair.h"
+
+#include <opencv2/imgproc.hpp>
+
+#include <chrono>
+#include <cmath>
+
+#include "visloc/image/image_io.h"
+#include "visloc/matching/exact_matcher.h"
+#include "visloc/util/error.h"
+
+namespace visloc {
+
+void PairMatchingOptions::validate() const {
+  auto bad = [](const char* field, const auto& value, const char* rule) {
+    throw_error(ErrorCode::kInvalidArgument, "pair matching option ", field, " = ", value, ": ", rule);
+  };
+  if (!(ratio_one_to_one > 0 && ratio_one_to_one <= 1)) bad("ratio_one_to_one", ratio_one_to_one, "must be in (0, 1]");
+  if (!(ratio_one_to_many >= ratio_one_to_one && ratio_one_to_many <= 1))
+    bad("ratio_one_to_many", ratio_one_to_many, "must be in [ratio_one_to_one, 1]");
+  if (max_candidates < 1 || max_candidates > 64) bad("max_candidates", max_candidates, "must be in [1, 64]");
+}
+
+void ImagePairOptions::validate() const {
+  sift.validate();
+  matching.validate();
+  estimation.validate();
+}
+
+TwoViewCorrespondences match_feature_sets(const FeatureSet& a, const FeatureSet& b, const PairMatchingOptions& o) {
+  o.validate();
+  a.check_consistent();
+  b.check_consistent();
+  TwoViewCorrespondences m;
+  if (a.size() == 0 || b.size() < 2) return m;
+  const ExactMatcher matcher(b.descriptors);
+  const int k = o.max_candidates + 1;
+  std::vector<int64_t> index;
+  std::vector<float> sqdist;
+  matcher.knn(a.descriptors, k, index, sqdist);
+  for (size_t i = 0; i < a.size(); ++i) {
+    const int64_t* idx = index.data() + i * k;
+    const float* d2 = sqdist.data() + i * k;
+    if (idx[0] < 0 || idx[1] < 0) continue;
+    const double d0 = std::sqrt(std::max(0.0f, d2[0])), d1 = std::sqrt(std::max(0.0f, d2[1]));
+    const bool one_to_one = d0 < o.ratio_one_to_one * d1;
+    int keep = 0;
+    if (o.rule == OneToManyRule::kBestRatio) {
+      keep = d0 < o.ratio_one_to_many * d1 ? o.max_candidates : 0;
+    } else {
+      // The candidates before the first j ≥ 1 clearly worse than the best.
+      for (int j = 1; j < k; ++j) {
+        if (idx[j] < 0) break;
+        const double dj = std::sqrt(std::max(0.0f, d2[j]));
+        if (d0 < o.ratio_one_to_many * dj) {
+          keep = j;
+          break;
+        }
+      }
+      if (keep > o.max_candidates) keep = 0;
+    }
+    if (one_to_one) keep = std::max(keep, 1);
+    if (keep == 0) continue;
+    m.points1.emplace_back(a.keypoints[i].x, a.keypoints[i].y);
+    m.feature1.push_back(static_cast<uint32_t>(i));
+    m.in_hypothesis_set.push_back(one_to_one ? 1 : 0);
+    for (int j = 0; j < keep && j < k && idx[j] >= 0; ++j) {
+      const Keypoint& kp = b.keypoints[static_cast<size_t>(idx[j])];
+      m.candidates.emplace_back(kp.x, kp.y);
+      m.candidate_feature2.push_back(static_cast<uint32_t>(idx[j]));
+    }
+    m.candidate_offsets.push_back(static_cast<uint32_t>(m.candidates.size()));
+  }
+  return m;
+}
+
+size_t ImagePairResult::one_to_one_matches() const {
+  return static_cast<size_t>(std::count(matches.in_hypothesis_set.begin(), matches.in_hypothesis_set.end(), 1));
+}
+
+nlohmann::json ImagePairResult::to_json() const {
+  auto matrix = [](const Eigen::Matrix3d& M) {
+    nlohmann::json rows = nlohmann::json::array();
+    for (int r = 0; r < 3; ++r) rows.push_back({M(r, 0), M(r, 1), M(r, 2)});
+    return rows;
+  };
+  nlohmann::json j = {{"image1", features1.image},
+                      {"image2", features2.image},
+                      {"features1", features1.size()},
+                      {"features2", features2.size()},
+                      {"one_to_one_matches", one_to_one_matches()},
+                      {"one_to_many_features", matches.size()},
+                      {"one_to_many_candidates", matches.candidates.size()},
+                      {"model", std::string(to_string(estimate.model))},
+                      {"found", estimate.found},
+                      {"inliers", estimate.inliers},
+                      {"one_to_one_inliers", estimate.one_to_one_inliers},
+                      {"extra_one_to_many_inliers", estimate.extra_inliers},
+                      {"ransac",
+                       {{"iterations", estimate.stats.iterations},
+                        {"models", estimate.stats.models},
+                        {"rejected_by_sprt", estimate.stats.models_rejected_sprt},
+                        {"verified", estimate.stats.models_verified}}},
+                      {"times_ms",
+                       {{"features", ms_features}, {"matching", ms_matching}, {"ransac", estimate.total_ms}}}};
+  if (estimate.found) {
+    j["matrix"] = matrix(estimate.matrix);
+    if (estimate.model != TwoViewModel::kHomography) j["fundamental"] = matrix(estimate.fundamental);
+  }
+  return j;
+}
+
+ImagePairResult match_image_pair(const std::filesystem::path& image1, const std::filesystem::path& image2,
+                                 const ImagePairOptions& options) {
+  options.validate();
+  ImagePairResult r;
+  const auto t0 = std::chrono::steady_clock::now();
+  const SiftExtractor sift(options.sift);
+  r.features1 = sift.extract_file(image1);
+  r.features2 = sift.extract_file(image2);
+  const auto t1 = std::chrono::steady_clock::now();
+  r.matches = match_feature_sets(r.features1, r.features2, options.matching);
+  const auto t2 = std::chrono::steady_clock::now();
+  r.estimate = estimate_two_view(r.matches, options.estimation);
+  r.ms_features = std::chrono::duration<double, std::milli>(t1 - t0).count();
+  r.ms_matching = std::chrono::duration<double, std::milli>(t2 - t1).count();
+  return r;
+}
+
+void draw_pair_inliers(const std::filesystem::path& image1, const std::filesystem::path& image2,
+                       const ImagePairResult& result, const std::filesystem::path& out, int max_height) {
+  if (max_height < 16) throw_error(ErrorCode::kInvalidArgument, "draw_pair_inliers: max_height must be at least 16");
+  const GrayImage a = read_gray_image(image1), b = read_gray_image(image2);
+  const double sa = std::min(1.0, static_cast<double>(max_height) / a.height);
+  const double sb = std::min(1.0, static_cast<double>(max_height) / b.height);
+  cv::Mat ga(a.height, a.width, CV_8UC1, const_cast<uint8_t*>(a.pixels.data()));
+  cv::Mat gb(b.height, b.width, CV_8UC1, const_cast<uint8_t*>(b.pixels.data()));
+  cv::Mat ra, rb;
+  cv::resize(ga, ra, cv::Size(), sa, sa, cv::INTER_AREA);
+  cv::resize(gb, rb, cv::Size(), sb, sb, cv::INTER_AREA);
+  const int height = std::max(ra.rows, rb.rows);
+  cv::Mat canvas(height, ra.cols + rb.cols, CV_8UC3, cv::Scalar(0, 0, 0));
+  cv::cvtColor(ra, canvas(cv::Rect(0, 0, ra.cols, ra.rows)), cv::COLOR_GRAY2BGR);
+  cv::cvtColor(rb, canvas(cv::Rect(ra.cols, 0, rb.cols, rb.rows)), cv::COLOR_GRAY2BGR);
+  const TwoViewCorrespondences& m = result.matches;
+  const auto& chosen = result.estimate.chosen_candidate;
+  // Every inlier as a dot; lines for at most kMaxLines of each kind (evenly
+  // spaced), so that the picture stays readable. 1-1 first, the extra 1-M
+  // inliers over them.
+  constexpr size_t kMaxLines = 120;
+  size_t count[2] = {0, 0};
+  for (size_t i = 0; i < m.size() && i < chosen.size(); ++i)
+    if (chosen[i] >= 0) ++count[m.in_hypothesis_set[i] && chosen[i] == 0 ? 0 : 1];
+  size_t seen[2] = {0, 0};
+  for (int pass = 0; pass < 2; ++pass)
+    for (size_t i = 0; i < m.size() && i < chosen.size(); ++i) {
+      if (chosen[i] < 0) continue;
+      const bool one_to_one = m.in_hypothesis_set[i] && chosen[i] == 0;
+      if (one_to_one != (pass == 0)) continue;
+      const int kind = one_to_one ? 0 : 1;
+      const size_t stride = std::max<size_t>(1, count[kind] / kMaxLines);
+      const bool draw_line = seen[kind]++ % stride == 0;
+      const Eigen::Vector2d& p = m.points1[i];
+      const Eigen::Vector2d& q = m.candidates[m.candidate_offsets[i] + static_cast<uint32_t>(chosen[i])];
+      const cv::Point pa(static_cast<int>(p.x() * sa), static_cast<int>(p.y() * sa));
+      const cv::Point pb(static_cast<int>(q.x() * sb) + ra.cols, static_cast<int>(q.y() * sb));
+      const cv::Scalar colour = one_to_one ? cv::Scalar(60, 200, 60) : cv::Scalar(0, 140, 255);  // BGR
+      if (draw_line) cv::line(canvas, pa, pb, colour, 1, cv::LINE_AA);
+      cv::circle(canvas, pa, 2, colour, cv::FILLED, cv::LINE_AA);
+      cv::circle(canvas, pb, 2, colour, cv::FILLED, cv::LINE_AA);
+    }
+  const std::string legend = "green: 1-1 inliers (" + std::to_string(result.estimate.one_to_one_inliers) +
+                             "), orange: extra 1-M inliers (" + std::to_string(result.estimate.extra_inliers) + ")";
+  cv::putText(canvas, legend, {10, 24}, cv::FONT_HERSHEY_SIMPLEX, 0.7, {0, 0, 0}, 4, cv::LINE_AA);
+  cv::putText(canvas, legend, {10, 24}, cv::FONT_HERSHEY_SIMPLEX, 0.7, {255, 255, 255}, 1, cv::LINE_AA);
+  cv::Mat rgb;
+  cv::cvtColor(canvas, rgb, cv::COLOR_BGR2RGB);
+  write_image(out, rgb.cols, rgb.rows, 3, rgb.data);
+}
+
+}  // namespace visloc

@@ -1,0 +1,62 @@
+// Image pairs with the paper's one-many RANSAC (`visloc match`; its facade
+// figure): SIFT on both images, matches from image 1 to image 2 by exact
+// nearest neighbours, a 1-1 set for the hypotheses (ratio ν_h = 0.8) and a
+// 1-M set for the verification (ratio ν = 0.9, up to M = 5 candidates),
+// then two-view RANSAC (pose/two_view_ransac.h): F, H, or E with both
+// cameras calibrated. Map building can call match_feature_sets +
+// estimate_two_view to verify a segment's pairs.
+#pragma once
+
+#include <filesystem>
+#include <optional>
+
+#include <nlohmann/json.hpp>
+
+#include "visloc/features/feature_set.h"
+#include "visloc/features/sift_extractor.h"
+#include "visloc/matching/cascade_index.h"
+#include "visloc/pose/two_view_ransac.h"
+
+namespace visloc {
+
+struct PairMatchingOptions {
+  float ratio_one_to_one = 0.8f;   // ν_h: the 1-1 set (hypotheses)
+  float ratio_one_to_many = 0.9f;  // ν: the 1-M set (verification)
+  int max_candidates = 5;          // M
+  // kGroupRatio (default here): a feature keeps the candidates before the
+  // first j ≥ 1 with d0/dj < ν (a group of near-equal candidates: repeated
+  // windows); kBestRatio: the top M when d0/d1 < ν (cascade_index.h).
+  OneToManyRule rule = OneToManyRule::kGroupRatio;
+  void validate() const;
+};
+
+// Matches from a to b. Features with no acceptable candidate are left out.
+TwoViewCorrespondences match_feature_sets(const FeatureSet& a, const FeatureSet& b, const PairMatchingOptions& options);
+
+struct ImagePairOptions {
+  SiftOptions sift;
+  PairMatchingOptions matching;
+  TwoViewOptions estimation;
+  void validate() const;
+};
+
+struct ImagePairResult {
+  FeatureSet features1, features2;
+  TwoViewCorrespondences matches;
+  TwoViewEstimate estimate;
+  double ms_features = 0, ms_matching = 0;
+  size_t one_to_one_matches() const;
+  nlohmann::json to_json() const;
+};
+
+ImagePairResult match_image_pair(const std::filesystem::path& image1, const std::filesystem::path& image2,
+                                 const ImagePairOptions& options);
+
+// The inliers drawn side by side (both images scaled to `max_height`):
+// 1-1 inliers in green, the extra inliers that 1-M verification found in
+// orange (the paper's facade figure); every inlier a dot, lines for at most
+// 120 of each kind. Atomic write; the format follows the extension.
+void draw_pair_inliers(const std::filesystem::path& image1, const std::filesystem::path& image2,
+                       const ImagePairResult& result, const std::filesystem::path& out, int max_height = 900);
+
+}  // namespace visloc
