@@ -14,6 +14,7 @@ void add_bench_command(CLI::App& app) {
   add_bench_end_to_end(*bench);
   add_bench_city(*bench);
   add_bench_segments(*bench);
+  add_bench_pairs(*bench);
   add_bench_confidence(*bench);
 }
 

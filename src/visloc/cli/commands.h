@@ -47,5 +47,6 @@ std::vector<double> parse_numbers(const std::string& text, const char* option);
 void add_bench_city(CLI::App& bench);
 void add_bench_segments(CLI::App& bench);
 void add_bench_confidence(CLI::App& bench);
+void add_bench_pairs(CLI::App& bench);
 
 }  // namespace visloc::cli

@@ -5,6 +5,7 @@
 #include <filesystem>
 
 #include "visloc/twoview/image_pair.h"
+#include "visloc/twoview/pair_benchmark.h"
 #include "visloc/util/error.h"
 #include "visloc/util/random.h"
 #include "visloc/util/test_support.h"
@@ -72,6 +73,34 @@ TEST(ImagePair, RepeatedWindowsOfCastleP19) {
   draw_pair_inliers(scene / "0005.jpg", scene / "0006.jpg", one_many, png, 400);
   EXPECT_GT(std::filesystem::file_size(png), 1000u);
   std::filesystem::remove(png);
+}
+
+}  // namespace
+}  // namespace visloc
+
+namespace visloc {
+namespace {
+
+TEST(PairBenchmark, StrechaTruthFundamentalFitsColmapFreeMatches) {
+  const std::filesystem::path strecha = std::filesystem::path(VISLOC_SHARED_DATA_DIR) / "strecha";
+  if (!std::filesystem::exists(strecha / "fountain-P11" / "cameras" / "0000.jpg.camera"))
+    GTEST_SKIP() << "../shared/data/strecha is absent";
+  // The truth F of the first fountain pair puts the 1-1 matches that 1m-sprt
+  // keeps within a pixel or two of its epipolar lines (the truth is right).
+  PairBenchmarkOptions o;
+  o.strecha_dir = strecha;
+  o.scenes = {"fountain-P11"};
+  o.max_pairs_per_scene = 1;
+  o.sift.max_features = 2048;
+  o.opencv = false;
+  const PairBenchmarkResult r = run_pair_benchmark(o);
+  ASSERT_EQ(r.rows.size(), 3u);
+  for (const auto& row : r.rows) {
+    EXPECT_TRUE(row.success) << row.method << " median error " << row.median_error_px;
+    EXPECT_GT(row.truth_correspondences, 100u);
+    EXPECT_GT(row.true_inliers, row.inliers * 8 / 10) << row.method;
+  }
+  EXPECT_THROW(read_strecha_camera(strecha / "fountain-P11" / "images" / "0000.jpg"), Error);
 }
 
 }  // namespace
