@@ -307,7 +307,7 @@ std::string write_top_view(const std::filesystem::path& stem, const EvaluationRe
     for (const auto& c : {q.true_center, q.estimated_center})
       if (c) extent.push_back((A * *c).head<2>());
   if (overview) {
-    // The map's 1st-99th percentile box, so that a few stray points do not shrink the streets.
+    // The map's 5th-95th percentile box, so that stray points do not shrink the streets.
     std::vector<double> xs, ys;
     for (size_t i = 0; i < overview->num_points(); ++i) {
       xs.push_back(overview->xyz[3 * i] + overview->origin.x());
@@ -320,8 +320,8 @@ std::string write_top_view(const std::filesystem::path& stem, const EvaluationRe
     if (!xs.empty()) {
       std::sort(xs.begin(), xs.end());
       std::sort(ys.begin(), ys.end());
-      extent.emplace_back(quantile(xs, 0.01), quantile(ys, 0.01));
-      extent.emplace_back(quantile(xs, 0.99), quantile(ys, 0.99));
+      extent.emplace_back(quantile(xs, 0.05), quantile(ys, 0.05));
+      extent.emplace_back(quantile(xs, 0.95), quantile(ys, 0.95));
     }
   }
   double ax = INFINITY, bx = -INFINITY, ay = INFINITY, by = -INFINITY;
@@ -333,9 +333,7 @@ std::string write_top_view(const std::filesystem::path& stem, const EvaluationRe
   const double span = std::max({bx - ax, by - ay, 1.0}) * 1.1;
   const double cx = 0.5 * (ax + bx), cy = 0.5 * (ay + by);
   const std::string frame_name = report.frame == "enu" ? "east, north (m)" : "x, y (m; z up)";
-  Plot top(overview ? "Top view over the map: truth (green), estimate (red), wrong (ring), miss (x)"
-                    : "Top view: truth (green), estimate (red), wrong (ring), miss (x)",
-           frame_name, "",
+  Plot top(overview ? "Top view over the map (grey points, segment outlines)" : "Top view", frame_name, "",
            cx - span / 2, cx + span / 2, cy - span / 2, cy + span / 2);
   auto inside = [&](double x, double y) {
     return x >= top.x0 && x <= top.x1 && y >= top.y0 && y <= top.y1;
@@ -383,6 +381,7 @@ std::string write_top_view(const std::filesystem::path& stem, const EvaluationRe
       top.line(t->x() - d, t->y() + d, t->x() + d, t->y() - d, "#000", {0, 0, 0});
     }
   }
+  top.label(top.x0, top.y0, "green: truth, red: estimate, ring: wrong pose, x: miss", 6, -8);
   top.save(stem);
   return map_note;
 }
@@ -445,13 +444,16 @@ void write_report(const std::filesystem::path& dir, const EvaluationReport& repo
   const double xmax = pos.empty() ? 1.0 : std::max(0.1, quantile(pos, 0.95) * 1.2);
   Plot curve("Cumulative position error", "position error (m)", "fraction of queries", 0, xmax, 0, 1);
   int shown = 0;
+  std::string under_text = "under";
   for (const double threshold : {0.25, 0.5, 5.0, 18.3}) {
-    if (threshold > xmax) continue;
     const double under = static_cast<double>(std::count_if(pos.begin(), pos.end(), [&](double e) { return e < threshold; })) /
                          static_cast<double>(std::max<size_t>(1, report.queries));
+    under_text += " " + Plot::fmt(threshold) + " m: " + Plot::fmt(100 * under) + "%" + (threshold < 18 ? ";" : "");
+    if (threshold > xmax) continue;  // off the axis: in the text line only
     curve.line(threshold, 0, threshold, 1, "#bbb", {187, 187, 187});
-    curve.label(threshold, 1, Plot::fmt(threshold) + " m: " + Plot::fmt(100 * under) + "%", 3, 12 + 14 * (shown++ % 3));
+    curve.label(threshold, 1, Plot::fmt(threshold) + " m", 3, 12 + 14 * (shown++ % 3));
   }
+  curve.label(0, 0.06, under_text, 8, 0);
   double prev_x = 0, prev_y = 0;
   for (size_t i = 0; i < pos.size(); ++i) {
     const double x = std::min(pos[i], xmax), y = double(i + 1) / std::max<size_t>(1, report.queries);

@@ -187,7 +187,9 @@ void expect_csr_of_subcodes(const CascadeLookup& lookup, const std::vector<HashC
       for (uint32_t i = begin; i < end; ++i) {
         const uint32_t id = (lookup.*ids)(k)[i];
         ASSERT_EQ(hash_subcode(codes[id], k), b);
-        if (i > begin) ASSERT_LT((lookup.*ids)(k)[i - 1], id);
+        if (i > begin) {
+          ASSERT_LT((lookup.*ids)(k)[i - 1], id);
+        }
         ++seen[id];
       }
     }

@@ -3,6 +3,8 @@
 // Frame: z up, metres; positions are relative to data.origin.
 import * as THREE from 'three';
 
+const appStartMs = performance.now();  // three.js is parsed by now
+
 const errors = [];
 window.addEventListener('error', (e) => errors.push(String(e.message || e)));
 window.addEventListener('unhandledrejection', (e) => errors.push(String(e.reason)));
@@ -361,14 +363,18 @@ function canvasContent() {
 let loadMs = null;
 let canvas = null;
 function publishStats() {
-  window.visloc_scene = { ...counts, load_ms: loadMs, errors: errors.slice(), frame: data.frame, canvas };
+  window.visloc_scene = { ...counts, load_ms: loadMs, errors: errors.slice(), frame: data.frame, canvas,
+                          timings: window.visloc_timings };
   document.getElementById('visloc-stats').textContent = JSON.stringify(window.visloc_scene);
 }
 // #noui: the canvas alone (screenshots for tests and the README).
 if (location.hash === '#noui') {
   for (const el of document.querySelectorAll('.panel, #labels')) el.style.display = 'none';
 }
+const sceneBuiltMs = performance.now();
 render();
 loadMs = performance.now();
 canvas = canvasContent();
+// Where the load time went (ms since navigation start).
+window.visloc_timings = { app_start: appStartMs, scene_built: sceneBuiltMs, first_frame: loadMs };
 publishStats();
