@@ -5,6 +5,7 @@
 
 #include "visloc/cli/commands.h"
 #include "visloc/geometry/pose_list.h"
+#include "visloc/image/image_io.h"
 #include "visloc/twoview/image_pair.h"
 #include "visloc/util/error.h"
 
@@ -75,10 +76,19 @@ void add_match_command(CLI::App& app) {
       const auto list = read_intrinsics_list(args->intrinsics);
       for (int k = 0; k < 2; ++k) {
         const std::string name = fs::path(paths[k]).filename().string();
-        for (const auto& c : list)
-          if (c.name == name || c.name == "*") cams[k] = c.camera;
+        for (const auto& c : list)  // the image's own line first, then '*'
+          if (c.name == name) cams[k] = c.camera;
+        if (!cams[k])
+          for (const auto& c : list)
+            if (c.name == "*") cams[k] = c.camera;
         if (!cams[k])
           throw_error(ErrorCode::kInvalidArgument, args->intrinsics, ": no line for ", name, " (nor '*')");
+        const ImageMetadata m = read_image_metadata(paths[k]);
+        if (cams[k]->width != m.width || cams[k]->height != m.height)
+          throw_error(ErrorCode::kInvalidArgument, args->intrinsics, ": the line for ", name, " is for ", cams[k]->width,
+                      "x", cams[k]->height, " pixels, the image has ", m.width, "x", m.height);
+        if (!cams[k]->has_focal)
+          throw_error(ErrorCode::kInvalidArgument, args->intrinsics, ": the line for ", name, " has no focal length");
       }
     } else if (args->focal > 0) {
       for (int k = 0; k < 2; ++k) {
@@ -92,6 +102,9 @@ void add_match_command(CLI::App& app) {
     if (o.estimation.model == TwoViewModel::kEssential) {
       if (!calibrated) throw_error(ErrorCode::kInvalidArgument, "match: --model E needs --focal or --intrinsics");
       for (int k = 0; k < 2; ++k) {
+        if (cams[k]->k1 != 0)  // the solver and the errors use K⁻¹ x on the keypoints as they are
+          throw_error(ErrorCode::kInvalidArgument, args->intrinsics, ": --model E needs undistorted cameras (k1 = 0); ",
+                      "use --model F for ", paths[k]);
         Eigen::Matrix3d K;
         K << cams[k]->focal, 0, cams[k]->cx, 0, cams[k]->focal, cams[k]->cy, 0, 0, 1;
         (k == 0 ? o.estimation.calibration1 : o.estimation.calibration2) = K;

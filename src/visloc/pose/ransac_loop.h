@@ -24,7 +24,8 @@
 // The random stream is part of the contract (same seed, same result): the
 // SPRT order is drawn first (N_h − 1 draws, whatever the termination), then
 // per sample s draws (repeats redrawn), then per model one draw for the SPRT
-// start when SPRT is on. Nothing is allocated inside the loop.
+// start when SPRT is on. The loop allocates nothing per sample (an
+// estimator's on_verified may record what it verifies).
 #pragma once
 
 #include <array>
@@ -192,7 +193,7 @@ RansacLoopResult<typename Estimator::Model> run_ransac(Estimator& estimator, con
       result.best = model;
       st.best_iteration = iter;
       if (options.termination == RansacTermination::kClassic) {
-        const double eps = static_cast<double>(score) / static_cast<double>(nh);
+        const double eps = std::min(1.0, static_cast<double>(score) / static_cast<double>(nh));
         k_max = static_cast<size_t>(
             std::ceil(adaptive_iterations(std::pow(eps, s), options.confidence, static_cast<double>(cap))));
       } else if (options.termination == RansacTermination::kSprtAdaptive) {

@@ -292,3 +292,32 @@ TEST(PoseCovariance, TooFewPointsGiveNoCovariance) {
 
 }  // namespace
 }  // namespace visloc
+
+namespace visloc {
+namespace {
+
+// The random stream is part of the contract (ransac_loop.h): the same seed
+// gives the same samples, models and pose; another seed draws other samples.
+TEST(Ransac, SameSeedSameRunAnotherSeedOtherSamples) {
+  const SyntheticProblem p = make(SyntheticFamily::kCalibrated, 500, 0.15, 9);
+  for (auto v : {RansacVariant::kClassic11, RansacVariant::kOneManySprt}) {
+    SCOPED_TRACE(std::string(to_string(v)));
+    const PoseEstimate a = estimate_pose(p.correspondences, p.camera, variant(v, 5));
+    const PoseEstimate b = estimate_pose(p.correspondences, p.camera, variant(v, 5));
+    EXPECT_EQ(a.stats.iterations, b.stats.iterations);
+    EXPECT_EQ(a.stats.best_iteration, b.stats.best_iteration);
+    EXPECT_EQ(a.stats.models_rejected_sprt, b.stats.models_rejected_sprt);
+    EXPECT_EQ(a.num_inliers, b.num_inliers);
+    EXPECT_EQ(a.chosen_candidate, b.chosen_candidate);
+    EXPECT_EQ(a.cam_from_world.translation, b.cam_from_world.translation);
+    bool some_differ = false;
+    for (uint64_t seed = 6; seed < 10 && !some_differ; ++seed) {
+      const PoseEstimate c = estimate_pose(p.correspondences, p.camera, variant(v, seed));
+      some_differ = c.stats.iterations != a.stats.iterations || c.stats.best_iteration != a.stats.best_iteration;
+    }
+    EXPECT_TRUE(some_differ);
+  }
+}
+
+}  // namespace
+}  // namespace visloc

@@ -1,6 +1,7 @@
 #include "visloc/pose/two_view_ransac.h"
 
 #include <Eigen/Dense>
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 
@@ -181,63 +182,109 @@ Eigen::Matrix3d project_model(const Eigen::Matrix3d& M, TwoViewModel model, cons
   return X / X.norm();
 }
 
-// Levenberg-Marquardt on the chosen inliers' errors (Sampson for F and E,
-// transfer for H) over the 9 entries (numeric Jacobian), projected back onto
-// the model's manifold after every accepted step.
+// Similarity taking points to centroid 0, mean distance √2 (Hartley).
+Eigen::Matrix3d hartley(const std::vector<Eigen::Vector2d>& x) {
+  Eigen::Vector2d c = Eigen::Vector2d::Zero();
+  for (const auto& p : x) c += p;
+  c /= static_cast<double>(x.size());
+  double d = 0;
+  for (const auto& p : x) d += (p - c).norm();
+  d /= static_cast<double>(x.size());
+  const double s = d > 1e-12 ? std::sqrt(2.0) / d : 1.0;
+  Eigen::Matrix3d T;
+  T << s, 0, -s * c.x(), 0, s, -s * c.y(), 0, 0, 1;
+  return T;
+}
+
+// Levenberg-Marquardt on the chosen inliers' signed errors, in pixels: the
+// Sampson residual e/√d (F, E) or the transfer error's two components (H).
+// The 9 entries are those of the model in Hartley-normalized coordinates
+// (well scaled), with a forward-difference Jacobian; after every step the
+// model is projected back onto its manifold, and a step is kept only when
+// the cost falls.
 Eigen::Matrix3d refine_model(const TwoViewCorrespondences& m, const std::vector<int32_t>& chosen,
                              const Eigen::Matrix3d& start, TwoViewModel model, const TwoViewEstimator& est,
                              int max_iterations) {
-  std::vector<std::pair<Eigen::Vector2d, Eigen::Vector2d>> pairs;
+  std::vector<Eigen::Vector2d> p1, p2;
   for (size_t i = 0; i < m.size(); ++i)
-    if (chosen[i] >= 0) pairs.emplace_back(m.points1[i], m.candidates[m.candidate_offsets[i] + chosen[i]]);
-  const int needed = model == TwoViewModel::kHomography ? 5 : 8;
-  if (static_cast<int>(pairs.size()) < needed) return start;
+    if (chosen[i] >= 0) {
+      p1.push_back(m.points1[i]);
+      p2.push_back(m.candidates[m.candidate_offsets[i] + static_cast<uint32_t>(chosen[i])]);
+    }
   const bool homography = model == TwoViewModel::kHomography;
-  auto cost = [&](const Eigen::Matrix3d& M) {
-    double c = 0;
-    for (const auto& [a, b] : pairs) c += std::min(model_error2(homography, M, a, b), 1e6);
-    return c;
+  if (p1.size() < (homography ? 5u : 8u)) return start;
+  const Eigen::Matrix3d T1 = hartley(p1), T2 = hartley(p2);
+  // Pixel model from normalized: F = T2ᵀ Fn T1, H = T2⁻¹ Hn T1.
+  const Eigen::Matrix3d T2inv = T2.inverse(), T1inv = T1.inverse();
+  auto to_pixels = [&](const Eigen::Matrix3d& N) -> Eigen::Matrix3d {
+    return homography ? Eigen::Matrix3d(T2inv * N * T1) : Eigen::Matrix3d(T2.transpose() * N * T1);
   };
+  auto to_normalized = [&](const Eigen::Matrix3d& M) -> Eigen::Matrix3d {
+    return homography ? Eigen::Matrix3d(T2 * M * T1inv) : Eigen::Matrix3d(T2inv.transpose() * M * T1inv);
+  };
+  const int per_point = homography ? 2 : 1;
+  const Eigen::Index rows = static_cast<Eigen::Index>(p1.size()) * per_point;
   auto residuals = [&](const Eigen::Matrix3d& M, Eigen::VectorXd& r) {
-    for (size_t k = 0; k < pairs.size(); ++k) r(static_cast<Eigen::Index>(k)) = std::sqrt(std::min(model_error2(homography, M, pairs[k].first, pairs[k].second), 1e6));
+    for (size_t k = 0; k < p1.size(); ++k) {
+      const Eigen::Index at = static_cast<Eigen::Index>(k) * per_point;
+      if (homography) {
+        const Eigen::Vector3d q = M * p1[k].homogeneous();
+        const Eigen::Vector2d d = std::abs(q.z()) > 1e-12 ? Eigen::Vector2d(q.head<2>() / q.z() - p2[k]) : Eigen::Vector2d(1e3, 1e3);
+        r(at) = std::clamp(d.x(), -1e3, 1e3);
+        r(at + 1) = std::clamp(d.y(), -1e3, 1e3);
+      } else {
+        const Eigen::Vector3d a = p1[k].homogeneous(), b = p2[k].homogeneous();
+        const Eigen::Vector3d Fa = M * a, Ftb = M.transpose() * b;
+        const double denom = Fa.x() * Fa.x() + Fa.y() * Fa.y() + Ftb.x() * Ftb.x() + Ftb.y() * Ftb.y();
+        r(at) = denom > 0 ? std::clamp(b.dot(Fa) / std::sqrt(denom), -1e3, 1e3) : 1e3;
+      }
+    }
   };
-  Eigen::Matrix3d M = start / start.norm();
-  double current = cost(M), lambda = 1e-3;
-  Eigen::VectorXd r(static_cast<Eigen::Index>(pairs.size())), r2(r.size());
-  Eigen::MatrixXd J(r.size(), 9);
+  auto project = [&](const Eigen::Matrix3d& N) {
+    return to_normalized(project_model(to_pixels(N), model, est.K1inv(), est.K2inv()));
+  };
+  Eigen::Matrix3d N = project(to_normalized(start));
+  N /= N.norm();
+  Eigen::VectorXd r(rows), rp(rows);
+  residuals(to_pixels(N), r);
+  double current = r.squaredNorm(), lambda = 1e-3;
+  Eigen::MatrixXd J(rows, 9);
   for (int it = 0; it < max_iterations; ++it) {
-    residuals(M, r);
-    for (int p = 0; p < 9; ++p) {
-      Eigen::Matrix3d Mp = M;
-      const double h = 1e-7;
-      Mp(p / 3, p % 3) += h;
-      residuals(Mp, r2);
-      J.col(p) = (r2 - r) / h;
+    for (int p = 0; p < 9; ++p) {  // forward differences: the residuals are smooth and the entries ~1
+      constexpr double h = 1e-7;
+      Eigen::Matrix3d Np = N;
+      Np(p / 3, p % 3) += h;
+      residuals(to_pixels(Np), rp);
+      J.col(p) = (rp - r) / h;
     }
     const Eigen::MatrixXd JtJ = J.transpose() * J;
     const Eigen::VectorXd g = J.transpose() * r;
-    bool improved = false;
-    for (int attempt = 0; attempt < 8 && !improved; ++attempt) {
+    bool accepted = false, converged = false;
+    for (int attempt = 0; attempt < 8 && !accepted; ++attempt) {
       Eigen::MatrixXd A = JtJ;
       A.diagonal() += lambda * (JtJ.diagonal().array() + 1e-12).matrix();
       const Eigen::VectorXd step = A.ldlt().solve(-g);
-      Eigen::Matrix3d candidate = M;
+      Eigen::Matrix3d candidate = N;
       for (int p = 0; p < 9; ++p) candidate(p / 3, p % 3) += step(p);
-      candidate = project_model(candidate, model, est.K1inv(), est.K2inv());
-      const double c = cost(candidate);
+      candidate = project(candidate);
+      candidate /= candidate.norm();
+      residuals(to_pixels(candidate), rp);
+      const double c = rp.squaredNorm();
       if (std::isfinite(c) && c < current) {
-        improved = current - c > 1e-10 * current;
-        M = candidate;
+        converged = current - c <= 1e-6 * current;  // a relative decrease below 1e-6 ends the refinement
+        N = candidate;
+        r = rp;
         current = c;
         lambda = std::max(lambda / 10, 1e-9);
-        if (!improved) return M;
+        accepted = true;
       } else {
         lambda *= 10;
       }
     }
-    if (!improved) break;
+    if (!accepted || converged) break;
   }
-  return M;
+  const Eigen::Matrix3d M = to_pixels(N);
+  return M / M.norm();
 }
 
 }  // namespace
@@ -284,13 +331,21 @@ TwoViewEstimate estimate_two_view(const TwoViewCorrespondences& matches, const T
   out.found = true;
   out.inliers = static_cast<size_t>(std::count_if(out.chosen_candidate.begin(), out.chosen_candidate.end(),
                                                   [](int32_t c) { return c >= 0; }));
+  // A 1-1 inlier: a hypothesis-set feature whose own 1-1 match fits (even
+  // when another of its candidates fits better).
+  out.one_to_one_inlier.assign(matches.size(), 0);
   for (size_t i = 0; i < matches.size(); ++i)
-    out.one_to_one_inliers += matches.in_hypothesis_set[i] && out.chosen_candidate[i] == 0;
+    if (matches.in_hypothesis_set[i] && out.chosen_candidate[i] >= 0 &&
+        model_error2(estimator.homography(), M, matches.points1[i], matches.candidates[matches.candidate_offsets[i]]) <
+            estimator.thr2()) {
+      out.one_to_one_inlier[i] = 1;
+      ++out.one_to_one_inliers;
+    }
   out.extra_inliers = out.inliers - out.one_to_one_inliers;
   if (options.model == TwoViewModel::kHomography) {
     out.matrix = M;
   } else {
-    out.fundamental = M;
+    out.fundamental = M / M.norm();
     out.matrix = options.model == TwoViewModel::kEssential
                      ? Eigen::Matrix3d(options.calibration2->transpose() * M * *options.calibration1)
                      : M;

@@ -65,6 +65,9 @@ struct TwoViewEstimate {
   size_t extra_inliers = 0;       // inliers - one_to_one_inliers: what 1-M verification adds
   // Per correspondence: the index of the chosen candidate in its list, or -1.
   std::vector<int32_t> chosen_candidate;
+  // Per correspondence: 1 for the 1-1 inliers (hypothesis-set features whose
+  // 1-1 match fits the model).
+  std::vector<uint8_t> one_to_one_inlier;
   RansacLoopStatistics stats;
   double ransac_inliers = 0;      // of the best RANSAC model, before refinement
   double total_ms = 0;

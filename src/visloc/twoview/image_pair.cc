@@ -48,16 +48,15 @@ TwoViewCorrespondences match_feature_sets(const FeatureSet& a, const FeatureSet&
     if (o.rule == OneToManyRule::kBestRatio) {
       keep = d0 < o.ratio_one_to_many * d1 ? o.max_candidates : 0;
     } else {
-      // The candidates before the first j ≥ 1 clearly worse than the best.
+      // The candidates before the first j ≥ 1 clearly worse than the best
+      // (a missing candidate counts as infinitely far); a group of more than
+      // M near-equal candidates finds no such j ≤ M and is dropped.
       for (int j = 1; j < k; ++j) {
-        if (idx[j] < 0) break;
-        const double dj = std::sqrt(std::max(0.0f, d2[j]));
-        if (d0 < o.ratio_one_to_many * dj) {
+        if (idx[j] < 0 || d0 < o.ratio_one_to_many * std::sqrt(std::max(0.0f, d2[j]))) {
           keep = j;
           break;
         }
       }
-      if (keep > o.max_candidates) keep = 0;
     }
     if (one_to_one) keep = std::max(keep, 1);
     if (keep == 0) continue;
@@ -100,7 +99,9 @@ nlohmann::json ImagePairResult::to_json() const {
                        {{"iterations", estimate.stats.iterations},
                         {"models", estimate.stats.models},
                         {"rejected_by_sprt", estimate.stats.models_rejected_sprt},
-                        {"verified", estimate.stats.models_verified}}},
+                        {"verified", estimate.stats.models_verified},
+                        {"hypothesis_ms", estimate.stats.hypothesis_ms},
+                        {"verification_ms", estimate.stats.verification_ms}}},
                       {"times_ms",
                        {{"features", ms_features}, {"matching", ms_matching}, {"ransac", estimate.total_ms}}}};
   if (estimate.found) {
@@ -150,18 +151,20 @@ void draw_pair_inliers(const std::filesystem::path& image1, const std::filesyste
   constexpr size_t kMaxLines = 120;
   size_t count[2] = {0, 0};
   for (size_t i = 0; i < m.size() && i < chosen.size(); ++i)
-    if (chosen[i] >= 0) ++count[m.in_hypothesis_set[i] && chosen[i] == 0 ? 0 : 1];
+    if (chosen[i] >= 0) ++count[result.estimate.one_to_one_inlier[i] ? 0 : 1];
   size_t seen[2] = {0, 0};
   for (int pass = 0; pass < 2; ++pass)
     for (size_t i = 0; i < m.size() && i < chosen.size(); ++i) {
       if (chosen[i] < 0) continue;
-      const bool one_to_one = m.in_hypothesis_set[i] && chosen[i] == 0;
+      const bool one_to_one = result.estimate.one_to_one_inlier[i] != 0;
       if (one_to_one != (pass == 0)) continue;
       const int kind = one_to_one ? 0 : 1;
       const size_t stride = std::max<size_t>(1, count[kind] / kMaxLines);
       const bool draw_line = seen[kind]++ % stride == 0;
       const Eigen::Vector2d& p = m.points1[i];
-      const Eigen::Vector2d& q = m.candidates[m.candidate_offsets[i] + static_cast<uint32_t>(chosen[i])];
+      // A 1-1 inlier is drawn with its 1-1 match; an extra one with the candidate chosen.
+      const uint32_t candidate = one_to_one ? 0u : static_cast<uint32_t>(chosen[i]);
+      const Eigen::Vector2d& q = m.candidates[m.candidate_offsets[i] + candidate];
       const cv::Point pa(static_cast<int>(p.x() * sa), static_cast<int>(p.y() * sa));
       const cv::Point pb(static_cast<int>(q.x() * sb) + ra.cols, static_cast<int>(q.y() * sb));
       const cv::Scalar colour = one_to_one ? cv::Scalar(60, 200, 60) : cv::Scalar(0, 140, 255);  // BGR

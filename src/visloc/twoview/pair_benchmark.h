@@ -3,7 +3,8 @@
 // fountain-P11), against the fundamental matrix of their laser ground-truth
 // cameras. Methods: classic, 1m (fixed iterations), 1m-sprt (this library)
 // and OpenCV's findFundamentalMat with USAC_MAGSAC and with RANSAC on the
-// same 1-1 matches.
+// same 1-1 matches (threshold × √2: OpenCV bounds both point-line distances,
+// the Sampson distance is about a line distance / √2).
 //
 // Truth correspondences of a pair: the matches (any 1-M candidate) within
 // truth_px of the true F's epipolar lines (symmetric distance). A method
@@ -27,7 +28,8 @@
 namespace visloc {
 
 // Strecha's camera file: K (3 lines), distortion, R (camera to world, 3
-// lines), centre C, width height. Throws Error(kFormat) naming the file.
+// lines), centre C, width height. Throws Error naming the file (kIo:
+// cannot be read; kFormat: not a camera).
 struct StrechaCamera {
   Eigen::Matrix3d K = Eigen::Matrix3d::Identity();
   Eigen::Matrix3d world_from_camera = Eigen::Matrix3d::Identity();
