@@ -9,6 +9,9 @@
 #include <map>
 #include <sstream>
 
+#include "visloc/colmap/colmap_model.h"
+#include "visloc/geometry/camera.h"
+#include "visloc/geometry/pose.h"
 #include "visloc/pose/solvers/two_view.h"
 #include "visloc/twoview/image_pair.h"
 #include "visloc/util/error.h"
@@ -55,8 +58,9 @@ Eigen::Matrix3d fundamental_between(const StrechaCamera& a, const StrechaCamera&
 
 void PairBenchmarkOptions::validate() const {
   sift.validate();
-  if (strecha_dir.empty()) throw_error(ErrorCode::kInvalidArgument, "bench pairs: the Strecha folder is needed");
-  if (scenes.empty()) throw_error(ErrorCode::kInvalidArgument, "bench pairs: no scene");
+  if (strecha_dir.empty() && !scenes.empty())
+    throw_error(ErrorCode::kInvalidArgument, "bench pairs: the Strecha folder is needed");
+  if (scenes.empty() && synthetic_cities.empty()) throw_error(ErrorCode::kInvalidArgument, "bench pairs: no scene");
   if (max_pairs_per_scene < 0) throw_error(ErrorCode::kInvalidArgument, "bench pairs: max_pairs_per_scene must be >= 0");
   for (double v : {threshold_px, truth_px, success_px})
     if (!(v > 0) || !std::isfinite(v)) throw_error(ErrorCode::kInvalidArgument, "bench pairs: thresholds must be positive");
@@ -78,6 +82,87 @@ void score(const Eigen::Matrix3d* F, const std::vector<std::pair<Eigen::Vector2d
   for (const auto& [a, b] : truth) e.push_back(symmetric_epipolar_distance(*F, a, b));
   row->median_error_px = median(e);
   row->success = row->median_error_px <= o.success_px;
+}
+
+// Every method on one pair (features, true F), rows appended to `out`.
+void evaluate_pair(const std::string& scene, const std::string& pair, const FeatureSet& f1, const FeatureSet& f2,
+                   const Eigen::Matrix3d& F_true, const PairBenchmarkOptions& o, std::vector<PairBenchmarkRow>* out,
+                   size_t* candidates_out, size_t* truth_out) {
+  const TwoViewCorrespondences m = match_feature_sets(f1, f2, PairMatchingOptions{});
+  std::vector<std::pair<Eigen::Vector2d, Eigen::Vector2d>> truth;
+  for (size_t k = 0; k < m.size(); ++k)
+    for (uint32_t j = m.candidate_offsets[k]; j < m.candidate_offsets[k + 1]; ++j)
+      if (symmetric_epipolar_distance(F_true, m.points1[k], m.candidates[j]) <= o.truth_px) {
+        truth.emplace_back(m.points1[k], m.candidates[j]);
+        break;
+      }
+  auto true_inliers_of = [&](const std::vector<std::pair<Eigen::Vector2d, Eigen::Vector2d>>& inliers) {
+    size_t n = 0;
+    for (const auto& [a, b] : inliers) n += symmetric_epipolar_distance(F_true, a, b) <= o.success_px;
+    return n;
+  };
+  // This library's three variants.
+  for (const auto& [name, variant] : std::vector<std::pair<std::string, RansacVariant>>{
+           {"classic", RansacVariant::kClassic11},
+           {"1m", RansacVariant::kOneManyFixed},
+           {"1m-sprt", RansacVariant::kOneManySprt}}) {
+    TwoViewOptions to;
+    to.variant = variant;
+    to.threshold_px = o.threshold_px;
+    to.fixed_iterations = o.fixed_iterations;
+    to.seed = o.seed;
+    PairBenchmarkRow row{scene, pair, name};
+    const auto t = std::chrono::steady_clock::now();
+    const TwoViewEstimate est = estimate_two_view(m, to);
+    row.ms = ms_since(t);
+    row.found = est.found;
+    row.inliers = est.inliers;
+    std::vector<std::pair<Eigen::Vector2d, Eigen::Vector2d>> inliers;
+    for (size_t k = 0; k < m.size(); ++k)
+      if (est.chosen_candidate[k] >= 0)
+        inliers.emplace_back(m.points1[k], m.candidates[m.candidate_offsets[k] + static_cast<uint32_t>(est.chosen_candidate[k])]);
+    row.true_inliers = true_inliers_of(inliers);
+    score(est.found ? &est.fundamental : nullptr, truth, o, &row);
+    out->push_back(row);
+  }
+  // OpenCV on the same 1-1 matches.
+  if (o.opencv) {
+    std::vector<cv::Point2f> a, b;
+    for (size_t k = 0; k < m.size(); ++k)
+      if (m.in_hypothesis_set[k]) {
+        a.emplace_back(static_cast<float>(m.points1[k].x()), static_cast<float>(m.points1[k].y()));
+        const Eigen::Vector2d& q = m.candidates[m.candidate_offsets[k]];
+        b.emplace_back(static_cast<float>(q.x()), static_cast<float>(q.y()));
+      }
+    for (const auto& [name, method] : std::vector<std::pair<std::string, int>>{{"opencv-magsac", cv::USAC_MAGSAC},
+                                                                               {"opencv-ransac", cv::FM_RANSAC}}) {
+      PairBenchmarkRow row{scene, pair, name};
+      cv::Mat mask;
+      const auto t = std::chrono::steady_clock::now();
+      // OpenCV's RANSAC keeps a match when both point-line distances are
+      // below its threshold; the Sampson distance of ours is about a line
+      // distance / √2: √2 × threshold accepts the same matches.
+      const double cv_threshold = o.threshold_px * std::sqrt(2.0);
+      cv::Mat F = a.size() >= 8 ? cv::findFundamentalMat(a, b, method, cv_threshold, 0.9999, 10000, mask) : cv::Mat();
+      row.ms = ms_since(t);
+      Eigen::Matrix3d Fe;
+      if (F.rows == 3 && F.cols == 3) {
+        for (int r = 0; r < 3; ++r)
+          for (int c = 0; c < 3; ++c) Fe(r, c) = F.at<double>(r, c);
+        row.found = true;
+        std::vector<std::pair<Eigen::Vector2d, Eigen::Vector2d>> inliers;
+        for (size_t k = 0; k < a.size(); ++k)
+          if (mask.at<uchar>(static_cast<int>(k)))
+            inliers.emplace_back(Eigen::Vector2d(a[k].x, a[k].y), Eigen::Vector2d(b[k].x, b[k].y));
+        row.inliers = inliers.size();
+        row.true_inliers = true_inliers_of(inliers);
+      }
+      score(row.found ? &Fe : nullptr, truth, o, &row);
+      out->push_back(row);
+    }
+  }
+  *candidates_out = m.size();
+  *truth_out = truth.size();
 }
 
 }  // namespace
@@ -112,81 +197,62 @@ PairBenchmarkResult run_pair_benchmark(const PairBenchmarkOptions& o,
                               read_strecha_camera(dir / "cameras" / (p2.filename().string() + ".camera")));
       const FeatureSet& f1 = features_of(p1);
       const FeatureSet& f2 = features_of(p2);
-      const TwoViewCorrespondences m = match_feature_sets(f1, f2, PairMatchingOptions{});
-      std::vector<std::pair<Eigen::Vector2d, Eigen::Vector2d>> truth;
-      for (size_t k = 0; k < m.size(); ++k)
-        for (uint32_t j = m.candidate_offsets[k]; j < m.candidate_offsets[k + 1]; ++j)
-          if (symmetric_epipolar_distance(F_true, m.points1[k], m.candidates[j]) <= o.truth_px) {
-            truth.emplace_back(m.points1[k], m.candidates[j]);
-            break;
-          }
-      auto true_inliers_of = [&](const std::vector<std::pair<Eigen::Vector2d, Eigen::Vector2d>>& inliers) {
-        size_t n = 0;
-        for (const auto& [a, b] : inliers) n += symmetric_epipolar_distance(F_true, a, b) <= o.success_px;
-        return n;
-      };
-      // This library's three variants.
-      for (const auto& [name, variant] : std::vector<std::pair<std::string, RansacVariant>>{
-               {"classic", RansacVariant::kClassic11},
-               {"1m", RansacVariant::kOneManyFixed},
-               {"1m-sprt", RansacVariant::kOneManySprt}}) {
-        TwoViewOptions to;
-        to.variant = variant;
-        to.threshold_px = o.threshold_px;
-        to.fixed_iterations = o.fixed_iterations;
-        to.seed = o.seed;
-        PairBenchmarkRow row{scene, pair, name};
-        const auto t = std::chrono::steady_clock::now();
-        const TwoViewEstimate est = estimate_two_view(m, to);
-        row.ms = ms_since(t);
-        row.found = est.found;
-        row.inliers = est.inliers;
-        std::vector<std::pair<Eigen::Vector2d, Eigen::Vector2d>> inliers;
-        for (size_t k = 0; k < m.size(); ++k)
-          if (est.chosen_candidate[k] >= 0)
-            inliers.emplace_back(m.points1[k], m.candidates[m.candidate_offsets[k] + static_cast<uint32_t>(est.chosen_candidate[k])]);
-        row.true_inliers = true_inliers_of(inliers);
-        score(est.found ? &est.fundamental : nullptr, truth, o, &row);
-        out.rows.push_back(row);
-      }
-      // OpenCV on the same 1-1 matches.
-      if (o.opencv) {
-        std::vector<cv::Point2f> a, b;
-        for (size_t k = 0; k < m.size(); ++k)
-          if (m.in_hypothesis_set[k]) {
-            a.emplace_back(static_cast<float>(m.points1[k].x()), static_cast<float>(m.points1[k].y()));
-            const Eigen::Vector2d& q = m.candidates[m.candidate_offsets[k]];
-            b.emplace_back(static_cast<float>(q.x()), static_cast<float>(q.y()));
-          }
-        for (const auto& [name, method] : std::vector<std::pair<std::string, int>>{{"opencv-magsac", cv::USAC_MAGSAC},
-                                                                                   {"opencv-ransac", cv::FM_RANSAC}}) {
-          PairBenchmarkRow row{scene, pair, name};
-          cv::Mat mask;
-          const auto t = std::chrono::steady_clock::now();
-          // OpenCV's RANSAC keeps a match when both point-line distances are
-          // below its threshold; the Sampson distance of ours is about a line
-          // distance / √2: √2 × threshold accepts the same matches.
-          const double cv_threshold = o.threshold_px * std::sqrt(2.0);
-          cv::Mat F = a.size() >= 8 ? cv::findFundamentalMat(a, b, method, cv_threshold, 0.9999, 10000, mask) : cv::Mat();
-          row.ms = ms_since(t);
-          Eigen::Matrix3d Fe;
-          if (F.rows == 3 && F.cols == 3) {
-            for (int r = 0; r < 3; ++r)
-              for (int c = 0; c < 3; ++c) Fe(r, c) = F.at<double>(r, c);
-            row.found = true;
-            std::vector<std::pair<Eigen::Vector2d, Eigen::Vector2d>> inliers;
-            for (size_t k = 0; k < a.size(); ++k)
-              if (mask.at<uchar>(static_cast<int>(k)))
-                inliers.emplace_back(Eigen::Vector2d(a[k].x, a[k].y), Eigen::Vector2d(b[k].x, b[k].y));
-            row.inliers = inliers.size();
-            row.true_inliers = true_inliers_of(inliers);
-          }
-          score(row.found ? &Fe : nullptr, truth, o, &row);
-          out.rows.push_back(row);
-        }
-      }
-      if (progress) progress(scene + " " + pair + ": " + std::to_string(m.size()) + " features with candidates, " +
-                             std::to_string(truth.size()) + " truth correspondences");
+      size_t candidates = 0, truth_count = 0;
+      evaluate_pair(scene, pair, f1, f2, F_true, o, &out.rows, &candidates, &truth_count);
+      if (progress) progress(scene + " " + pair + ": " + std::to_string(candidates) + " features with candidates, " +
+                             std::to_string(truth_count) + " truth correspondences");
+    }
+  }
+
+  // Synthetic facade pairs: one heading from two neighbouring placemarks.
+  for (const fs::path& city : o.synthetic_cities) {
+    const std::string scene = "synthetic:" + city.filename().string();
+    const ColmapModel model = read_colmap_model(city / "sparse");
+    std::map<uint32_t, PinholeCamera> cameras;
+    for (const auto& c : model.cameras)
+      cameras[c.camera_id] = PinholeCamera::from_colmap(colmap_camera_model_name(c.model_id), static_cast<int>(c.width),
+                                                        static_cast<int>(c.height), c.params);
+    std::map<std::string, const ColmapImage*> by_name;
+    for (const auto& im : model.images) by_name[im.name] = &im;
+    auto calibration = [&](const ColmapImage& im) {
+      const PinholeCamera& c = cameras.at(im.camera_id);
+      Eigen::Matrix3d K;
+      K << c.focal, 0, c.cx, 0, c.focal, c.cy, 0, 0, 1;
+      return K;
+    };
+    std::map<std::string, FeatureSet> features;
+    auto features_of = [&](const std::string& name) -> const FeatureSet& {
+      auto it = features.find(name);
+      if (it == features.end()) it = features.emplace(name, sift.extract_file(city / "images" / name)).first;
+      return it->second;
+    };
+    int pairs = 0;
+    for (const auto& [name, im] : by_name) {
+      // pPPPPP_hHH_eE.jpg → the same heading and elevation at placemark PPPPP + 1.
+      if (name.size() < 7 || name[0] != 'p') continue;
+      const int placemark = std::atoi(name.substr(1, 5).c_str());
+      char next[8];
+      std::snprintf(next, sizeof next, "p%05d", placemark + 1);
+      const std::string other = std::string(next) + name.substr(6);
+      auto it = by_name.find(other);
+      if (it == by_name.end()) continue;
+      if (o.max_pairs_per_scene > 0 && pairs >= o.max_pairs_per_scene) break;
+      ++pairs;
+      const ColmapImage& a = *im;
+      const ColmapImage& b = *it->second;
+      // Camera b from camera a (cam_from_world poses): R = Rb Raᵀ, t = tb − R ta.
+      const CameraPose pa = colmap_image_pose(a), pb = colmap_image_pose(b);
+      const Eigen::Matrix3d R = pb.rotation_matrix() * pa.rotation_matrix().transpose();
+      const Eigen::Vector3d t = pb.translation - R * pa.translation;
+      Eigen::Matrix3d tx;
+      tx << 0, -t.z(), t.y(), t.z(), 0, -t.x(), -t.y(), t.x(), 0;
+      Eigen::Matrix3d F_true = calibration(b).inverse().transpose() * tx * R * calibration(a).inverse();
+      F_true /= F_true.norm();
+      size_t candidates = 0, truth_count = 0;
+      evaluate_pair(scene, name + "-" + other, features_of(name), features_of(other), F_true, o, &out.rows, &candidates,
+                    &truth_count);
+      if (progress) progress(scene + " " + name + "-" + other + ": " + std::to_string(candidates) +
+                             " features with candidates, " + std::to_string(truth_count) + " truth correspondences");
     }
   }
 
@@ -196,12 +262,15 @@ PairBenchmarkResult run_pair_benchmark(const PairBenchmarkOptions& o,
     rows.push_back({{"scene", r.scene}, {"pair", r.pair}, {"method", r.method}, {"found", r.found},
                     {"success", r.success}, {"median_error_px", r.median_error_px}, {"inliers", r.inliers},
                     {"true_inliers", r.true_inliers}, {"truth_correspondences", r.truth_correspondences}, {"ms", r.ms}});
-  auto group_of = [](const std::string& scene) { return scene.rfind("castle", 0) == 0 ? "castle" : "other"; };
+  auto group_of = [](const std::string& scene) {
+    return scene.rfind("castle", 0) == 0 ? "castle" : scene.rfind("synthetic:", 0) == 0 ? "synthetic" : "other";
+  };
   std::map<std::string, std::map<std::string, std::vector<const PairBenchmarkRow*>>> groups;
   for (const auto& r : out.rows) groups[group_of(r.scene)][r.method].push_back(&r);
   nlohmann::json summary = nlohmann::json::object();
   std::ostringstream md;
-  md << "# visloc bench pairs\n\nNeighbouring pairs of the Strecha scenes; truth: the laser cameras' F. Success: the "
+  md << "# visloc bench pairs\n\nNeighbouring pairs of the Strecha scenes (truth: the laser cameras' F) and of "
+        "synthetic cities (one heading from neighbouring placemarks; truth: the rendered poses). Success: the "
         "truth correspondences' median symmetric epipolar distance under the estimated F <= "
      << o.success_px << " px. True inliers: inliers within " << o.success_px << " px of the true F's epipolar lines.\n\n"
      << "| scenes | method | pairs | success | median true inliers | median inliers | median ms |\n|---|---|---|---|---|---|---|\n";
@@ -252,7 +321,11 @@ PairBenchmarkResult run_pair_benchmark(const PairBenchmarkOptions& o,
     md << "- " << e["expectation"].get<std::string>() << ": measured " << e["measured"].dump() << ", "
        << (e["holds"].get<bool>() ? "holds" : "does NOT hold") << "\n";
   out.report = {{"config",
-                 {{"scenes", o.scenes}, {"threshold_px", o.threshold_px}, {"truth_px", o.truth_px},
+                 {{"scenes", o.scenes}, {"synthetic_cities", [&] {
+                    nlohmann::json a = nlohmann::json::array();
+                    for (const auto& c : o.synthetic_cities) a.push_back(c.string());
+                    return a;
+                  }()}, {"threshold_px", o.threshold_px}, {"truth_px", o.truth_px},
                   {"success_px", o.success_px}, {"fixed_iterations", o.fixed_iterations}, {"seed", o.seed},
                   {"sift", nlohmann::json::parse(o.sift.to_json())}}},
                 {"summary", summary},

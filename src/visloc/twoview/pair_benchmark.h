@@ -1,7 +1,8 @@
 // `visloc bench pairs`: two-view estimation on neighbouring image pairs of
 // the Strecha scenes (castle-P30 and castle-P19: repeated windows; entry-P10,
 // fountain-P11), against the fundamental matrix of their laser ground-truth
-// cameras. Methods: classic, 1m (fixed iterations), 1m-sprt (this library)
+// cameras, and optionally on synthetic facade pairs rendered by `visloc synth
+// city` (truth: the rendered poses). Methods: classic, 1m (fixed iterations), 1m-sprt (this library)
 // and OpenCV's findFundamentalMat with USAC_MAGSAC and with RANSAC on the
 // same 1-1 matches (threshold × √2: OpenCV bounds both point-line distances,
 // the Sampson distance is about a line distance / √2).
@@ -44,6 +45,11 @@ Eigen::Matrix3d fundamental_between(const StrechaCamera& camera1, const StrechaC
 struct PairBenchmarkOptions {
   std::filesystem::path strecha_dir;  // ../shared/data/strecha
   std::vector<std::string> scenes = {"castle-P30", "castle-P19", "entry-P10", "fountain-P11"};
+  // Synthetic facade pairs: folders written by `visloc synth city` (images
+  // pPPPPP_hHH_eE.jpg, known poses in sparse/). A pair is one heading seen
+  // from two neighbouring placemarks; truth from the rendered poses. The
+  // scene is named "synthetic:<folder name>" and summarized apart.
+  std::vector<std::filesystem::path> synthetic_cities;
   int max_pairs_per_scene = 0;        // 0: every neighbouring pair (i, i+1)
   SiftOptions sift;
   double threshold_px = 2.0;          // RANSAC inlier threshold (all methods)
