@@ -367,6 +367,9 @@ function publishStats() {
                           timings: window.visloc_timings };
   document.getElementById('visloc-stats').textContent = JSON.stringify(window.visloc_scene);
 }
+// #select=N: open query N's details as a click would (tests, links).
+const selected = /#select=(\d+)/.exec(location.hash);
+if (selected && data.queries[Number(selected[1])]) showQuery(data.queries[Number(selected[1])]);
 // #noui: the canvas alone (screenshots for tests and the README).
 if (location.hash === '#noui') {
   for (const el of document.querySelectorAll('.panel, #labels')) el.style.display = 'none';

@@ -223,6 +223,18 @@ TEST(Viewer, RealBrowserDrawsTheMap) {
   // What WebGL drew (read back on the canvas, without the HTML panels).
   EXPECT_GT(stats["canvas"]["drawn_fraction"].get<double>(), 0.005) << stats.dump();
   EXPECT_GT(stats["canvas"]["coloured_pixels"].get<double>(), 100) << stats.dump();
+  // A query's details, opened as a click opens them (#select=N): the wrong pose.
+  const fs::path select_log = unique_temp_path("visloc_viewer_select.log");
+  argv = common;
+  argv.insert(argv.end(), {"--dump-dom", "file://" + html.string() + "#select=1"});
+  run_process(argv, select_log);
+  const std::string selected = read_file(select_log);
+  const size_t info = selected.find("id=\"info\"");
+  ASSERT_NE(info, std::string::npos);
+  const std::string panel = selected.substr(info, selected.find("</div>", info) - info);
+  EXPECT_NE(panel.find("wrong.jpg"), std::string::npos) << panel;
+  EXPECT_NE(panel.find("WRONG pose"), std::string::npos) << panel;
+  EXPECT_NE(panel.find("inliers 14"), std::string::npos) << panel;
   // A screenshot of the canvas alone (#noui hides the panels): not blank,
   // and points in the segments' colours.
   const fs::path png = unique_temp_path("visloc_viewer_shot.png");
