@@ -132,7 +132,7 @@ void add_bench_city(CLI::App& bench) {
     a->options.localizer.cache_bytes = static_cast<uint64_t>(a->cache_mib * 1024 * 1024);
     CityBenchmarkOptions& o = a->options;
     o.localizer.setting = parse_paper_setting(a->setting);
-    o.city.layout.layout = synth::road_layout_from_string(a->layout);
+    o.city.layout.layout = synth::parse_road_layout(a->layout);
     o.city.views.elevations_deg = parse_numbers(a->elevations, "--elevations");
     if (std::sscanf(a->size.c_str(), "%dx%d", &o.city.views.width, &o.city.views.height) != 2)
       throw_error(ErrorCode::kInvalidArgument, "--size: '", a->size, "' is not WIDTHxHEIGHT");

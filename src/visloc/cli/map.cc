@@ -58,7 +58,7 @@ void add_import(CLI::App& map) {
   cmd->add_option("--itq-iterations", args->options.itq.iterations, "ITQ iterations")->capture_default_str();
   cmd->add_option_function<std::string>(
          "--hash-rotation",
-         [args](const std::string& v) { args->options.hash_rotation = hash_rotation_scope_from_string(v); },
+         [args](const std::string& v) { args->options.hash_rotation = parse_hash_rotation_scope(v); },
          "ITQ hash rotation stored in the segment ('segment') or in MAP/hash_rotation.vlitq ('map') [segment]")
       ->check(CLI::IsMember({"segment", "map"}));
   cmd->add_option("--seed", args->options.itq.seed, "Seed of ITQ's initial rotation and of PQ training")

@@ -97,7 +97,7 @@ void bind_build_options(CLI::App* cmd, MapBuildArgs& a, bool update) {
       ->capture_default_str();
   cmd->add_option_function<std::string>(
          "--hash-rotation",
-         [&a](const std::string& v) { a.options.hash_rotation = hash_rotation_scope_from_string(v); },
+         [&a](const std::string& v) { a.options.hash_rotation = parse_hash_rotation_scope(v); },
          "ITQ hash rotation: 'segment' (one per segment, in its file) or 'map' (one for the map, "
          "MAP/hash_rotation.vlitq: 64 KiB less per segment, a query hashed once) [segment]")
       ->check(CLI::IsMember({"segment", "map"}));

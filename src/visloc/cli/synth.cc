@@ -151,7 +151,7 @@ void add_synth_command(CLI::App& app) {
 
   cmd->callback([a] {
     synth::CityOptions& o = a->city;
-    o.layout.layout = synth::road_layout_from_string(a->layout);
+    o.layout.layout = synth::parse_road_layout(a->layout);
     o.views.elevations_deg = parse_numbers(a->elevations, "--elevations");
     const auto size = parse_size(a->size, "--size");
     o.views.width = size[0];

@@ -9,6 +9,7 @@
 #include "visloc/features/sift_extractor.h"
 #include "visloc/util/error.h"
 #include "visloc/util/file_io.h"
+#include "visloc/util/section_file.h"
 #include "visloc/util/test_support.h"
 
 namespace fs = std::filesystem;
@@ -172,6 +173,30 @@ TEST(FeatureFile, RoundTripAndTruncation) {
   std::string bytes = read_file(p);
   write_file_atomic(p, bytes.substr(0, bytes.size() - 100));
   EXPECT_THROW(read_feature_file(p), Error);
+}
+
+// Found by fuzzing: without a count in META, a DESC section shorter than
+// 128 bytes per keypoint was read past its end. The same with a META
+// dimension that is not an integer.
+TEST(FeatureFile, SectionsThatDisagreeAreRefused) {
+  const fs::path p = unique_temp_path("visloc_features_short_desc.vlfeat");
+  auto write = [&](const std::string& meta, size_t keypoints, size_t desc_bytes) {
+    SectionFileWriter w(p, "FEAT", kFeatureFileVersion);
+    w.add_text("META", meta);
+    const std::vector<Keypoint> k(keypoints);
+    const std::vector<uint8_t> d(desc_bytes, 7);
+    w.add("KPTS", k.data(), k.size() * sizeof(Keypoint));
+    w.add("DESC", d.data(), d.size());
+    w.commit();
+  };
+  const std::string meta = R"({"image": "a.png", "width": 64, "height": 48, "extractor": null})";
+  write(meta, 3, 3 * kDescriptorDim);
+  EXPECT_EQ(read_feature_file(p).size(), 3u);
+  write(meta, 3, 2 * kDescriptorDim);
+  EXPECT_NE(error_of([&] { read_feature_file(p); }).find("DESC holds 256 bytes for 3 keypoints"), std::string::npos);
+  write(R"({"image": "a.png", "width": 1e73, "height": 48, "extractor": null})", 1, kDescriptorDim);
+  EXPECT_NE(error_of([&] { read_feature_file(p); }).find(p.string()), std::string::npos);
+  fs::remove(p);
 }
 
 TEST(SiftExtractor, RealPhoto) {

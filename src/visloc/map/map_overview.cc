@@ -65,6 +65,70 @@ Eigen::Matrix3d rotation_to_z(const Eigen::Vector3d& up) {
   return Eigen::Quaterniond::FromTwoVectors(up.normalized(), Eigen::Vector3d::UnitZ()).toRotationMatrix();
 }
 
+// North (ENU +y) in the aligned frame: +y in ENU; in a segment frame, as
+// seen from each georegistered segment, when they agree within 5°.
+std::optional<Eigen::Vector3d> north_of(bool enu, bool all_enu,
+                                        const std::vector<std::optional<Similarity3d>>& enu_from_segment,
+                                        const Eigen::Matrix3d& A) {
+  if (enu) return Eigen::Vector3d::UnitY();
+  if (!all_enu) return std::nullopt;
+  Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+  std::vector<Eigen::Vector3d> each;
+  for (const auto& e : enu_from_segment) {
+    Eigen::Vector3d n = A * (e->rotation.transpose() * Eigen::Vector3d::UnitY());
+    n.z() = 0;
+    if (n.norm() < 1e-6) continue;
+    each.push_back(n.normalized());
+    sum += each.back();
+  }
+  const bool agree = !each.empty() && std::all_of(each.begin(), each.end(), [&](const Eigen::Vector3d& n) {
+    return n.dot(sum.normalized()) > std::cos(5.0 * M_PI / 180.0);
+  });
+  if (!agree) return std::nullopt;
+  return sum.normalized();
+}
+
+// A segment's outline and ground from its kept points' footprint and heights
+// (aligned frame) and its cameras' footprint (last in `footprint`).
+void finish_segment(MapOverview& out, size_t s, std::vector<Eigen::Vector2d> footprint, std::vector<double> heights) {
+  OverviewSegment& o = out.segments[s];
+  double ground = std::numeric_limits<double>::infinity();
+  if (!heights.empty()) {  // the 5th percentile: stray points below the street do not sink it
+    auto nth = heights.begin() + static_cast<std::ptrdiff_t>(heights.size() / 20);
+    std::nth_element(heights.begin(), nth, heights.end());
+    ground = *nth;
+  } else {
+    for (const auto& c : out.cameras)
+      if (c.segment == s) ground = std::min(ground, c.center.z());
+  }
+  for (const auto& c : out.cameras) o.cameras += c.segment == s;
+  // The outline leaves out the 10% of points farthest from the segment's
+  // median (in x-y): stray triangulations would stretch it far off the street.
+  std::vector<Eigen::Vector2d>& f = footprint;
+  const size_t num_point_footprints = f.size() - static_cast<size_t>(o.cameras);
+  if (num_point_footprints >= 20) {
+    std::vector<double> xs, ys;
+    for (size_t i = 0; i < num_point_footprints; ++i) {
+      xs.push_back(f[i].x());
+      ys.push_back(f[i].y());
+    }
+    std::nth_element(xs.begin(), xs.begin() + static_cast<std::ptrdiff_t>(xs.size() / 2), xs.end());
+    std::nth_element(ys.begin(), ys.begin() + static_cast<std::ptrdiff_t>(ys.size() / 2), ys.end());
+    const Eigen::Vector2d centre(xs[xs.size() / 2], ys[ys.size() / 2]);
+    std::vector<double> dist;
+    for (size_t i = 0; i < num_point_footprints; ++i) dist.push_back((f[i] - centre).norm());
+    std::vector<double> sorted = dist;
+    const auto q90 = sorted.begin() + static_cast<std::ptrdiff_t>(sorted.size() * 9 / 10);
+    std::nth_element(sorted.begin(), q90, sorted.end());
+    std::vector<Eigen::Vector2d> kept;
+    for (size_t i = 0; i < f.size(); ++i)
+      if (i >= num_point_footprints || dist[i] <= *q90) kept.push_back(f[i]);
+    f = std::move(kept);
+  }
+  o.outline = convex_hull(std::move(f));
+  o.ground_z = std::isfinite(ground) ? ground : 0.0;
+}
+
 }  // namespace
 
 MapOverview load_map_overview(const Map& map, const MapOverviewOptions& options) {
@@ -134,24 +198,7 @@ MapOverview load_map_overview(const Map& map, const MapOverviewOptions& options)
     if (up.norm() > 1e-9) out.aligned_from_frame = rotation_to_z(up);
   }
   const Eigen::Matrix3d& A = out.aligned_from_frame;
-  if (enu) {
-    out.north = Eigen::Vector3d::UnitY();
-  } else if (all_enu) {
-    // North (ENU +y) seen from each segment's frame; shown when they agree.
-    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
-    std::vector<Eigen::Vector3d> each;
-    for (const auto& e : enu_from_segment) {
-      Eigen::Vector3d n = A * (e->rotation.transpose() * Eigen::Vector3d::UnitY());
-      n.z() = 0;
-      if (n.norm() < 1e-6) continue;
-      each.push_back(n.normalized());
-      sum += each.back();
-    }
-    const bool agree = !each.empty() && std::all_of(each.begin(), each.end(), [&](const Eigen::Vector3d& n) {
-      return n.dot(sum.normalized()) > std::cos(5.0 * M_PI / 180.0);
-    });
-    if (agree) out.north = sum.normalized();
-  }
+  out.north = north_of(enu, all_enu, enu_from_segment, A);
   Eigen::Vector3d mean = Eigen::Vector3d::Zero();
   for (auto& c : out.cameras) {
     c.center = A * c.center;
@@ -175,44 +222,7 @@ MapOverview load_map_overview(const Map& map, const MapOverviewOptions& options)
     out.xyz.insert(out.xyz.end(), {static_cast<float>(p.x()), static_cast<float>(p.y()), static_cast<float>(p.z())});
   }
   for (const auto& c : out.cameras) footprint[c.segment].emplace_back(c.center.x(), c.center.y());
-  for (size_t s = 0; s < out.segments.size(); ++s) {
-    OverviewSegment& o = out.segments[s];
-    double ground = std::numeric_limits<double>::infinity();
-    if (!heights[s].empty()) {  // the 5th percentile: stray points below the street do not sink it
-      auto nth = heights[s].begin() + static_cast<std::ptrdiff_t>(heights[s].size() / 20);
-      std::nth_element(heights[s].begin(), nth, heights[s].end());
-      ground = *nth;
-    } else {
-      for (const auto& c : out.cameras)
-        if (c.segment == s) ground = std::min(ground, c.center.z());
-    }
-    for (const auto& c : out.cameras) o.cameras += c.segment == s;
-    // The outline leaves out the 10% of points farthest from the segment's
-    // median (in x-y): stray triangulations would stretch it far off the street.
-    std::vector<Eigen::Vector2d>& f = footprint[s];
-    const size_t num_point_footprints = f.size() - static_cast<size_t>(o.cameras);
-    if (num_point_footprints >= 20) {
-      std::vector<double> xs, ys;
-      for (size_t i = 0; i < num_point_footprints; ++i) {
-        xs.push_back(f[i].x());
-        ys.push_back(f[i].y());
-      }
-      std::nth_element(xs.begin(), xs.begin() + static_cast<std::ptrdiff_t>(xs.size() / 2), xs.end());
-      std::nth_element(ys.begin(), ys.begin() + static_cast<std::ptrdiff_t>(ys.size() / 2), ys.end());
-      const Eigen::Vector2d centre(xs[xs.size() / 2], ys[ys.size() / 2]);
-      std::vector<double> dist;
-      for (size_t i = 0; i < num_point_footprints; ++i) dist.push_back((f[i] - centre).norm());
-      std::vector<double> sorted = dist;
-      const auto q90 = sorted.begin() + static_cast<std::ptrdiff_t>(sorted.size() * 9 / 10);
-      std::nth_element(sorted.begin(), q90, sorted.end());
-      std::vector<Eigen::Vector2d> kept;
-      for (size_t i = 0; i < f.size(); ++i)
-        if (i >= num_point_footprints || dist[i] <= *q90) kept.push_back(f[i]);
-      f = std::move(kept);
-    }
-    o.outline = convex_hull(std::move(f));
-    o.ground_z = std::isfinite(ground) ? ground : 0.0;
-  }
+  for (size_t s = 0; s < out.segments.size(); ++s) finish_segment(out, s, std::move(footprint[s]), std::move(heights[s]));
   return out;
 }
 

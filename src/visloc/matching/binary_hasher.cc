@@ -167,7 +167,7 @@ double hash_quantization_error(BinaryHasherView h, const float* x, size_t n) {
 
 const char* to_string(HashRotationScope scope) { return scope == HashRotationScope::kMap ? "map" : "segment"; }
 
-HashRotationScope hash_rotation_scope_from_string(const std::string& name) {
+HashRotationScope parse_hash_rotation_scope(const std::string& name) {
   if (name == "segment") return HashRotationScope::kSegment;
   if (name == "map") return HashRotationScope::kMap;
   throw_error(ErrorCode::kInvalidArgument, "unknown hash rotation scope '", name, "' (segment or map)");

@@ -90,7 +90,7 @@ BinaryHasher make_random_rotation_hasher(const float* descriptors, size_t n, uin
 // the segments it searches).
 enum class HashRotationScope { kSegment, kMap };
 const char* to_string(HashRotationScope scope);
-HashRotationScope hash_rotation_scope_from_string(const std::string& name);  // "segment" | "map"
+HashRotationScope parse_hash_rotation_scope(const std::string& name);  // "segment" | "map"
 inline constexpr const char* kHashRotationFileName = "hash_rotation.vlitq";
 
 // Hash rotation files (.vlitq): SectionFile kind "ITQR", version 1, sections

@@ -359,7 +359,7 @@ const char* to_string(SimdLevel level) {
   return "?";
 }
 
-SimdLevel simd_level_from_string(const std::string& name) {
+SimdLevel parse_simd_level(const std::string& name) {
   for (SimdLevel l : {SimdLevel::kBest, SimdLevel::kScalar, SimdLevel::kAvx2, SimdLevel::kAvx512})
     if (name == to_string(l)) return l;
   throw_error(ErrorCode::kInvalidArgument, "unknown SIMD level '", name, "' (best, scalar, avx2, avx512)");

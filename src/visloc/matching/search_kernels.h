@@ -41,7 +41,7 @@ enum class SimdLevel {
 };
 const char* to_string(SimdLevel level);
 // Parses "best", "scalar", "avx2", "avx512"; throws kInvalidArgument.
-SimdLevel simd_level_from_string(const std::string& name);
+SimdLevel parse_simd_level(const std::string& name);
 bool cpu_supports(SimdLevel level);
 // kScalar first, then every SIMD level this CPU supports, in increasing order.
 std::vector<SimdLevel> supported_simd_levels();

@@ -27,9 +27,9 @@ const size_t kLengths[] = {0, 1, 7, 8, 9, 15, 16, 17, 31, 40, 100, 257};
 }  // namespace
 
 TEST(SearchKernels, LevelsAreNamedAndTheScalarOneAlwaysExists) {
-  EXPECT_EQ(simd_level_from_string("avx512"), SimdLevel::kAvx512);
-  EXPECT_EQ(simd_level_from_string("scalar"), SimdLevel::kScalar);
-  EXPECT_THROW(simd_level_from_string("sse9"), Error);
+  EXPECT_EQ(parse_simd_level("avx512"), SimdLevel::kAvx512);
+  EXPECT_EQ(parse_simd_level("scalar"), SimdLevel::kScalar);
+  EXPECT_THROW(parse_simd_level("sse9"), Error);
   const auto levels = supported_simd_levels();
   ASSERT_FALSE(levels.empty());
   EXPECT_EQ(levels.front(), SimdLevel::kScalar);
@@ -64,7 +64,9 @@ TEST(SearchKernels, HammingMatchesTheReference) {
       k.hamming_distances(q, codes.data(), ids.data(), n, b.data(), hb);
       ASSERT_EQ(a, b) << to_string(level) << " n=" << n;
       ASSERT_EQ(0, std::memcmp(ha, hb, sizeof ha)) << to_string(level);
-      if (n > 0) EXPECT_EQ(a[0], 128);
+      if (n > 0) {
+        EXPECT_EQ(a[0], 128);
+      }
       EXPECT_EQ(b[n], 0xAB) << "wrote past the end";
       for (size_t i = 0; i < n; ++i) ASSERT_EQ(a[i], hamming_distance(q, codes[ids[i]]));
     }
@@ -141,7 +143,9 @@ TEST(SearchKernels, HashCodesMatchTheReference) {
     for (int i = 0; i < 128; ++i) {
       double p = 0;
       for (int j = 0; j < 128; ++j) p += double(wt[j * 128 + i]) * x[r * 128 + j];
-      if (std::abs(p) > 1e-3) ASSERT_EQ(((a[r].w[i / 64] >> (i % 64)) & 1) != 0, p > 0) << r << " " << i;
+      if (std::abs(p) > 1e-3) {
+        ASSERT_EQ(((a[r].w[i / 64] >> (i % 64)) & 1) != 0, p > 0) << r << " " << i;
+      }
     }
   for (SimdLevel level : supported_simd_levels())
     for (size_t n : kLengths) {
@@ -152,7 +156,9 @@ TEST(SearchKernels, HashCodesMatchTheReference) {
         ASSERT_EQ(a[r].w[0], b[r].w[0]) << to_string(level) << " row " << r;
         ASSERT_EQ(a[r].w[1], b[r].w[1]) << to_string(level) << " row " << r;
       }
-      if (n < 37) EXPECT_EQ(b[n].w[0], 7u) << "wrote past the end";
+      if (n < 37) {
+        EXPECT_EQ(b[n].w[0], 7u) << "wrote past the end";
+      }
     }
 }
 

@@ -832,7 +832,7 @@ raises visloc.Error.)doc")
         k.take("retrieval_dims", o.embedding.output_dims);
         k.take("pq_training_images", o.pq_training_images);
         if (k.take_choice("hash_rotation", hash_rotation, {"segment", "map"}))
-          o.hash_rotation = hash_rotation_scope_from_string(hash_rotation);
+          o.hash_rotation = parse_hash_rotation_scope(hash_rotation);
         k.take("keep_work", o.keep_work);
         take_sift_options(k, o.sift);
         k.finish();
@@ -899,7 +899,7 @@ so that they do not compete. Returns the build's statistics as a dict.)doc");
         o.pq_training_images = names_from(k.take_object("pq_train_images"), "import_colmap: pq_train_images");
         std::string hash_rotation;
         if (k.take_choice("hash_rotation", hash_rotation, {"segment", "map"}))
-          o.hash_rotation = hash_rotation_scope_from_string(hash_rotation);
+          o.hash_rotation = parse_hash_rotation_scope(hash_rotation);
         k.take("itq_iterations", o.itq.iterations);
         k.take("seed", o.itq.seed);
         k.take("keep_descriptors", o.keep_descriptors);

@@ -135,7 +135,7 @@ const char* to_string(RoadLayout layout) {
   return "?";
 }
 
-RoadLayout road_layout_from_string(const std::string& name) {
+RoadLayout parse_road_layout(const std::string& name) {
   if (name == "line") return RoadLayout::kLine;
   if (name == "grid") return RoadLayout::kGrid;
   if (name == "random") return RoadLayout::kRandom;

@@ -23,7 +23,7 @@ namespace visloc::synth {
 
 enum class RoadLayout { kLine, kGrid, kRandom };
 const char* to_string(RoadLayout layout);
-RoadLayout road_layout_from_string(const std::string& name);  // throws naming the value
+RoadLayout parse_road_layout(const std::string& name);  // throws naming the value
 
 struct CityLayoutOptions {
   RoadLayout layout = RoadLayout::kLine;

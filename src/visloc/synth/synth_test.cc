@@ -131,7 +131,7 @@ TEST(CityLayout, GridAndRandomLayoutsKeepBuildingsOffRoads) {
 TEST(Options, BadValuesAreRejectedNamingTheField) {
   expect_rejected([] { CityLayoutOptions o; o.floors_max = 1; o.floors_min = 3; o.validate(); }, "floors_max");
   expect_rejected([] { CityLayoutOptions o; o.placemark_spacing_min_m = 0; o.validate(); }, "placemark_spacing_min_m");
-  expect_rejected([] { road_layout_from_string("spiral"); }, "layout");
+  expect_rejected([] { parse_road_layout("spiral"); }, "layout");
   expect_rejected([] { ViewSetOptions o; o.fov_deg = 179; o.validate(); }, "fov_deg");
   expect_rejected([] { ViewSetOptions o; o.elevations_deg.clear(); o.validate(); }, "elevations_deg");
   expect_rejected([] { QueryOptions o; o.resolutions = {{0, 10}}; o.validate(); }, "resolutions");

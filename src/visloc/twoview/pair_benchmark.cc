@@ -165,6 +165,80 @@ void evaluate_pair(const std::string& scene, const std::string& pair, const Feat
   *truth_out = truth.size();
 }
 
+// Summaries per scene group (castle: repeated windows; synthetic; other)
+// and method, the expectations on the castle pairs, and the markdown.
+void summarize(const std::vector<PairBenchmarkRow>& result_rows, const PairBenchmarkOptions& o, nlohmann::json* rows_out,
+               nlohmann::json* summary_out, nlohmann::json* expectations_out, std::string* markdown) {
+  // Summaries: castle scenes (repeated windows) and the others, per method.
+  nlohmann::json rows = nlohmann::json::array();
+  for (const auto& r : result_rows)
+    rows.push_back({{"scene", r.scene}, {"pair", r.pair}, {"method", r.method}, {"found", r.found},
+                    {"success", r.success}, {"median_error_px", r.median_error_px}, {"inliers", r.inliers},
+                    {"true_inliers", r.true_inliers}, {"truth_correspondences", r.truth_correspondences}, {"ms", r.ms}});
+  auto group_of = [](const std::string& scene) {
+    return scene.rfind("castle", 0) == 0 ? "castle" : scene.rfind("synthetic:", 0) == 0 ? "synthetic" : "other";
+  };
+  std::map<std::string, std::map<std::string, std::vector<const PairBenchmarkRow*>>> groups;
+  for (const auto& r : result_rows) groups[group_of(r.scene)][r.method].push_back(&r);
+  nlohmann::json summary = nlohmann::json::object();
+  std::ostringstream md;
+  md << "# visloc bench pairs\n\nNeighbouring pairs of the Strecha scenes (truth: the laser cameras' F) and of "
+        "synthetic cities (one heading from neighbouring placemarks; truth: the rendered poses). Success: the "
+        "truth correspondences' median symmetric epipolar distance under the estimated F <= "
+     << o.success_px << " px. True inliers: inliers within " << o.success_px << " px of the true F's epipolar lines.\n\n"
+     << "| scenes | method | pairs | success | median true inliers | median inliers | median ms |\n|---|---|---|---|---|---|---|\n";
+  const std::vector<std::string> order = {"classic", "1m", "1m-sprt", "opencv-magsac", "opencv-ransac"};
+  for (const auto& [group, methods] : groups)
+    for (const std::string& method : order) {
+      auto it = methods.find(method);
+      if (it == methods.end()) continue;
+      std::vector<double> true_inliers, inliers, ms;
+      size_t success = 0;
+      for (const PairBenchmarkRow* r : it->second) {
+        true_inliers.push_back(static_cast<double>(r->true_inliers));
+        inliers.push_back(static_cast<double>(r->inliers));
+        ms.push_back(r->ms);
+        success += r->success;
+      }
+      const double rate = static_cast<double>(success) / static_cast<double>(it->second.size());
+      summary[group][method] = {{"pairs", it->second.size()}, {"success_rate", rate},
+                                {"median_true_inliers", median(true_inliers)}, {"median_inliers", median(inliers)},
+                                {"median_ms", median(ms)}};
+      md << "| " << group << " | " << method << " | " << it->second.size() << " | " << std::fixed << std::setprecision(3)
+         << rate << " | " << std::setprecision(0) << median(true_inliers) << " | " << median(inliers) << " | "
+         << std::setprecision(2) << median(ms) << " |\n";
+    }
+  // The expectations on the castle pairs, measured.
+  nlohmann::json expectations = nlohmann::json::array();
+  if (summary.contains("castle") && summary["castle"].contains("classic") && summary["castle"].contains("1m-sprt")) {
+    const auto& c = summary["castle"]["classic"];
+    const auto& s = summary["castle"]["1m-sprt"];
+    const double inlier_ratio = s["median_true_inliers"].get<double>() / std::max(1.0, c["median_true_inliers"].get<double>());
+    const double time_ratio = s["median_ms"].get<double>() / std::max(1e-9, c["median_ms"].get<double>());
+    expectations.push_back({{"expectation", "castle: 1m-sprt true inliers >= 1.5x classic"}, {"measured", inlier_ratio},
+                            {"holds", inlier_ratio >= 1.5}});
+    expectations.push_back({{"expectation", "castle: 1m-sprt time <= 2x classic"}, {"measured", time_ratio},
+                            {"holds", time_ratio <= 2.0}});
+    expectations.push_back({{"expectation", "castle: 1m-sprt success >= classic"},
+                            {"measured", {s["success_rate"], c["success_rate"]}},
+                            {"holds", s["success_rate"].get<double>() >= c["success_rate"].get<double>()}});
+    if (summary["castle"].contains("opencv-magsac")) {
+      const auto& g = summary["castle"]["opencv-magsac"];
+      expectations.push_back({{"expectation", "castle: 1m-sprt success >= OpenCV MAGSAC"},
+                              {"measured", {s["success_rate"], g["success_rate"]}},
+                              {"holds", s["success_rate"].get<double>() >= g["success_rate"].get<double>()}});
+    }
+  }
+  md << std::defaultfloat << "\n";
+  for (const auto& e : expectations)
+    md << "- " << e["expectation"].get<std::string>() << ": measured " << e["measured"].dump() << ", "
+       << (e["holds"].get<bool>() ? "holds" : "does NOT hold") << "\n";
+  *rows_out = std::move(rows);
+  *summary_out = std::move(summary);
+  *expectations_out = std::move(expectations);
+  *markdown = md.str();
+}
+
 }  // namespace
 
 PairBenchmarkResult run_pair_benchmark(const PairBenchmarkOptions& o,
@@ -231,9 +305,10 @@ PairBenchmarkResult run_pair_benchmark(const PairBenchmarkOptions& o,
       // pPPPPP_hHH_eE.jpg → the same heading and elevation at placemark PPPPP + 1.
       if (name.size() < 7 || name[0] != 'p') continue;
       const int placemark = std::atoi(name.substr(1, 5).c_str());
-      char next[8];
-      std::snprintf(next, sizeof next, "p%05d", placemark + 1);
-      const std::string other = std::string(next) + name.substr(6);
+      if (placemark < 0 || placemark >= 99999) continue;
+      std::string next = std::to_string(placemark + 1);
+      next.insert(0, 5 - next.size(), '0');
+      const std::string other = "p" + next + name.substr(6);
       auto it = by_name.find(other);
       if (it == by_name.end()) continue;
       if (o.max_pairs_per_scene > 0 && pairs >= o.max_pairs_per_scene) break;
@@ -256,70 +331,8 @@ PairBenchmarkResult run_pair_benchmark(const PairBenchmarkOptions& o,
     }
   }
 
-  // Summaries: castle scenes (repeated windows) and the others, per method.
-  nlohmann::json rows = nlohmann::json::array();
-  for (const auto& r : out.rows)
-    rows.push_back({{"scene", r.scene}, {"pair", r.pair}, {"method", r.method}, {"found", r.found},
-                    {"success", r.success}, {"median_error_px", r.median_error_px}, {"inliers", r.inliers},
-                    {"true_inliers", r.true_inliers}, {"truth_correspondences", r.truth_correspondences}, {"ms", r.ms}});
-  auto group_of = [](const std::string& scene) {
-    return scene.rfind("castle", 0) == 0 ? "castle" : scene.rfind("synthetic:", 0) == 0 ? "synthetic" : "other";
-  };
-  std::map<std::string, std::map<std::string, std::vector<const PairBenchmarkRow*>>> groups;
-  for (const auto& r : out.rows) groups[group_of(r.scene)][r.method].push_back(&r);
-  nlohmann::json summary = nlohmann::json::object();
-  std::ostringstream md;
-  md << "# visloc bench pairs\n\nNeighbouring pairs of the Strecha scenes (truth: the laser cameras' F) and of "
-        "synthetic cities (one heading from neighbouring placemarks; truth: the rendered poses). Success: the "
-        "truth correspondences' median symmetric epipolar distance under the estimated F <= "
-     << o.success_px << " px. True inliers: inliers within " << o.success_px << " px of the true F's epipolar lines.\n\n"
-     << "| scenes | method | pairs | success | median true inliers | median inliers | median ms |\n|---|---|---|---|---|---|---|\n";
-  const std::vector<std::string> order = {"classic", "1m", "1m-sprt", "opencv-magsac", "opencv-ransac"};
-  for (const auto& [group, methods] : groups)
-    for (const std::string& method : order) {
-      auto it = methods.find(method);
-      if (it == methods.end()) continue;
-      std::vector<double> true_inliers, inliers, ms;
-      size_t success = 0;
-      for (const PairBenchmarkRow* r : it->second) {
-        true_inliers.push_back(static_cast<double>(r->true_inliers));
-        inliers.push_back(static_cast<double>(r->inliers));
-        ms.push_back(r->ms);
-        success += r->success;
-      }
-      const double rate = static_cast<double>(success) / static_cast<double>(it->second.size());
-      summary[group][method] = {{"pairs", it->second.size()}, {"success_rate", rate},
-                                {"median_true_inliers", median(true_inliers)}, {"median_inliers", median(inliers)},
-                                {"median_ms", median(ms)}};
-      md << "| " << group << " | " << method << " | " << it->second.size() << " | " << std::fixed << std::setprecision(3)
-         << rate << " | " << std::setprecision(0) << median(true_inliers) << " | " << median(inliers) << " | "
-         << std::setprecision(2) << median(ms) << " |\n";
-    }
-  // The expectations on the castle pairs, measured.
-  nlohmann::json expectations = nlohmann::json::array();
-  if (summary.contains("castle") && summary["castle"].contains("classic") && summary["castle"].contains("1m-sprt")) {
-    const auto& c = summary["castle"]["classic"];
-    const auto& s = summary["castle"]["1m-sprt"];
-    const double inlier_ratio = s["median_true_inliers"].get<double>() / std::max(1.0, c["median_true_inliers"].get<double>());
-    const double time_ratio = s["median_ms"].get<double>() / std::max(1e-9, c["median_ms"].get<double>());
-    expectations.push_back({{"expectation", "castle: 1m-sprt true inliers >= 1.5x classic"}, {"measured", inlier_ratio},
-                            {"holds", inlier_ratio >= 1.5}});
-    expectations.push_back({{"expectation", "castle: 1m-sprt time <= 2x classic"}, {"measured", time_ratio},
-                            {"holds", time_ratio <= 2.0}});
-    expectations.push_back({{"expectation", "castle: 1m-sprt success >= classic"},
-                            {"measured", {s["success_rate"], c["success_rate"]}},
-                            {"holds", s["success_rate"].get<double>() >= c["success_rate"].get<double>()}});
-    if (summary["castle"].contains("opencv-magsac")) {
-      const auto& g = summary["castle"]["opencv-magsac"];
-      expectations.push_back({{"expectation", "castle: 1m-sprt success >= OpenCV MAGSAC"},
-                              {"measured", {s["success_rate"], g["success_rate"]}},
-                              {"holds", s["success_rate"].get<double>() >= g["success_rate"].get<double>()}});
-    }
-  }
-  md << std::defaultfloat << "\n";
-  for (const auto& e : expectations)
-    md << "- " << e["expectation"].get<std::string>() << ": measured " << e["measured"].dump() << ", "
-       << (e["holds"].get<bool>() ? "holds" : "does NOT hold") << "\n";
+  nlohmann::json rows, summary, expectations;
+  summarize(out.rows, o, &rows, &summary, &expectations, &out.markdown);
   out.report = {{"config",
                  {{"scenes", o.scenes}, {"synthetic_cities", [&] {
                     nlohmann::json a = nlohmann::json::array();
@@ -331,7 +344,6 @@ PairBenchmarkResult run_pair_benchmark(const PairBenchmarkOptions& o,
                 {"summary", summary},
                 {"expectations", expectations},
                 {"rows", rows}};
-  out.markdown = md.str();
   return out;
 }
 

@@ -150,122 +150,120 @@ std::string fill(std::string_view tpl, const std::vector<std::pair<std::string, 
 
 }  // namespace
 
-ViewerSummary write_viewer(const fs::path& map_dir, const fs::path& report_dir, const fs::path& out,
-                           const ViewerOptions& options) {
-  options.validate();
-  if (!viewer_assets::available())
-    throw_error(ErrorCode::kNotImplemented,
-                "visloc view: this build has no three.js. Run `npm ci --prefix src/visloc/viewer` (scripts/setup.sh "
-                "does it), then configure and build again");
-  if (out.empty()) throw_error(ErrorCode::kInvalidArgument, "visloc view: an output file (--out) is needed");
-  std::optional<ReportQueries> report;
-  if (!report_dir.empty()) report = read_report(report_dir);
+namespace {
 
-  OverviewFrame frame = options.frame;
+OverviewFrame choose_frame(OverviewFrame asked, const std::optional<ReportQueries>& report, const fs::path& report_dir) {
   if (report && (report->frame == "segment" || report->frame == "enu")) {
     const OverviewFrame report_frame = report->frame == "enu" ? OverviewFrame::kEnu : OverviewFrame::kSegment;
-    if (frame == OverviewFrame::kAuto) frame = report_frame;
-    else if (frame != report_frame)
-      throw_error(ErrorCode::kInvalidArgument, "visloc view: frame ", overview_frame_name(frame),
+    if (asked == OverviewFrame::kAuto) return report_frame;
+    if (asked != report_frame)
+      throw_error(ErrorCode::kInvalidArgument, "visloc view: frame ", overview_frame_name(asked),
                   " was asked, but the report's centres are in the ", report->frame, " frame");
   } else if (report && report->frame == "mixed") {
     throw_error(ErrorCode::kFormat, report_dir.string(),
                 ": the report mixes pose truth (segment frame) and GPS truth (ENU); it cannot be drawn in one frame");
   }
-  MapOverviewOptions mo;
-  mo.max_points = options.max_points;
-  mo.frame = frame;
-  const Map map = Map::open(map_dir);
-  const MapOverview ov = load_map_overview(map, mo);
-  const Eigen::Matrix3d& A = ov.aligned_from_frame;
+  return asked;
+}
 
-  // Extent: 5th-95th percentiles of the points, and every camera and query
-  // (stray points do not shrink the view); the origin at its centre.
-  auto point = [&ov](size_t i) -> Eigen::Vector3d {
-    return Eigen::Vector3d(ov.xyz[3 * i], ov.xyz[3 * i + 1], ov.xyz[3 * i + 2]) + ov.origin;
+// The report's queries in the aligned frame (absolute; made relative later).
+nlohmann::json aligned_queries(const std::optional<ReportQueries>& report, const Eigen::Matrix3d& A) {
+  nlohmann::json queries = nlohmann::json::array();
+  if (!report) return queries;
+  for (nlohmann::json q : report->queries) {
+    for (const char* key : {"true_center", "estimated_center", "true_view_direction", "estimated_view_direction"})
+      if (q.contains(key)) q[key] = json3(A * vec3(q[key]));
+    q.erase("confidence_features");
+    queries.push_back(std::move(q));
+  }
+  return queries;
+}
+
+Eigen::Vector3d overview_point(const MapOverview& ov, size_t i) {
+  return Eigen::Vector3d(ov.xyz[3 * i], ov.xyz[3 * i + 1], ov.xyz[3 * i + 2]) + ov.origin;
+}
+
+// What the page is framed on: the 5th-95th percentiles of the points, every
+// camera and query (stray points do not shrink the view), the origin at the
+// centre; the view turns around the cameras and queries (the streets).
+struct SceneBox {
+  Eigen::Vector3d lo, hi, origin, view_centre;
+  double lowest_camera = std::numeric_limits<double>::infinity();  // absolute z; ∞ without cameras
+  double extent = 1;
+};
+
+SceneBox scene_box(const MapOverview& ov, const nlohmann::json& queries) {
+  SceneBox b;
+  b.lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
+  b.hi = -b.lo;
+  auto grow = [&](const Eigen::Vector3d& p) {
+    b.lo = b.lo.cwiseMin(p);
+    b.hi = b.hi.cwiseMax(p);
   };
-  Eigen::Vector3d robust_lo = Eigen::Vector3d::Zero(), robust_hi = Eigen::Vector3d::Zero();
   if (ov.num_points() > 0) {
     std::vector<double> axis(ov.num_points());
+    Eigen::Vector3d robust_lo, robust_hi;
     for (int k = 0; k < 3; ++k) {
-      for (size_t i = 0; i < ov.num_points(); ++i) axis[i] = point(i)[k];
+      for (size_t i = 0; i < ov.num_points(); ++i) axis[i] = overview_point(ov, i)[k];
       robust_lo[k] = percentile(axis, 0.05);
       robust_hi[k] = percentile(axis, 0.95);
     }
-  }
-  Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity()), hi = -lo;
-  auto grow = [&](const Eigen::Vector3d& p) {
-    lo = lo.cwiseMin(p);
-    hi = hi.cwiseMax(p);
-  };
-  if (ov.num_points() > 0) {
     grow(robust_lo);
     grow(robust_hi);
   }
-  for (const auto& c : ov.cameras) grow(c.center);
-  nlohmann::json queries = nlohmann::json::array();
-  if (report) {
-    for (nlohmann::json q : report->queries) {
-      for (const char* key : {"true_center", "estimated_center"})
-        if (q.contains(key)) {
-          const Eigen::Vector3d p = A * vec3(q[key]);
-          grow(p);
-          q[key] = json3(p);  // made relative to the origin below
-        }
-      for (const char* key : {"true_view_direction", "estimated_view_direction"})
-        if (q.contains(key)) q[key] = json3(A * vec3(q[key]));
-      q.erase("confidence_features");
-      queries.push_back(std::move(q));
-    }
-  }
-  if (!std::isfinite(lo.x())) lo = hi = Eigen::Vector3d::Zero();
-  const Eigen::Vector3d origin = 0.5 * (lo + hi);
-  // The view turns around the cameras and queries (where the streets are),
-  // else around the points.
   Eigen::Vector3d cam_lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity()), cam_hi = -cam_lo;
-  for (const auto& c : ov.cameras) {
-    cam_lo = cam_lo.cwiseMin(c.center);
-    cam_hi = cam_hi.cwiseMax(c.center);
-  }
+  auto grow_cameras = [&](const Eigen::Vector3d& p) {
+    grow(p);
+    cam_lo = cam_lo.cwiseMin(p);
+    cam_hi = cam_hi.cwiseMax(p);
+  };
+  for (const auto& c : ov.cameras) grow_cameras(c.center);
+  for (const auto& c : ov.cameras) b.lowest_camera = std::min(b.lowest_camera, c.center.z());
   for (const auto& q : queries)
     for (const char* key : {"true_center", "estimated_center"})
-      if (q.contains(key)) {
-        cam_lo = cam_lo.cwiseMin(vec3(q[key]));
-        cam_hi = cam_hi.cwiseMax(vec3(q[key]));
-      }
-  const Eigen::Vector3d view_centre = std::isfinite(cam_lo.x()) ? Eigen::Vector3d(0.5 * (cam_lo + cam_hi)) : origin;
-  const double extent = std::max({hi.x() - lo.x(), hi.y() - lo.y(), 1.0});
-  for (auto& q : queries)
-    for (const char* key : {"true_center", "estimated_center"})
-      if (q.contains(key)) q[key] = json3(vec3(q[key]) - origin);
+      if (q.contains(key)) grow_cameras(vec3(q[key]));
+  if (!std::isfinite(b.lo.x())) b.lo = b.hi = Eigen::Vector3d::Zero();
+  b.origin = 0.5 * (b.lo + b.hi);
+  b.view_centre = std::isfinite(cam_lo.x()) ? Eigen::Vector3d(0.5 * (cam_lo + cam_hi)) : b.origin;
+  b.extent = std::max({b.hi.x() - b.lo.x(), b.hi.y() - b.lo.y(), 1.0});
+  return b;
+}
 
-  // Points, quantized to 16 bits per axis over the view's box widened by its
-  // own size on every side (and at least 10 m): a stray point kilometres
-  // away (SfM outliers) would otherwise make the step metres. Points beyond
-  // that box are not drawn (`points_far` counts them).
-  const Eigen::Vector3d margin = ((hi - lo).cwiseMax(Eigen::Vector3d::Constant(10.0)));
-  const Eigen::Vector3d box_lo = lo - margin, box_hi = hi + margin;
-  const Eigen::Vector3d pmin = box_lo - origin;
-  const Eigen::Vector3d pstep = ((box_hi - box_lo) / 65535.0).cwiseMax(Eigen::Vector3d::Constant(1e-6));
-  std::vector<uint16_t> quantized;
-  std::vector<uint16_t> point_segment;
+// Points, quantized to 16 bits per axis over the view's box widened by its
+// own size on every side (and at least 10 m): a stray point kilometres away
+// (SfM outliers) would otherwise make the step metres. Points beyond that
+// box are not drawn (`far_not_drawn` counts them).
+nlohmann::json encode_points(const MapOverview& ov, const SceneBox& b, size_t* drawn, size_t* far) {
+  const Eigen::Vector3d margin = (b.hi - b.lo).cwiseMax(Eigen::Vector3d::Constant(10.0));
+  const Eigen::Vector3d box_lo = b.lo - margin, box_hi = b.hi + margin;
+  const Eigen::Vector3d step = ((box_hi - box_lo) / 65535.0).cwiseMax(Eigen::Vector3d::Constant(1e-6));
+  std::vector<uint16_t> quantized, segment;
   quantized.reserve(ov.xyz.size());
-  point_segment.reserve(ov.num_points());
-  size_t points_far = 0;
+  segment.reserve(ov.num_points());
+  *far = 0;
   for (size_t i = 0; i < ov.num_points(); ++i) {
-    const Eigen::Vector3d p = point(i);
+    const Eigen::Vector3d p = overview_point(ov, i);
     if ((p.array() < box_lo.array()).any() || (p.array() > box_hi.array()).any()) {
-      ++points_far;
+      ++*far;
       continue;
     }
     for (int k = 0; k < 3; ++k)
-      quantized.push_back(static_cast<uint16_t>(std::clamp(std::round((p[k] - box_lo[k]) / pstep[k]), 0.0, 65535.0)));
-    point_segment.push_back(static_cast<uint16_t>(ov.point_segment[i]));
+      quantized.push_back(static_cast<uint16_t>(std::clamp(std::round((p[k] - box_lo[k]) / step[k]), 0.0, 65535.0)));
+    segment.push_back(static_cast<uint16_t>(ov.point_segment[i]));
   }
-  if (ov.segments.size() > 65536)
-    throw_error(ErrorCode::kInvalidArgument, "visloc view: ", ov.segments.size(), " segments; at most 65,536 can be drawn");
+  *drawn = segment.size();
+  return {{"count", segment.size()},
+          {"far_not_drawn", *far},
+          {"in_map", ov.total_points},
+          {"min", json3(box_lo - b.origin)},
+          {"step", json3(step)},
+          {"xyz_u16", base64_encode(quantized.data(), quantized.size() * sizeof(uint16_t))},
+          {"segment_u16", base64_encode(segment.data(), segment.size() * sizeof(uint16_t))}};
+}
 
-  // Cameras: centre (3), world_from_camera columns (9), width, height, focal, segment index.
+// Cameras: centre (3), world_from_camera columns (9), width, height, focal,
+// segment index: 16 floats each.
+nlohmann::json encode_cameras(const MapOverview& ov, const Eigen::Vector3d& origin) {
   std::vector<float> cameras;
   cameras.reserve(16 * ov.cameras.size());
   for (const auto& c : ov.cameras) {
@@ -276,9 +274,25 @@ ViewerSummary write_viewer(const fs::path& map_dir, const fs::path& report_dir, 
     cameras.insert(cameras.end(), {static_cast<float>(c.width), static_cast<float>(c.height),
                                    static_cast<float>(c.focal), static_cast<float>(c.segment)});
   }
+  return {{"count", ov.cameras.size()}, {"data_f32", base64_encode(cameras.data(), cameras.size() * sizeof(float))}};
+}
 
-  nlohmann::json segments = nlohmann::json::array();
+// The grid's height (relative to the origin): the segments' ground, kept
+// within a tenth of the extent below the lowest camera (triangulations below
+// the street would sink it) and not above it.
+double grid_height(const MapOverview& ov, const SceneBox& b) {
   double ground = std::numeric_limits<double>::infinity();
+  for (const auto& s : ov.segments) ground = std::min(ground, s.ground_z - b.origin.z());
+  if (!std::isfinite(ground)) ground = b.lo.z() - b.origin.z();
+  if (std::isfinite(b.lowest_camera)) {
+    const double lowest = b.lowest_camera - b.origin.z();
+    ground = std::clamp(ground, lowest - 0.1 * b.extent, lowest);
+  }
+  return ground;
+}
+
+nlohmann::json encode_segments(const MapOverview& ov, const Eigen::Vector3d& origin, double ground) {
+  nlohmann::json segments = nlohmann::json::array();
   for (const auto& s : ov.segments) {
     nlohmann::json outline = nlohmann::json::array();
     for (const auto& p : s.outline) outline.push_back({p.x() - origin.x(), p.y() - origin.y()});
@@ -287,70 +301,81 @@ ViewerSummary write_viewer(const fs::path& map_dir, const fs::path& report_dir, 
                         {"points_shown", s.points_shown},
                         {"cameras", s.cameras},
                         {"outline", outline},
-                        {"ground_z", s.ground_z - origin.z()}});
-    ground = std::min(ground, s.ground_z - origin.z());
+                        {"ground_z", ground}});  // outlines on the grid
   }
-  if (!std::isfinite(ground)) ground = lo.z() - origin.z();
-  if (std::isfinite(cam_lo.z())) {
-    // The grid stays within a tenth of the map's extent below the lowest
-    // camera (triangulations below the street would sink it), and not above it.
-    const double lowest_camera = cam_lo.z() - origin.z();
-    ground = std::clamp(ground, lowest_camera - 0.1 * extent, lowest_camera);
-  }
-  for (auto& seg : segments) seg["ground_z"] = ground;  // outlines on the grid
-  const double spacing = round_up_nice(extent / 12);
-  const double gx0 = std::floor((lo.x() - origin.x()) / spacing - 1) * spacing;
-  const double gy0 = std::floor((lo.y() - origin.y()) / spacing - 1) * spacing;
-  const double gx1 = std::ceil((hi.x() - origin.x()) / spacing + 1) * spacing;
-  const double gy1 = std::ceil((hi.y() - origin.y()) / spacing + 1) * spacing;
+  return segments;
+}
+
+// The page: the template filled with the title, three.js and the data.
+std::string assemble_page(const std::string& title, const nlohmann::json& data) {
+  std::string module = std::string(viewer_assets::three_module());
+  for (size_t at = 0; (at = module.find("'./three.core.js'", at)) != std::string::npos;)
+    module.replace(at, 17, "'three/core'");
+  return fill(viewer_assets::page_template(),
+              {{"TITLE", html_escape(title)},
+               {"THREE_MODULE", data_url(module)},
+               {"THREE_CORE", data_url(viewer_assets::three_core())},
+               {"DATA", script_safe(data.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace))},
+               {"APP", std::string(viewer_assets::app_script())}});
+}
+
+}  // namespace
+
+ViewerSummary write_viewer(const fs::path& map_dir, const fs::path& report_dir, const fs::path& out,
+                           const ViewerOptions& options) {
+  options.validate();
+  if (!viewer_assets::available())
+    throw_error(ErrorCode::kNotImplemented,
+                "visloc view: this build has no three.js. Run `npm ci --prefix src/visloc/viewer` (scripts/setup.sh "
+                "does it), then configure and build again");
+  if (out.empty()) throw_error(ErrorCode::kInvalidArgument, "visloc view: an output file (--out) is needed");
+  std::optional<ReportQueries> report;
+  if (!report_dir.empty()) report = read_report(report_dir);
+  MapOverviewOptions mo;
+  mo.max_points = options.max_points;
+  mo.frame = choose_frame(options.frame, report, report_dir);
+  const MapOverview ov = load_map_overview(Map::open(map_dir), mo);
+  if (ov.segments.size() > 65536)
+    throw_error(ErrorCode::kInvalidArgument, "visloc view: ", ov.segments.size(), " segments; at most 65,536 can be drawn");
+
+  nlohmann::json queries = aligned_queries(report, ov.aligned_from_frame);
+  const SceneBox box = scene_box(ov, queries);
+  for (auto& q : queries)
+    for (const char* key : {"true_center", "estimated_center"})
+      if (q.contains(key)) q[key] = json3(vec3(q[key]) - box.origin);
+  ViewerSummary summary;
+  const nlohmann::json points = encode_points(ov, box, &summary.points_drawn, &summary.points_far);
+  const double ground = grid_height(ov, box);
+  const double spacing = round_up_nice(box.extent / 12);
+  const Eigen::Vector3d lo = box.lo - box.origin, hi = box.hi - box.origin;
 
   std::string map_name = map_dir.filename().string();
   if (map_name.empty()) map_name = map_dir.parent_path().filename().string();  // "maps/city/"
   std::string title = options.title;
-  if (title.empty()) {
-    title = "visloc: " + map_name;
-    if (report) title += " + report";
-  }
-  nlohmann::json data = {
+  if (title.empty()) title = "visloc: " + map_name + (report ? " + report" : "");
+  const nlohmann::json data = {
       {"title", title},
       {"frame", overview_frame_name(ov.frame)},
       {"north", ov.north ? json3(*ov.north) : nlohmann::json()},
-      {"origin_in_frame", json3(A.transpose() * origin)},
-      {"extent", extent},
-      {"view_target", json3(view_centre - origin)},
+      {"origin_in_frame", json3(ov.aligned_from_frame.transpose() * box.origin)},
+      {"extent", box.extent},
+      {"view_target", json3(box.view_centre - box.origin)},
       {"ground_z", ground},
       {"grid_spacing", spacing},
-      {"grid_box", {gx0, gy0, gx1, gy1}},
-      {"camera_depth", std::clamp(extent * 0.025, 0.1, 8.0)},
-      {"query_marker_radius", std::clamp(extent * 0.008, 0.05, 5.0)},
-      {"points",
-       {{"count", point_segment.size()},
-        {"far_not_drawn", points_far},
-        {"in_map", ov.total_points},
-        {"min", json3(pmin)},
-        {"step", json3(pstep)},
-        {"xyz_u16", base64_encode(quantized.data(), quantized.size() * sizeof(uint16_t))},
-        {"segment_u16", base64_encode(point_segment.data(), point_segment.size() * sizeof(uint16_t))}}},
-      {"cameras", {{"count", ov.cameras.size()}, {"data_f32", base64_encode(cameras.data(), cameras.size() * sizeof(float))}}},
-      {"segments", segments},
+      {"grid_box",
+       {std::floor(lo.x() / spacing - 1) * spacing, std::floor(lo.y() / spacing - 1) * spacing,
+        std::ceil(hi.x() / spacing + 1) * spacing, std::ceil(hi.y() / spacing + 1) * spacing}},
+      {"camera_depth", std::clamp(box.extent * 0.025, 0.1, 8.0)},
+      {"query_marker_radius", std::clamp(box.extent * 0.008, 0.05, 5.0)},
+      {"points", points},
+      {"cameras", encode_cameras(ov, box.origin)},
+      {"segments", encode_segments(ov, box.origin, ground)},
       {"has_report", report.has_value()},
       {"queries", queries}};
-
-  std::string module = std::string(viewer_assets::three_module());
-  for (size_t at = 0; (at = module.find("'./three.core.js'", at)) != std::string::npos;)
-    module.replace(at, 17, "'three/core'");
-  const std::string page = fill(viewer_assets::page_template(),
-                                {{"TITLE", html_escape(title)},
-                                 {"THREE_MODULE", data_url(module)},
-                                 {"THREE_CORE", data_url(viewer_assets::three_core())},
-                                 {"DATA", script_safe(data.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace))},
-                                 {"APP", std::string(viewer_assets::app_script())}});
+  const std::string page = assemble_page(title, data);
   if (out.has_parent_path()) fs::create_directories(out.parent_path());
   write_file_atomic(out, page);
 
-  ViewerSummary summary;
-  summary.points_drawn = point_segment.size();
-  summary.points_far = points_far;
   summary.points_in_map = ov.total_points;
   summary.cameras = ov.cameras.size();
   summary.segments = ov.segments.size();
