@@ -32,6 +32,19 @@ RansacVariant parse_ransac_variant(std::string_view name) {
               "' (expected classic, 1m-fixed or 1m-sprt)");
 }
 
+RansacLoopOptions loop_options_for(RansacVariant variant, size_t max_iterations, size_t fixed_iterations,
+                                   double confidence, double sprt_delta0) {
+  RansacLoopOptions l;
+  l.termination = variant == RansacVariant::kClassic11      ? RansacTermination::kClassic
+                  : variant == RansacVariant::kOneManyFixed ? RansacTermination::kFixed
+                                                            : RansacTermination::kSprtAdaptive;
+  l.sprt = variant == RansacVariant::kOneManySprt;
+  l.max_iterations = variant == RansacVariant::kOneManyFixed ? fixed_iterations : max_iterations;
+  l.confidence = confidence;
+  l.sprt_delta0 = sprt_delta0;
+  return l;
+}
+
 void RansacOptions::validate() const {
   auto bad = [](const char* field, const auto& value, const char* rule) {
     throw_error(ErrorCode::kInvalidArgument, "ransac options: ", field, " ", rule, ", got ", value);
@@ -206,14 +219,7 @@ class AbsolutePoseEstimator {
 };
 
 RansacLoopOptions loop_options(const RansacOptions& o, bool calibrated) {
-  RansacLoopOptions l;
-  l.termination = o.variant == RansacVariant::kClassic11    ? RansacTermination::kClassic
-                  : o.variant == RansacVariant::kOneManyFixed ? RansacTermination::kFixed
-                                                              : RansacTermination::kSprtAdaptive;
-  l.sprt = o.variant == RansacVariant::kOneManySprt;
-  l.max_iterations = o.variant == RansacVariant::kOneManyFixed ? o.fixed_iterations : o.max_iterations;
-  l.confidence = o.confidence;
-  l.sprt_delta0 = o.sprt_delta0;
+  RansacLoopOptions l = loop_options_for(o.variant, o.max_iterations, o.fixed_iterations, o.confidence, o.sprt_delta0);
   l.sprt_delta_prior_weight = o.sprt_delta_prior_weight;
   l.sprt_model_cost = o.sprt_model_cost > 0 ? o.sprt_model_cost : (calibrated ? 250.0 : 1500.0);
   l.models_per_sample = calibrated ? 1.5 : 1.0;

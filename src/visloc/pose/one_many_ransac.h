@@ -39,6 +39,7 @@
 #include "visloc/geometry/pose.h"
 #include "visloc/pose/correspondence_set.h"
 #include "visloc/pose/pose_refinement.h"
+#include "visloc/pose/ransac_loop.h"
 
 namespace visloc {
 
@@ -50,6 +51,12 @@ enum class RansacVariant {
 std::string_view to_string(RansacVariant variant);
 // "classic", "1m-fixed", "1m-sprt"; throws Error(kInvalidArgument) otherwise.
 RansacVariant parse_ransac_variant(std::string_view name);
+
+// The loop options (ransac_loop.h) a variant means: its termination, SPRT
+// on or off, and its sample cap (fixed_iterations for kOneManyFixed, else
+// max_iterations). The SPRT costs are the estimator's to set.
+RansacLoopOptions loop_options_for(RansacVariant variant, size_t max_iterations, size_t fixed_iterations,
+                                   double confidence, double sprt_delta0);
 
 struct RansacOptions {
   RansacVariant variant = RansacVariant::kOneManySprt;

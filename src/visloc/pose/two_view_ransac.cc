@@ -297,14 +297,8 @@ TwoViewEstimate estimate_two_view(const TwoViewCorrespondences& matches, const T
   out.model = options.model;
   out.chosen_candidate.assign(matches.size(), -1);
   TwoViewEstimator estimator(matches, options);
-  RansacLoopOptions lo;
-  lo.termination = options.variant == RansacVariant::kClassic11      ? RansacTermination::kClassic
-                   : options.variant == RansacVariant::kOneManyFixed ? RansacTermination::kFixed
-                                                                     : RansacTermination::kSprtAdaptive;
-  lo.sprt = options.variant == RansacVariant::kOneManySprt;
-  lo.max_iterations = options.variant == RansacVariant::kOneManyFixed ? options.fixed_iterations : options.max_iterations;
-  lo.confidence = options.confidence;
-  lo.sprt_delta0 = options.sprt_delta0;
+  RansacLoopOptions lo = loop_options_for(options.variant, options.max_iterations, options.fixed_iterations,
+                                          options.confidence, options.sprt_delta0);
   // t_M in point verifications (a Sampson error is ~10 ns): 7-point F ~10 µs
   // with 1-3 models, 4-point H ~5 µs, 5-point E ~30 µs with up to 10 models.
   lo.sprt_model_cost = options.model == TwoViewModel::kEssential ? 3000 : options.model == TwoViewModel::kHomography ? 500 : 1000;
