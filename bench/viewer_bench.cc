@@ -14,7 +14,7 @@
 
 #include <nlohmann/json.hpp>
 
-#include "visloc/map/planted_map.h"
+#include "visloc/map_building/planted_map.h"
 #include "visloc/sfm/process.h"
 #include "visloc/util/file_io.h"
 #include "visloc/util/statistics.h"

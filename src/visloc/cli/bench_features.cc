@@ -10,6 +10,7 @@
 #include <memory>
 #include <nlohmann/json.hpp>
 
+#include "visloc/baselines/fundamental_inliers.h"
 #include "visloc/cli/commands.h"
 #include "visloc/cli/sift_options.h"
 #include "visloc/colmap/colmap_database.h"

@@ -1,5 +1,5 @@
 // visloc bench pose: robust absolute pose on synthetic correspondence sets
-// with known truth (pose/synthetic_correspondences.h), comparing in the same
+// with known truth (baselines/synthetic_correspondences.h), comparing in the same
 // run classical RANSAC on the 1-1 matches, the one-many RANSAC with a fixed
 // iteration count (paper settings 2/3) and with SPRT (setting 3+), and
 // OpenCV's solvePnPRansac (P3P in RANSAC; USAC MAGSAC++), which see only the
@@ -21,8 +21,8 @@
 
 #include "visloc/cli/commands.h"
 #include "visloc/pose/one_many_ransac.h"
-#include "visloc/pose/opencv_pnp_baseline.h"
-#include "visloc/pose/synthetic_correspondences.h"
+#include "visloc/baselines/opencv_pnp_baseline.h"
+#include "visloc/baselines/synthetic_correspondences.h"
 #include "visloc/util/error.h"
 #include "visloc/util/timer.h"
 #include "visloc/util/statistics.h"

@@ -16,7 +16,7 @@
 // (DESIGN.md); placemarks come from the CSV's placemark column or are groups
 // of --placemark-size consecutive map images (names sorted). A query's
 // correct segments are those holding the map image nearest to its true
-// position among those facing within 90° (retrieval/retrieval_truth.h).
+// position among those facing within 90° (baselines/retrieval_truth.h).
 //
 // Timing: SIFT is reported separately (features_ms_per_image); ms_per_query
 // is embedding + search + voting, with OpenMP limited to --search-threads (default 1:
@@ -42,7 +42,7 @@
 #include "visloc/geo/gps_csv.h"
 #include "visloc/retrieval/image_index.h"
 #include "visloc/retrieval/retrieval_map.h"
-#include "visloc/retrieval/retrieval_truth.h"
+#include "visloc/baselines/retrieval_truth.h"
 #include "visloc/retrieval/segment_voter.h"
 #include "visloc/retrieval/triangulation_embedding.h"
 #include "visloc/util/error.h"

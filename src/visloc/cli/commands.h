@@ -8,7 +8,7 @@
 #include <string>
 #include <vector>
 
-#include "visloc/map/map_builder.h"
+#include "visloc/map_building/map_builder.h"
 
 namespace visloc::cli {
 

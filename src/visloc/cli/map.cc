@@ -8,7 +8,7 @@
 #include <nlohmann/json.hpp>
 
 #include "visloc/cli/commands.h"
-#include "visloc/map/colmap_import.h"
+#include "visloc/map_building/colmap_import.h"
 #include "visloc/map/map.h"
 #include "visloc/util/error.h"
 

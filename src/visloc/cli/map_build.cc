@@ -1,5 +1,5 @@
 // visloc map build / visloc map update: segments reconstructed by COLMAP,
-// compressed and geo-registered (map/map_builder.h).
+// compressed and geo-registered (map_building/map_builder.h).
 #include <unistd.h>
 
 #include <filesystem>
@@ -12,7 +12,7 @@
 
 #include "visloc/cli/commands.h"
 #include "visloc/cli/sift_options.h"
-#include "visloc/map/map_builder.h"
+#include "visloc/map_building/map_builder.h"
 #include "visloc/util/error.h"
 #include "visloc/util/file_io.h"
 #include "visloc/util/timer.h"

@@ -19,7 +19,7 @@
 
 #include <nlohmann/json.hpp>
 
-#include "visloc/map/map_builder.h"
+#include "visloc/map_building/map_builder.h"
 #include "visloc/pipeline/localizer.h"
 #include "visloc/synth/city_writer.h"
 

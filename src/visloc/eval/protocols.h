@@ -22,7 +22,7 @@
 #include "visloc/colmap/colmap_model.h"
 #include "visloc/eval/evaluation.h"
 #include "visloc/features/feature_set.h"
-#include "visloc/map/colmap_import.h"
+#include "visloc/map_building/colmap_import.h"
 #include "visloc/pipeline/localizer.h"
 #include "visloc/sfm/colmap_runner.h"
 

@@ -25,7 +25,7 @@
 
 #include "visloc/geometry/camera.h"
 #include "visloc/geometry/pose.h"
-#include "visloc/map/map_builder.h"
+#include "visloc/map_building/map_builder.h"
 #include "visloc/pipeline/localizer.h"
 
 namespace visloc {

@@ -6,7 +6,7 @@
 
 #include "visloc/map/map.h"
 #include "visloc/map/map_overview.h"
-#include "visloc/map/planted_map.h"
+#include "visloc/map_building/planted_map.h"
 #include "visloc/util/error.h"
 #include "visloc/util/test_support.h"
 

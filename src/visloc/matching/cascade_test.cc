@@ -9,7 +9,7 @@
 #include "visloc/matching/cascade_index.h"
 #include "visloc/matching/correspondence_arrays.h"
 #include "visloc/matching/exact_matcher.h"
-#include "visloc/matching/faiss_baselines.h"
+#include "visloc/baselines/faiss_baselines.h"
 #include "visloc/matching/pq_codebook.h"
 #include "visloc/util/error.h"
 #include "visloc/util/file_io.h"

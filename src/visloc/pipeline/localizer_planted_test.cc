@@ -12,8 +12,8 @@
 
 #include "visloc/geometry/pose.h"
 #include "visloc/map/map.h"
-#include "visloc/map/planted_map.h"
-#include "visloc/map/segment_builder.h"
+#include "visloc/map_building/planted_map.h"
+#include "visloc/map_building/segment_builder.h"
 #include "visloc/pipeline/localizer.h"
 #include "visloc/util/crc32c.h"
 #include "visloc/util/mapped_file.h"

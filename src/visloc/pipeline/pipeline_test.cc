@@ -5,7 +5,7 @@
 
 #include "visloc/colmap/colmap_database.h"
 #include "visloc/geometry/pose_list.h"
-#include "visloc/map/colmap_import.h"
+#include "visloc/map_building/colmap_import.h"
 #include "visloc/map/map.h"
 #include "visloc/pipeline/localization_json.h"
 #include "visloc/pipeline/localizer.h"
@@ -97,7 +97,7 @@ TEST(Localizer, LocalizesHeldOutFountainImages) {
   }
 }
 
-#include "visloc/map/map_builder.h"
+#include "visloc/map_building/map_builder.h"
 #include "visloc/sfm/process.h"
 #include "visloc/synth/city_writer.h"
 

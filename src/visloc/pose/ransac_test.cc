@@ -5,7 +5,7 @@
 
 #include "visloc/pose/one_many_ransac.h"
 #include "visloc/pose/sprt.h"
-#include "visloc/pose/synthetic_correspondences.h"
+#include "visloc/baselines/synthetic_correspondences.h"
 #include "visloc/util/error.h"
 
 namespace visloc {

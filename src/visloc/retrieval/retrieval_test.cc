@@ -9,7 +9,7 @@
 
 #include "visloc/retrieval/image_index.h"
 #include "visloc/retrieval/retrieval_map.h"
-#include "visloc/retrieval/retrieval_truth.h"
+#include "visloc/baselines/retrieval_truth.h"
 #include "visloc/retrieval/segment_voter.h"
 #include "visloc/retrieval/triangulation_embedding.h"
 #include "visloc/util/error.h"

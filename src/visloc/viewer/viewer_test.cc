@@ -8,7 +8,7 @@
 #include <set>
 #include <string>
 
-#include "visloc/map/planted_map.h"
+#include "visloc/map_building/planted_map.h"
 #include "visloc/sfm/process.h"
 #include "visloc/util/base64.h"
 #include "visloc/util/error.h"

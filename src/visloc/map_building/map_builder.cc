@@ -1,4 +1,4 @@
-#include "visloc/map/map_builder.h"
+#include "visloc/map_building/map_builder.h"
 
 #include <fcntl.h>
 #include <sys/file.h>
@@ -32,7 +32,7 @@
 #include "visloc/geometry/pose_list.h"
 #include "visloc/image/image_io.h"
 #include "visloc/map/map.h"
-#include "visloc/map/segment_builder.h"
+#include "visloc/map_building/segment_builder.h"
 #include "visloc/retrieval/retrieval_map.h"
 #include "visloc/sfm/colmap_database_writer.h"
 #include "visloc/util/crc32c.h"

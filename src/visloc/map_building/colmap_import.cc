@@ -1,4 +1,4 @@
-#include "visloc/map/colmap_import.h"
+#include "visloc/map_building/colmap_import.h"
 
 #include <fcntl.h>
 #include <stdio.h>
@@ -7,7 +7,7 @@
 #include <cstring>
 
 #include <optional>
-#include "visloc/map/segment_builder.h"
+#include "visloc/map_building/segment_builder.h"
 
 #include <iomanip>
 #include <sstream>

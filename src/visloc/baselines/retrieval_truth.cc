@@ -1,4 +1,4 @@
-#include "visloc/retrieval/retrieval_truth.h"
+#include "visloc/baselines/retrieval_truth.h"
 
 #include <cmath>
 #include <fstream>

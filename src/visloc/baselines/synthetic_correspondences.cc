@@ -1,4 +1,4 @@
-#include "visloc/pose/synthetic_correspondences.h"
+#include "visloc/baselines/synthetic_correspondences.h"
 
 #include <algorithm>
 #include <cmath>

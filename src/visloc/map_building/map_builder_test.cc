@@ -2,7 +2,7 @@
 
 #include <filesystem>
 
-#include "visloc/map/map_builder.h"
+#include "visloc/map_building/map_builder.h"
 #include "visloc/util/error.h"
 
 namespace fs = std::filesystem;

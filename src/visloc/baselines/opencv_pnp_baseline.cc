@@ -1,4 +1,4 @@
-#include "visloc/pose/opencv_pnp_baseline.h"
+#include "visloc/baselines/opencv_pnp_baseline.h"
 
 #include <cmath>
 #include <opencv2/calib3d.hpp>

@@ -5,11 +5,11 @@
 
 #include "visloc/colmap/colmap_database.h"
 #include "visloc/colmap/colmap_model.h"
-#include "visloc/map/colmap_import.h"
+#include "visloc/map_building/colmap_import.h"
 #include "visloc/map/map.h"
 #include "visloc/map/segment_file.h"
 #include "visloc/matching/cascade_index.h"
-#include "visloc/matching/faiss_baselines.h"
+#include "visloc/baselines/faiss_baselines.h"
 #include "visloc/util/error.h"
 #include "visloc/util/file_io.h"
 #include "visloc/util/test_support.h"

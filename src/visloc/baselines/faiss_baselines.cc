@@ -1,4 +1,4 @@
-#include "visloc/matching/faiss_baselines.h"
+#include "visloc/baselines/faiss_baselines.h"
 
 #include <faiss/IndexFlat.h>
 #include <faiss/IndexIVFPQ.h>

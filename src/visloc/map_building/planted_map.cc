@@ -1,10 +1,10 @@
-#include "visloc/map/planted_map.h"
+#include "visloc/map_building/planted_map.h"
 
 #include <nlohmann/json.hpp>
 
 #include "visloc/colmap/colmap_model.h"
 #include "visloc/map/map.h"
-#include "visloc/map/segment_builder.h"
+#include "visloc/map_building/segment_builder.h"
 #include "visloc/util/crc32c.h"
 #include "visloc/util/mapped_file.h"
 #include "visloc/util/test_support.h"

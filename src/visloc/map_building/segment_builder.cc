@@ -1,4 +1,4 @@
-#include "visloc/map/segment_builder.h"
+#include "visloc/map_building/segment_builder.h"
 
 #include "visloc/util/error.h"
 #include "visloc/util/timer.h"

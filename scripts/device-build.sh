@@ -1,0 +1,342 @@
+#!/usr/bin/env bash
+# visloc on a phone-class device: the runtime-only build (-DVISLOC_RUNTIME_ONLY=ON:
+# the C API, the localizer and what it needs) cross-compiled for aarch64 and run
+# under qemu-aarch64 (docs/device.md). Not part of CI: it downloads ~190 MB of
+# Debian arm64 packages once.
+#
+#   scripts/device-build.sh               toolchain, sysroot, cross build, tests, example
+#   scripts/device-build.sh --memory      ... then the memory study under qemu -R caps
+#   scripts/device-build.sh --stage S     only one stage: toolchain|sysroot|build|test|example|memory
+#
+# Environment:
+#   VISLOC_SYSROOT   the arm64 sysroot (default ~/.cache/visloc/sysroot-arm64); created
+#                    once, never touched by dpkg; present and complete = nothing downloaded
+#   VISLOC_DEVICE_BUILD  cross build directory (default build-aarch64)
+#   VISLOC_DEVICE_OUT    results: example outputs, memory table (default build-aarch64/device-out)
+set -euo pipefail
+cd "$(dirname "$0")/.."
+ROOT=$(pwd)
+
+SYSROOT=${VISLOC_SYSROOT:-${XDG_CACHE_HOME:-$HOME/.cache}/visloc/sysroot-arm64}
+BUILD=${VISLOC_DEVICE_BUILD:-build-aarch64}
+OUT=${VISLOC_DEVICE_OUT:-$BUILD/device-out}
+HOST_BUILD=${VISLOC_HOST_BUILD:-build}
+DATA=${VISLOC_SHARED_DATA_DIR:-$ROOT/../shared/data}
+STAGES=(toolchain sysroot build test example)
+ONLY=""
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --memory) STAGES+=(memory) ;;
+    --stage) ONLY="$2"; shift ;;
+    -h|--help) sed -n '2,17p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    *) echo "device-build: unknown argument '$1' (see --help)" >&2; exit 2 ;;
+  esac
+  shift
+done
+if [ -n "$ONLY" ]; then STAGES=("$ONLY"); fi
+
+SUDO=""
+if [ "$(id -u)" != "0" ]; then SUDO="sudo"; fi
+log() { echo "device-build: $*"; }
+
+# Debian arm64 packages the runtime build and its tests need (-dev packages pull
+# their runtime libraries). calib3d only for the tests' baselines: the runtime
+# library does not link it (the build stage checks). libopencv-dev for
+# OpenCVConfig.cmake, which names every OpenCV module.
+SYSROOT_PACKAGES=(
+  libc6-dev libstdc++-12-dev libgomp1
+  libopencv-core-dev libopencv-imgproc-dev libopencv-imgcodecs-dev
+  libopencv-features2d-dev libopencv-calib3d-dev libopencv-dev
+  libfaiss-dev libopenblas-dev libeigen3-dev libgeographiclib-dev libexiv2-dev
+  nlohmann-json3-dev libgtest-dev
+)
+
+stage_toolchain() {
+  local missing=()
+  for p in crossbuild-essential-arm64 qemu-user cmake ninja-build; do
+    dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+  done
+  if [ ${#missing[@]} -gt 0 ]; then
+    log "installing ${missing[*]}"
+    $SUDO apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+  else
+    log "toolchain present (aarch64-linux-gnu-g++ $(aarch64-linux-gnu-g++ -dumpversion), $(qemu-aarch64 --version | head -1))"
+  fi
+}
+
+# Makes every absolute symlink under the sysroot relative, so that it resolves
+# inside the sysroot and not on the host.
+relativize_symlinks() {
+  local root=$1
+  find "$root" -type l -lname '/*' -print0 | while IFS= read -r -d '' link; do
+    local target
+    target=$(readlink "$link")
+    ln -sfn "$(realpath -m --relative-to="$(dirname "$link")" "$root$target")" "$link"
+  done
+}
+
+stage_sysroot() {
+  local marker="$SYSROOT/.visloc-sysroot-complete" wanted="${SYSROOT_PACKAGES[*]}"
+  if [ -f "$marker" ] && [ "$(cat "$marker")" = "$wanted" ]; then
+    log "sysroot present: $SYSROOT ($(du -sh "$SYSROOT" | cut -f1)), nothing downloaded"
+    return
+  fi
+  [ -f "$marker" ] && log "the package list changed: making the sysroot again (downloads only new packages)"
+  local work="$SYSROOT.partial" debs="$SYSROOT.debs"  # downloaded .debs are kept: a new list fetches only what is new
+  rm -rf "$work"
+  mkdir -p "$debs/partial"
+  mkdir -p "$work/state/lists/partial" "$work/root"
+  : > "$work/state/status"
+  log "downloading ${#SYSROOT_PACKAGES[@]} arm64 packages and their dependencies (once, ~190 MB)"
+  local apt_opts=(-o "Dir::State::status=$work/state/status" -o "Dir::Cache::archives=$debs"
+                  -o APT::Architecture=arm64 -o "APT::Architectures::=arm64"
+                  -o Debug::NoLocking=1)
+  $SUDO apt-get "${apt_opts[@]}" update -qq
+  $SUDO apt-get "${apt_opts[@]}" -y -qq --no-install-recommends --download-only install "${SYSROOT_PACKAGES[@]}" >/dev/null
+  local n
+  n=$(ls "$debs"/*.deb | wc -l)
+  log "unpacking $n packages ($(du -sh "$debs" | cut -f1))"
+  for d in "$debs"/*.deb; do dpkg-deb -x "$d" "$work/root"; done
+  relativize_symlinks "$work/root"
+  local lib="$work/root/usr/lib/aarch64-linux-gnu"
+  # BLAS/LAPACK are Debian alternatives (set up by dpkg, which never ran here).
+  for name in blas lapack; do
+    local impl="" candidate
+    for candidate in "$lib/openblas-pthread/lib${name}.so.3" "$lib/${name}/lib${name}.so.3"; do
+      if [ -e "$candidate" ]; then impl=$candidate; break; fi  # OpenBLAS first, as on the host
+    done
+    if [ -n "$impl" ]; then
+      ln -sfn "$(realpath --relative-to="$lib" "$impl")" "$lib/lib${name}.so.3"
+      ln -sfn "lib${name}.so.3" "$lib/lib${name}.so"
+    fi
+  done
+  # ... and so is OpenBLAS's own library, which the OpenBLAS libblas.so.3 needs.
+  if [ -e "$lib/openblas-pthread/libopenblas.so.0" ]; then
+    ln -sfn openblas-pthread/libopenblas.so.0 "$lib/libopenblas.so.0"
+  fi
+  # FAISS's exported targets name absolute /usr/... paths: point them into the sysroot.
+  local faiss_targets
+  for faiss_targets in "$work"/root/usr/share/faiss/faiss-targets*.cmake "$work"/root/usr/lib/aarch64-linux-gnu/cmake/faiss/faiss-targets*.cmake; do
+    [ -f "$faiss_targets" ] && sed -i "s#\([\";]\)/usr/#\1\${CMAKE_SYSROOT}/usr/#g" "$faiss_targets"
+  done
+  mv "$work/root" "$work/sysroot"
+  rm -rf "$SYSROOT"
+  mkdir -p "$(dirname "$SYSROOT")"
+  mv "$work/sysroot" "$SYSROOT"
+  rm -rf "$work"
+  echo "$wanted" > "$marker"
+  log "sysroot ready: $SYSROOT ($(du -sh "$SYSROOT" | cut -f1))"
+}
+
+HOST_CLI="$ROOT/$HOST_BUILD/src/visloc/cli/visloc"
+HOST_EXAMPLE="$ROOT/$HOST_BUILD/examples/localize_photo"
+DEVICE_EXAMPLE="$ROOT/$BUILD/examples/localize_photo"
+QEMU=(qemu-aarch64 -L "$SYSROOT")
+need_host_build() {
+  if [ ! -x "$HOST_CLI" ] || [ ! -x "$HOST_EXAMPLE" ]; then
+    echo "device-build: the host build ($HOST_BUILD: visloc CLI, examples/localize_photo) is missing; run scripts/setup.sh first" >&2
+    exit 1
+  fi
+}
+need_sysroot() {
+  if [ ! -f "$SYSROOT/.visloc-sysroot-complete" ]; then  # stage_sysroot writes it last
+    echo "device-build: no sysroot at $SYSROOT; run scripts/device-build.sh --stage sysroot" >&2
+    exit 1
+  fi
+}
+
+# The shared libraries a file needs, transitively, resolved in the sysroot.
+needed_closure() {
+  local -A seen=()
+  local queue=("$1") f lib path
+  while [ ${#queue[@]} -gt 0 ]; do
+    f=${queue[0]}; queue=("${queue[@]:1}")
+    for lib in $(aarch64-linux-gnu-readelf -d "$f" | sed -n 's/.*(NEEDED).*\[\(.*\)\]/\1/p'); do
+      [ -n "${seen[$lib]:-}" ] && continue
+      seen[$lib]=1
+      path=""
+      for dir in "$SYSROOT/usr/lib/aarch64-linux-gnu" "$SYSROOT/lib/aarch64-linux-gnu" "$SYSROOT/usr/lib/aarch64-linux-gnu/openblas-pthread"; do
+        if [ -e "$dir/$lib" ]; then path=$(readlink -f "$dir/$lib"); break; fi
+      done
+      [ -n "$path" ] && queue+=("$path")
+    done
+  done
+  printf '%s\n' "${!seen[@]}" | sort
+}
+
+stage_build() {
+  need_sysroot
+  need_host_build
+  mkdir -p "$OUT"
+  cmake -S . -B "$BUILD" -G Ninja -DCMAKE_BUILD_TYPE=Release \
+    -DCMAKE_TOOLCHAIN_FILE="$ROOT/cmake/aarch64-linux-gnu.cmake" -DVISLOC_SYSROOT="$SYSROOT" \
+    -DVISLOC_RUNTIME_ONLY=ON -DVISLOC_HOST_CLI="$HOST_CLI" -DVISLOC_SHARED_DATA_DIR="$DATA" > "$OUT/configure.log" ||
+    { cat "$OUT/configure.log" >&2; exit 1; }
+  ninja -C "$BUILD"
+  local lib
+  lib=$(readlink -f "$BUILD/src/visloc/capi/libvisloc.so")
+  aarch64-linux-gnu-strip -o "$OUT/libvisloc.stripped.so" "$lib"
+  aarch64-linux-gnu-strip -o "$OUT/localize_photo.stripped" "$DEVICE_EXAMPLE"
+  {
+    echo "# aarch64 runtime build ($(date -u +%F), $(aarch64-linux-gnu-g++ -dumpfullversion), Release)"
+    echo "libvisloc.so: $(stat -c %s "$lib") bytes, stripped $(stat -c %s "$OUT/libvisloc.stripped.so")"
+    echo "localize_photo: $(stat -c %s "$DEVICE_EXAMPLE") bytes, stripped $(stat -c %s "$OUT/localize_photo.stripped")"
+    echo "libvisloc.so exports: $(aarch64-linux-gnu-nm -D --defined-only "$lib" | awk '$2 == "T" {print $3}' | tr '\n' ' ')"
+    echo "libvisloc.so needs directly: $(aarch64-linux-gnu-readelf -d "$lib" | sed -n 's/.*(NEEDED).*\[\(.*\)\]/\1/p' | tr '\n' ' ')"
+    local closure
+    closure=$(needed_closure "$lib")
+    echo "libvisloc.so needs in all, through Debian's builds of its dependencies ($(echo "$closure" | wc -l) libraries):"
+    echo "$closure" | sed 's/^/  /'
+    echo "of which each direct dependency brings (transitively):"
+    local direct
+    for direct in $(aarch64-linux-gnu-readelf -d "$lib" | sed -n 's/.*(NEEDED).*\[\(.*\)\]/\1/p'); do
+      local path
+      path=$(readlink -f "$SYSROOT/usr/lib/aarch64-linux-gnu/$direct" 2>/dev/null || true)
+      [ -f "$path" ] || path=$(readlink -f "$SYSROOT/lib/aarch64-linux-gnu/$direct" 2>/dev/null || true)
+      [ -f "$path" ] && echo "  $direct: $(needed_closure "$path" | wc -l)"
+    done
+  } > "$OUT/sizes.txt"
+  cat "$OUT/sizes.txt"
+  # visloc's own link line: never calib3d, SQLite or CLI11 (Debian's OpenCV
+  # imgcodecs pulls GDAL and, through it, SQLite: a device build of OpenCV
+  # would leave GDAL out).
+  if aarch64-linux-gnu-readelf -d "$lib" | grep NEEDED | grep -E 'opencv_calib3d|sqlite|CLI11'; then
+    echo "device-build: libvisloc.so must not link calib3d, SQLite or CLI11" >&2
+    exit 1
+  fi
+}
+
+stage_test() {
+  need_sysroot
+  # Emulated code runs ~10-40x slower than native: generous timeouts.
+  ctest --test-dir "$BUILD" --output-on-failure -j "$(nproc)" --timeout 1800 2>&1 | tee "$OUT/ctest.log"
+}
+
+# Maps the device runs against: the demo's synthetic city (scripts/demo.sh makes
+# it) and castle-P30 imported with its held-out photos (from ../shared/data).
+CITY_MAP="$ROOT/demo-out/city-map"
+CITY_QUERIES="$ROOT/demo-out/city/queries"
+CASTLE="$DATA/strecha/castle-P30"
+CASTLE_MAP="$OUT/castle-map"
+prepare_maps() {
+  need_host_build
+  mkdir -p "$OUT"
+  if [ ! -f "$CITY_MAP/manifest.json" ]; then
+    log "no demo city map at $CITY_MAP: running scripts/demo.sh first"
+    scripts/demo.sh > "$OUT/demo.log" 2>&1 || { tail -20 "$OUT/demo.log" >&2; exit 1; }
+  fi
+  if [ -d "$CASTLE" ]; then
+    # The true intrinsics (Strecha's K, pixel centres at integers) in visloc's
+    # convention (top-left pixel centre at 0.5, 0.5), as an hloc query list.
+    python3 - "$CASTLE" > "$OUT/castle-intrinsics.txt" <<'PY'
+import pathlib, sys
+for camera in sorted(pathlib.Path(sys.argv[1], "cameras").glob("*.camera")):
+    v = camera.read_text().split()
+    fx, cx, fy, cy, w, h = v[0], v[2], v[4], v[5], v[24], v[25]
+    print(camera.name[:-len(".camera")], "PINHOLE", w, h, fx, fy, float(cx) + 0.5, float(cy) + 0.5)
+PY
+  fi
+  if [ -d "$CASTLE" ] && [ ! -f "$CASTLE_MAP/manifest.json" ]; then
+    log "importing castle-P30 with its held-out photos into $CASTLE_MAP"
+    "$HOST_CLI" map import --colmap "$CASTLE/colmap/sparse" --database "$CASTLE/colmap/database.db" \
+      --holdout "$CASTLE/queries.txt" --out "$CASTLE_MAP" --overwrite > "$OUT/castle-import.log"
+  fi
+}
+
+# run_example ARCH MAP OUTFILE EXTRA... : localize_photo natively (x86-64) or under qemu.
+run_example() {
+  local arch=$1 map=$2 out=$3; shift 3
+  if [ "$arch" = host ]; then
+    "$HOST_EXAMPLE" "$map" "$@" > "$out"
+  else
+    timeout 3600 "${QEMU[@]}" "$DEVICE_EXAMPLE" "$map" "$@" > "$out"
+  fi
+}
+
+example_args() {  # MAP_NAME → the photos and options of that map's queries
+  case "$1" in
+    city) echo "--intrinsics $CITY_QUERIES/intrinsics.txt --max-side 1024"
+          head -12 "$CITY_QUERIES/list.txt" | sed "s#^#$CITY_QUERIES/images/#" ;;
+    castle) echo "--max-side 1024"  # no intrinsics: the focal length is estimated
+            sed "s#^#$CASTLE/images/#" "$CASTLE/queries.txt" ;;
+    castle-known) echo "--intrinsics $OUT/castle-intrinsics.txt --max-side 1024"
+                  sed "s#^#$CASTLE/images/#" "$CASTLE/queries.txt" ;;
+  esac
+}
+
+stage_example() {
+  need_sysroot
+  prepare_maps
+  local name map
+  for name in city castle castle-known; do
+    map=$CITY_MAP; [[ "$name" == castle* ]] && map=$CASTLE_MAP
+    [ -f "$map/manifest.json" ] || { log "no $name map: skipped"; continue; }
+    mapfile -t args < <(example_args "$name" | tr ' ' '\n' | grep -v '^$')
+    log "$name: localize_photo on x86-64 and on aarch64 (qemu), ${#args[@]} arguments"
+    run_example host "$map" "$OUT/$name.x86_64.jsonl" "${args[@]}"
+    run_example device "$map" "$OUT/$name.aarch64.jsonl" "${args[@]}"
+    python3 scripts/compare_poses.py "$OUT/$name.x86_64.jsonl" "$OUT/$name.aarch64.jsonl" > "$OUT/$name.compare.txt" ||
+      log "$name: x86-64 and aarch64 disagree (docs/device.md explains the known cause)"
+    cat "$OUT/$name.compare.txt"
+  done
+}
+
+# peak_kib LOG: qemu's peak resident set from /usr/bin/time -v (guest pages + ~20 MB of qemu).
+peak_kib() { sed -n 's/.*Maximum resident set size (kbytes): //p' "$1"; }
+
+# The memory study: peak memory per stage, and the smallest address-space cap
+# (qemu -R) at which the first query photo still registers.
+stage_memory() {
+  need_sysroot
+  prepare_maps
+  local table="$OUT/memory.md" name map photo
+  echo "| map | run | peak RSS under qemu (MiB) | registered | inliers |" > "$table"
+  echo "|---|---|---|---|---|" >> "$table"
+  for name in city castle-known; do
+    map=$CITY_MAP; [[ "$name" == castle* ]] && map=$CASTLE_MAP
+    [ -f "$map/manifest.json" ] || { log "no $name map: skipped"; continue; }
+    mapfile -t args < <(example_args "$name" | tr ' ' '\n' | grep -v '^$')
+    # options, then the first photo only
+    local options=() photos=() a
+    for a in "${args[@]}"; do
+      if [ -f "$a" ] && [[ "$a" == *.jpg || "$a" == *.png ]]; then photos+=("$a"); else options+=("$a"); fi
+    done
+    photo=${photos[0]}
+    local run label cap extra
+    for run in "open:--open-only" "1 segment:--max-segments 1" "2 segments:--max-segments 2" "4 segments:--max-segments 4"; do
+      label=${run%%:*}; read -r -a extra <<< "${run#*:}"
+      /usr/bin/time -v -o "$OUT/mem-$name-${label// /_}.time" timeout 3600 "${QEMU[@]}" "$DEVICE_EXAMPLE" "$map" \
+        "${options[@]}" "${extra[@]}" "$photo" > "$OUT/mem-$name-${label// /_}.jsonl" 2>&1 || true
+      local kib reg inl
+      kib=$(peak_kib "$OUT/mem-$name-${label// /_}.time")
+      reg=$(python3 -c 'import json,sys; r=[json.loads(l) for l in open(sys.argv[1]) if l.startswith("{\"image")]; print(r[0].get("registered","-") if r else "-")' "$OUT/mem-$name-${label// /_}.jsonl" 2>/dev/null || echo "-")
+      inl=$(python3 -c 'import json,sys; r=[json.loads(l) for l in open(sys.argv[1]) if l.startswith("{\"image")]; print(r[0].get("inliers","-") if r else "-")' "$OUT/mem-$name-${label// /_}.jsonl" 2>/dev/null || echo "-")
+      echo "| $name | $label | $(( kib / 1024 )) | $reg | $inl |" | tee -a "$table"
+    done
+    # The smallest cap (MiB of guest address space) at which the photo registers.
+    local smallest=""
+    for cap in 1024 512 384 320 256 224 192 160 128 112 96 80 64; do
+      if timeout 3600 qemu-aarch64 -R "${cap}M" -L "$SYSROOT" "$DEVICE_EXAMPLE" "$map" "${options[@]}" "$photo" \
+           > "$OUT/cap-$name-$cap.jsonl" 2> "$OUT/cap-$name-$cap.err" &&
+         grep -q '"registered": 1' "$OUT/cap-$name-$cap.jsonl"; then
+        smallest=$cap
+        log "$name: registers within -R ${cap}M"
+      else
+        log "$name: does not register within -R ${cap}M: $(tail -c 300 "$OUT/cap-$name-$cap.err" "$OUT/cap-$name-$cap.jsonl" | tr '\n' ' ')"
+        break
+      fi
+    done
+    echo "| $name | smallest qemu -R cap that registers | ${smallest:-none} (caps tried 1024..64 MiB) | | |" | tee -a "$table"
+  done
+  log "memory table: $table"
+}
+
+for stage in "${STAGES[@]}"; do
+  case "$stage" in
+    toolchain) stage_toolchain ;;
+    sysroot) stage_sysroot ;;
+    *) if declare -F "stage_$stage" >/dev/null; then "stage_$stage"; else
+         echo "device-build: unknown stage '$stage'" >&2; exit 2; fi ;;
+  esac
+done
