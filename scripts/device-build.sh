@@ -285,49 +285,89 @@ stage_example() {
 # peak_kib LOG: qemu's peak resident set from /usr/bin/time -v (guest pages + ~20 MB of qemu).
 peak_kib() { sed -n 's/.*Maximum resident set size (kbytes): //p' "$1"; }
 
+# first_photo_and_options NAME: sets options=(...) and photo for a map's first query.
+first_photo_and_options() {
+  local a
+  options=(); photo=""
+  mapfile -t args < <(example_args "$1" | tr ' ' '\n' | grep -v '^$')
+  for a in "${args[@]}"; do
+    if [ -f "$a" ] && [[ "$a" == *.jpg || "$a" == *.png ]]; then
+      if [ -z "$photo" ]; then photo=$a; fi
+    else
+      options+=("$a")
+    fi
+  done
+}
+
+# registers_within CAP_MIB LOG ARGS...: localize_photo under qemu -R CAP; 0 when the photo registers.
+registers_within() {
+  local cap=$1 log=$2; shift 2
+  timeout 3600 env OMP_NUM_THREADS="${DEVICE_OMP_THREADS:-$(nproc)}" \
+    qemu-aarch64 -R "${cap}M" -L "$SYSROOT" "$DEVICE_EXAMPLE" "$@" > "$log" 2>&1 &&
+    grep -q '"registered": 1' "$log"
+}
+
 # The memory study: peak memory per stage, and the smallest address-space cap
-# (qemu -R) at which the first query photo still registers.
+# (qemu -R, 16 MiB steps) at which the first query photo still registers, per
+# configuration (photo size, threads).
 stage_memory() {
   need_sysroot
   prepare_maps
-  local table="$OUT/memory.md" name map photo
-  echo "| map | run | peak RSS under qemu (MiB) | registered | inliers |" > "$table"
-  echo "|---|---|---|---|---|" >> "$table"
+  local table="$OUT/memory.md" name map
+  {
+    echo "| map | configuration | run | peak RSS under qemu (MiB) | registered | inliers | features |"
+    echo "|---|---|---|---|---|---|---|"
+  } > "$table"
   for name in city castle-known; do
     map=$CITY_MAP; [[ "$name" == castle* ]] && map=$CASTLE_MAP
     [ -f "$map/manifest.json" ] || { log "no $name map: skipped"; continue; }
-    mapfile -t args < <(example_args "$name" | tr ' ' '\n' | grep -v '^$')
-    # options, then the first photo only
-    local options=() photos=() a
-    for a in "${args[@]}"; do
-      if [ -f "$a" ] && [[ "$a" == *.jpg || "$a" == *.png ]]; then photos+=("$a"); else options+=("$a"); fi
-    done
-    photo=${photos[0]}
-    local run label cap extra
-    for run in "open:--open-only" "1 segment:--max-segments 1" "2 segments:--max-segments 2" "4 segments:--max-segments 4"; do
-      label=${run%%:*}; read -r -a extra <<< "${run#*:}"
-      /usr/bin/time -v -o "$OUT/mem-$name-${label// /_}.time" timeout 3600 "${QEMU[@]}" "$DEVICE_EXAMPLE" "$map" \
-        "${options[@]}" "${extra[@]}" "$photo" > "$OUT/mem-$name-${label// /_}.jsonl" 2>&1 || true
-      local kib reg inl
-      kib=$(peak_kib "$OUT/mem-$name-${label// /_}.time")
-      reg=$(python3 -c 'import json,sys; r=[json.loads(l) for l in open(sys.argv[1]) if l.startswith("{\"image")]; print(r[0].get("registered","-") if r else "-")' "$OUT/mem-$name-${label// /_}.jsonl" 2>/dev/null || echo "-")
-      inl=$(python3 -c 'import json,sys; r=[json.loads(l) for l in open(sys.argv[1]) if l.startswith("{\"image")]; print(r[0].get("inliers","-") if r else "-")' "$OUT/mem-$name-${label// /_}.jsonl" 2>/dev/null || echo "-")
-      echo "| $name | $label | $(( kib / 1024 )) | $reg | $inl |" | tee -a "$table"
-    done
-    # The smallest cap (MiB of guest address space) at which the photo registers.
-    local smallest=""
-    for cap in 1024 512 384 320 256 224 192 160 128 112 96 80 64; do
-      if timeout 3600 qemu-aarch64 -R "${cap}M" -L "$SYSROOT" "$DEVICE_EXAMPLE" "$map" "${options[@]}" "$photo" \
-           > "$OUT/cap-$name-$cap.jsonl" 2> "$OUT/cap-$name-$cap.err" &&
-         grep -q '"registered": 1' "$OUT/cap-$name-$cap.jsonl"; then
-        smallest=$cap
-        log "$name: registers within -R ${cap}M"
-      else
-        log "$name: does not register within -R ${cap}M: $(tail -c 300 "$OUT/cap-$name-$cap.err" "$OUT/cap-$name-$cap.jsonl" | tr '\n' ' ')"
-        break
+    first_photo_and_options "$name"
+    local config
+    for config in "1024 px, 2 threads:--max-side 1024:2" "1024 px, 1 thread:--max-side 1024 --threads 1:1" \
+                  "800 px, 1 thread:--max-side 800 --threads 1:1" "640 px, 1 thread:--max-side 640 --threads 1:1"; do
+      local label=${config%%:*} rest=${config#*:}
+      local config_options threads=${rest##*:}
+      read -r -a config_options <<< "${rest%:*}"
+      # drop the map's own --max-side: the configuration sets it
+      local base=() i=0
+      while [ $i -lt ${#options[@]} ]; do
+        if [ "${options[$i]}" = --max-side ]; then i=$((i + 2)); continue; fi
+        base+=("${options[$i]}"); i=$((i + 1))
+      done
+      local run extra tag
+      for run in "open:--open-only" "query:"; do
+        read -r -a extra <<< "${run#*:}"
+        tag="$name-${label//[ ,]/_}-${run%%:*}"
+        /usr/bin/time -v -o "$OUT/mem-$tag.time" timeout 3600 env OMP_NUM_THREADS="$threads" "${QEMU[@]}" \
+          "$DEVICE_EXAMPLE" "$map" "${base[@]}" "${config_options[@]}" ${extra[@]+"${extra[@]}"} "$photo" \
+          > "$OUT/mem-$tag.jsonl" 2>&1 || true
+        local fields
+        fields=$(python3 - "$OUT/mem-$tag.jsonl" <<'PY'
+import json, sys
+rows = [json.loads(l) for l in open(sys.argv[1]) if l.startswith('{"image')]
+r = rows[0] if rows else {}
+print(r.get("registered", "-"), r.get("inliers", "-"), r.get("features", "-"))
+PY
+)
+        read -r reg inl feat <<< "$fields"
+        echo "| $name | $label | ${run%%:*} | $(( $(peak_kib "$OUT/mem-$tag.time") / 1024 )) | $reg | $inl | $feat |" | tee -a "$table"
+      done
+      # Bisection over caps in 16 MiB steps between 64 MiB and 1024 MiB.
+      local lo=64 hi=1024 mid
+      if ! DEVICE_OMP_THREADS=$threads registers_within $hi "$OUT/cap-$tag-$hi.log" "$map" "${base[@]}" "${config_options[@]}" "$photo"; then
+        echo "| $name | $label | smallest -R cap that registers | none up to $hi MiB | | | |" | tee -a "$table"
+        continue
       fi
+      while [ $((hi - lo)) -gt 16 ]; do
+        mid=$(( (lo + hi) / 2 / 16 * 16 ))
+        if DEVICE_OMP_THREADS=$threads registers_within $mid "$OUT/cap-$tag-$mid.log" "$map" "${base[@]}" "${config_options[@]}" "$photo"; then
+          hi=$mid
+        else
+          lo=$mid
+        fi
+      done
+      echo "| $name | $label | smallest -R cap that registers (16 MiB steps) | $hi MiB | | | |" | tee -a "$table"
     done
-    echo "| $name | smallest qemu -R cap that registers | ${smallest:-none} (caps tried 1024..64 MiB) | | |" | tee -a "$table"
   done
   log "memory table: $table"
 }
