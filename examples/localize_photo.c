@@ -2,6 +2,9 @@
  * docs/device.md). Opens a map, localizes photos, prints one JSON line per
  * photo (pose, inliers, stage times, peak memory so far), so that runs on
  * two machines (x86-64, aarch64 under qemu) can be compared line by line.
+ * A photo named *.pgm (binary 8-bit greyscale) is read here and passed as
+ * pixels (visloc_localize_gray), as an app passes a camera frame's luma
+ * plane; other files go to visloc_localize_file (JPEG, PNG).
  *
  *   localize_photo MAP_DIR [options] PHOTO...
  *     --intrinsics FILE   hloc query list: NAME MODEL WIDTH HEIGHT PARAMS...
@@ -59,8 +62,16 @@ static int find_intrinsics(const char* list_path, const char* name, visloc_intri
     char entry[512], model[64];
     int width, height, n;
     double p[4] = {0, 0, 0, 0};
+    const char* first = line;
     ++line_no;
-    if (line[0] == '#' || line[0] == '\n') continue;
+    if (!strchr(line, '\n') && !feof(f)) {
+      fprintf(stderr, "localize_photo: %s line %d: longer than %d characters\n", list_path, line_no,
+              (int)sizeof line - 2);
+      fclose(f);
+      return -1;
+    }
+    while (*first == ' ' || *first == '\t' || *first == '\r' || *first == '\n') ++first;
+    if (*first == '#' || *first == '\0') continue; /* comments and blank lines */
     n = sscanf(line, "%511s %63s %d %d %lf %lf %lf %lf", entry, model, &width, &height, &p[0], &p[1], &p[2], &p[3]);
     if (n < 4) {
       fprintf(stderr, "localize_photo: %s line %d: expected NAME MODEL WIDTH HEIGHT PARAMS\n", list_path, line_no);
@@ -88,22 +99,110 @@ static int find_intrinsics(const char* list_path, const char* name, visloc_intri
   return found;
 }
 
+/* A JSON string: quotes, backslashes and control bytes escaped. */
+static void print_json_string(const char* text) {
+  const unsigned char* c = (const unsigned char*)text;
+  putchar('"');
+  for (; *c; ++c) {
+    if (*c == '"' || *c == '\\') printf("\\%c", *c);
+    else if (*c < 0x20) printf("\\u%04x", *c);
+    else putchar(*c);
+  }
+  putchar('"');
+}
+
+/* A JSON number; null for NaN or infinity, which JSON cannot hold. */
+static void print_json_number(const char* format, double v) {
+  if (v == v && v - v == 0) printf(format, v);
+  else printf("null");
+}
+
+static void print_json_numbers(const char* format, const double* v, int n) {
+  int i;
+  putchar('[');
+  for (i = 0; i < n; ++i) {
+    if (i) printf(", ");
+    print_json_number(format, v[i]);
+  }
+  putchar(']');
+}
+
+/* Reads a binary 8-bit PGM (P5, maxval 255): a camera frame's luma plane as
+ * an app would hold it. Returns the pixels (free them) or NULL with a message. */
+static int read_pgm_token(FILE* f, long* out) {
+  int c = fgetc(f);
+  while (c == '#' || c == ' ' || c == '\t' || c == '\r' || c == '\n') {
+    if (c == '#') while (c != '\n' && c != EOF) c = fgetc(f);
+    c = fgetc(f);
+  }
+  if (c < '0' || c > '9') return 0;
+  *out = 0;
+  while (c >= '0' && c <= '9') {
+    if (*out > 100000000L) return 0;
+    *out = *out * 10 + (c - '0');
+    c = fgetc(f);
+  }
+  return c == ' ' || c == '\t' || c == '\r' || c == '\n'; /* one whitespace after the number */
+}
+
+static uint8_t* read_pgm(const char* path, int* width, int* height) {
+  FILE* f = fopen(path, "rb");
+  long w = 0, h = 0, maxval = 0;
+  uint8_t* pixels = NULL;
+  if (!f) {
+    fprintf(stderr, "localize_photo: cannot open %s\n", path);
+    return NULL;
+  }
+  if (fgetc(f) != 'P' || fgetc(f) != '5' || !read_pgm_token(f, &w) || !read_pgm_token(f, &h) ||
+      !read_pgm_token(f, &maxval) || w < 1 || h < 1 || w > 65536 || h > 65536 || maxval != 255) {
+    fprintf(stderr, "localize_photo: %s: not a binary 8-bit PGM (P5, maxval 255)\n", path);
+    fclose(f);
+    return NULL;
+  }
+  pixels = (uint8_t*)malloc((size_t)w * (size_t)h);
+  if (!pixels || fread(pixels, 1, (size_t)w * (size_t)h, f) != (size_t)w * (size_t)h) {
+    fprintf(stderr, "localize_photo: %s: %s\n", path, pixels ? "shorter than its header says" : "out of memory");
+    free(pixels);
+    fclose(f);
+    return NULL;
+  }
+  fclose(f);
+  *width = (int)w;
+  *height = (int)h;
+  return pixels;
+}
+
+static int has_suffix(const char* text, const char* suffix) {
+  size_t n = strlen(text), k = strlen(suffix);
+  return n >= k && strcmp(text + n - k, suffix) == 0;
+}
+
 static void print_result(const char* photo, visloc_status status, const visloc_result* r) {
-  printf("{\"image\": \"%s\", \"status\": \"%s\"", base_name(photo), visloc_status_string(status));
+  printf("{\"image\": ");
+  print_json_string(base_name(photo));
+  printf(", \"status\": \"%s\"", visloc_status_string(status));
   if (status == VISLOC_OK) {
     printf(", \"registered\": %d, \"inliers\": %d, \"features\": %d, \"segment\": %d", r->registered, r->inliers,
            r->features, r->segment);
-    printf(", \"center\": [%.9f, %.9f, %.9f]", r->center[0], r->center[1], r->center[2]);
-    printf(", \"rotation_wxyz\": [%.12f, %.12f, %.12f, %.12f]", r->rotation_wxyz[0], r->rotation_wxyz[1],
-           r->rotation_wxyz[2], r->rotation_wxyz[3]);
-    if (r->has_enu) printf(", \"enu\": [%.9f, %.9f, %.9f]", r->enu[0], r->enu[1], r->enu[2]);
-    printf(", \"focal_px\": %.6f, \"confidence\": %.6f", r->focal_px, r->confidence);
+    printf(", \"center\": ");
+    print_json_numbers("%.9f", r->center, 3);
+    printf(", \"rotation_wxyz\": ");
+    print_json_numbers("%.12f", r->rotation_wxyz, 4);
+    if (r->has_enu) {
+      printf(", \"enu\": ");
+      print_json_numbers("%.9f", r->enu, 3);
+    }
+    printf(", \"focal_px\": ");
+    print_json_number("%.6f", r->focal_px);
+    printf(", \"confidence\": ");
+    print_json_number("%.6f", r->confidence);
     printf(", \"times_ms\": {\"features\": %.1f, \"retrieval\": %.1f, \"matching\": %.1f, \"ransac\": %.1f, "
            "\"total\": %.1f}",
            r->times.features_ms, r->times.retrieval_ms, r->times.matching_ms, r->times.ransac_ms,
            r->times.total_ms);
   } else {
-    printf(", \"error\": \"%s\"", r->error);
+    printf(", \"error\": ");
+    print_json_string(r->error);
   }
   printf(", \"peak_rss_kib\": %ld}\n", peak_rss_kib());
   fflush(stdout);
@@ -159,7 +258,9 @@ int main(int argc, char** argv) {
     free(photos);
     return 1;
   }
-  printf("{\"event\": \"open\", \"map\": \"%s\", \"peak_rss_kib\": %ld}\n", map_dir, peak_rss_kib());
+  printf("{\"event\": \"open\", \"map\": ");
+  print_json_string(map_dir);
+  printf(", \"peak_rss_kib\": %ld}\n", peak_rss_kib());
   fflush(stdout);
 
   for (i = 0; i < photo_count && !open_only; ++i) {
@@ -173,7 +274,18 @@ int main(int argc, char** argv) {
         break;
       }
     }
-    status = visloc_localize_file(localizer, photos[i], listed ? &k : NULL, &result);
+    if (has_suffix(photos[i], ".pgm")) {
+      int width = 0, height = 0;
+      uint8_t* pixels = read_pgm(photos[i], &width, &height);
+      if (!pixels) {
+        failures = 1;
+        continue;
+      }
+      status = visloc_localize_gray(localizer, pixels, width, height, width, listed ? &k : NULL, &result);
+      free(pixels);
+    } else {
+      status = visloc_localize_file(localizer, photos[i], listed ? &k : NULL, &result);
+    }
     print_result(photos[i], status, &result);
     if (status != VISLOC_OK) failures = 1;
   }

@@ -1,16 +1,18 @@
 #!/usr/bin/env python3
 """Compares two runs of examples/localize_photo (JSON lines), e.g. x86-64 and
-aarch64: the same photos must come back with the same status and registration,
-and poses within a tolerance (default 1 mm of camera centre, in metres when the
-map is geo-registered, else in the segment's units).
+aarch64: the same photos must come back with the same status, registration and
+segment, and poses within tolerances (default 1 mm of camera centre, in metres
+when the map is geo-registered, else in the segment's units, and 0.001 degrees
+of rotation).
 
-    scripts/compare_poses.py A.jsonl B.jsonl [--tolerance 0.001]
+    scripts/compare_poses.py A.jsonl B.jsonl [--tolerance 0.001] [--rotation-tolerance 0.001]
 
 Prints one line per photo and a summary; exit 0 when they agree, 1 otherwise,
 2 on unreadable input."""
 import argparse
 import json
 import math
+import pathlib
 import sys
 
 
@@ -25,11 +27,13 @@ def read_results(path):
                 try:
                     record = json.loads(line)
                 except json.JSONDecodeError as e:
-                    sys.exit(f"compare_poses: {path} line {number}: not JSON ({e})")
-                if "image" in record:
-                    results[record["image"]] = record
+                    print(f"compare_poses: {path} line {number}: not JSON ({e})", file=sys.stderr)
+                    sys.exit(2)
+                if "image" in record:  # keyed by stem: q1.jpg (a file) and q1.pgm (its pixels) compare
+                    results[pathlib.PurePath(record["image"]).stem] = record
     except OSError as e:
-        sys.exit(f"compare_poses: cannot read {path}: {e.strerror}")
+        print(f"compare_poses: cannot read {path}: {e.strerror}", file=sys.stderr)
+        sys.exit(2)
     return results
 
 
@@ -46,11 +50,14 @@ def main():
     parser.add_argument("b")
     parser.add_argument("--tolerance", type=float, default=0.001,
                         help="largest camera-centre difference allowed (default 0.001: 1 mm)")
+    parser.add_argument("--rotation-tolerance", type=float, default=0.001,
+                        help="largest rotation difference allowed, degrees (default 0.001)")
     args = parser.parse_args()
     a, b = read_results(args.a), read_results(args.b)
-    if not a:
-        print(f"compare_poses: no results in {args.a}", file=sys.stderr)
-        return 2
+    for path, results in ((args.a, a), (args.b, b)):
+        if not results:
+            print(f"compare_poses: no results in {path}", file=sys.stderr)
+            return 2
     disagreements = 0
     worst_centre, worst_rotation, worst_inliers = 0.0, 0.0, 0
     for image in sorted(set(a) | set(b)):
@@ -73,7 +80,7 @@ def main():
         same_segment = ra["segment"] == rb["segment"]
         worst_centre, worst_rotation = max(worst_centre, centre), max(worst_rotation, rotation)
         worst_inliers = max(worst_inliers, inliers)
-        ok = same_segment and centre <= args.tolerance
+        ok = same_segment and centre <= args.tolerance and rotation <= args.rotation_tolerance
         disagreements += 0 if ok else 1
         print(f"{image}: registered {ra['registered']}, segment {ra['segment']}/{rb['segment']}, "
               f"inliers {ra['inliers']}/{rb['inliers']}, centre {centre:.3e} {'m' if key == 'enu' else 'units'}, "

@@ -4,7 +4,9 @@
 #include <cctype>
 
 #include <exiv2/exiv2.hpp>
+#if VISLOC_IMAGE_FILES
 #include <opencv2/imgcodecs.hpp>
+#endif
 #include <opencv2/imgproc.hpp>
 
 #include <cmath>
@@ -120,7 +122,13 @@ ImageMetadata read_image_metadata(const std::filesystem::path& path, const Image
 GrayImage read_gray_image(const std::filesystem::path& path, const ImageReadOptions& options,
                           ImageMetadata* metadata) {
   ImageMetadata m = read_image_metadata(path, options);
+#if VISLOC_IMAGE_FILES
   cv::Mat mat = cv::imread(path.string(), cv::IMREAD_GRAYSCALE | cv::IMREAD_IGNORE_ORIENTATION);
+#else
+  cv::Mat mat;
+  throw_error(ErrorCode::kNotImplemented, path.string(), ": this build decodes no image files "
+              "(VISLOC_IMAGE_FILES=OFF, no OpenCV imgcodecs): pass the pixels (visloc_localize_gray)");
+#endif
   if (mat.empty()) throw_error(ErrorCode::kFormat, path.string(), ": cannot decode image pixels");
   if (mat.cols != m.width || mat.rows != m.height)
     throw_error(ErrorCode::kFormat, path.string(), ": header says ", m.width, "x", m.height,
@@ -138,6 +146,7 @@ GrayImage read_gray_image(const std::filesystem::path& path, const ImageReadOpti
 void write_image(const std::filesystem::path& path, int width, int height, int channels,
                  const uint8_t* pixels, int jpeg_quality) {
   VISLOC_CHECK(channels == 1 || channels == 3);
+#if VISLOC_IMAGE_FILES
   cv::Mat mat(height, width, channels == 1 ? CV_8UC1 : CV_8UC3, const_cast<uint8_t*>(pixels));
   cv::Mat bgr;
   if (channels == 3) cv::cvtColor(mat, bgr, cv::COLOR_RGB2BGR); else bgr = mat;
@@ -148,6 +157,9 @@ void write_image(const std::filesystem::path& path, int width, int height, int c
   if (!cv::imencode(ext.empty() ? ".png" : ext, bgr, buffer, params))
     throw_error(ErrorCode::kIo, path.string(), ": cannot encode image as '", ext, "'");
   write_file_atomic(path, std::string_view(reinterpret_cast<const char*>(buffer.data()), buffer.size()));
+#else
+  throw_error(ErrorCode::kNotImplemented, path.string(), ": this build encodes no image files (VISLOC_IMAGE_FILES=OFF)");
+#endif
 }
 
 bool is_image_file(const std::filesystem::path& path) {
