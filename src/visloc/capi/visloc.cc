@@ -12,6 +12,8 @@
 #include <optional>
 #include <string>
 
+#include <opencv2/core.hpp>
+
 #include "visloc/image/image_io.h"
 #include "visloc/pipeline/localizer.h"
 #include "visloc/util/error.h"
@@ -63,6 +65,9 @@ visloc_status guarded(char* error, size_t error_size, Body&& body) noexcept {
   } catch (const std::filesystem::filesystem_error& e) {
     copy_message(e.what(), error, error_size);
     return VISLOC_IO_ERROR;
+  } catch (const cv::Exception& e) {  // OpenCV's allocator reports exhaustion as StsNoMem, not bad_alloc
+    copy_message(e.what(), error, error_size);
+    return e.code == cv::Error::StsNoMem ? VISLOC_OUT_OF_MEMORY : VISLOC_INTERNAL_ERROR;
   } catch (const std::exception& e) {
     copy_message(e.what(), error, error_size);
     return VISLOC_INTERNAL_ERROR;
