@@ -38,6 +38,7 @@
 #include "visloc/util/crc32c.h"
 #include "visloc/util/error.h"
 #include "visloc/util/file_io.h"
+#include "visloc/util/parallel_for.h"
 #include "visloc/util/timer.h"
 #include "visloc/util/random.h"
 
@@ -159,30 +160,6 @@ nlohmann::json similarity_json(const Similarity3d& s) {
   for (int i = 0; i < 3; ++i)
     for (int k = 0; k < 3; ++k) r.push_back(s.rotation(i, k));
   return {{"scale", s.scale}, {"rotation_row_major", r}, {"translation", {s.translation.x(), s.translation.y(), s.translation.z()}}};
-}
-
-// Runs fn(i) for i in [0, n) on `jobs` threads. The first exception stops
-// the hand-out of new items and is rethrown here once every thread has ended.
-void parallel_for(size_t n, int jobs, const std::function<void(size_t)>& fn) {
-  std::atomic<size_t> next{0};
-  std::mutex error_mutex;
-  std::exception_ptr error;
-  auto worker = [&] {
-    for (size_t i = next++; i < n; i = next++) {
-      try {
-        fn(i);
-      } catch (...) {
-        std::lock_guard lock(error_mutex);
-        if (!error) error = std::current_exception();
-        next = n;
-      }
-    }
-  };
-  std::vector<std::thread> threads;
-  for (int t = 1; t < std::min<int>(jobs, static_cast<int>(n)); ++t) threads.emplace_back(worker);
-  worker();
-  for (auto& t : threads) t.join();
-  if (error) std::rethrow_exception(error);
 }
 
 // The camera's "up" (image −y) in world coordinates. Street-level cameras are

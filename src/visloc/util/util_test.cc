@@ -1,9 +1,11 @@
 #include <gtest/gtest.h>
 
+#include <atomic>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <numeric>
+#include <stdexcept>
 #include <vector>
 
 #include "visloc/util/base64.h"
@@ -11,6 +13,7 @@
 #include "visloc/util/error.h"
 #include "visloc/util/file_io.h"
 #include "visloc/util/mapped_file.h"
+#include "visloc/util/parallel_for.h"
 #include "visloc/util/section_file.h"
 #include "visloc/util/test_support.h"
 
@@ -166,4 +169,31 @@ TEST(Base64, KnownVectorsRoundTripAndRejects) {
   for (size_t i = 0; i < all.size(); ++i) all[i] = static_cast<uint8_t>(i * 7 + 3);
   EXPECT_EQ(*visloc::base64_decode(visloc::base64_encode(all.data(), all.size())), all);
   for (const char* bad : {"Zg=", "Z===", "Zg==Zg==", "Zm9v!A==", "=Zm9"}) EXPECT_FALSE(visloc::base64_decode(bad)) << bad;
+}
+
+TEST(ParallelFor, VisitsEveryIndexOnce) {
+  for (int jobs : {0, 1, 2, 8})
+    for (size_t n : {size_t{0}, size_t{1}, size_t{3}, size_t{200}}) {
+      std::vector<std::atomic<int>> visits(n);
+      visloc::parallel_for(n, jobs, [&](size_t i) { visits[i]++; });
+      for (size_t i = 0; i < n; ++i) EXPECT_EQ(visits[i].load(), 1) << "jobs " << jobs << ", n " << n << ", i " << i;
+    }
+}
+
+TEST(ParallelFor, FirstExceptionStopsTheHandOutAndIsRethrown) {
+  std::atomic<int> started{0};
+  EXPECT_THROW(visloc::parallel_for(100, 1, [&](size_t i) {
+                 started++;
+                 if (i == 10) throw std::runtime_error("item 10");
+               }),
+               std::runtime_error);
+  EXPECT_EQ(started.load(), 11);  // one thread: nothing after the failing item starts
+  try {
+    visloc::parallel_for(50, 4, [&](size_t i) {
+      if (i % 7 == 3) throw visloc::Error(visloc::ErrorCode::kIo, "item failed");
+    });
+    FAIL() << "no exception";
+  } catch (const visloc::Error& e) {
+    EXPECT_EQ(e.code(), visloc::ErrorCode::kIo);
+  }
 }
