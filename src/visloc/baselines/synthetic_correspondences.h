@@ -37,7 +37,7 @@
 
 #include "visloc/geometry/camera.h"
 #include "visloc/geometry/pose.h"
-#include "visloc/pose/correspondence_set.h"
+#include "visloc/geometry/correspondence_set.h"
 
 namespace visloc {
 

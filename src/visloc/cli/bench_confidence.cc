@@ -2,10 +2,8 @@
 // (eval/confidence_fit.h), or check a model (the builtin one by default) on
 // them: precision, recall and the precision-recall curve.
 #include <filesystem>
-#include <iomanip>
 #include <iostream>
 #include <memory>
-#include <sstream>
 
 #include "visloc/cli/commands.h"
 #include "visloc/eval/confidence_fit.h"
@@ -66,12 +64,7 @@ void add_bench_confidence(CLI::App& bench) {
       model = fit.model;
       summary = fit.to_json();
       write_file_atomic(out / "model.json", model.to_json().dump(2));
-      std::ostringstream code;
-      code << std::setprecision(17) << "    m.bias = " << model.bias << ";\n";
-      for (int k = 0; k < kConfidenceInputs; ++k)
-        code << "    m.weights[" << k << "] = " << model.weights[k] << ";  // " << confidence_input_names()[k] << "\n";
-      code << "    threshold " << model.threshold << "\n";
-      std::cout << "Fitted model (C++ for ConfidenceModel::builtin):\n" << code.str();
+      std::cout << "Fitted model (C++ for ConfidenceModel::builtin):\n" << confidence_model_code(model);
     } else if (!a->model.empty()) {
       try {
         model = ConfidenceModel::from_json(nlohmann::json::parse(read_file(a->model)));
@@ -82,31 +75,14 @@ void add_bench_confidence(CLI::App& bench) {
       }
     }
     // Precision and recall of the model on these poses (registered: ≥ min_inliers).
-    std::vector<double> scores;
-    std::vector<bool> right;
-    size_t wrong_registered = 0, right_registered = 0, right_lost = 0;
-    for (const auto& s : samples) {
-      if (s.features.inliers < a->fit_options.min_inliers) continue;
-      const double c = model.evaluate(s.features);
-      scores.push_back(c);
-      right.push_back(s.right);
-      const bool accepted = c >= model.threshold;
-      if (s.right) (accepted ? right_registered : right_lost)++;
-      else if (accepted) ++wrong_registered;
-    }
-    const size_t positives = right_registered + right_lost;
-    const auto curve = precision_recall_curve(scores, right, positives);
-    plot_precision_recall(out / "precision_recall", a->fit ? "Confidence (fit)" : "Confidence (check)", curve,
+    const ConfidenceCheck check = check_confidence(samples, model, a->fit_options.min_inliers);
+    plot_precision_recall(out / "precision_recall", a->fit ? "Confidence (fit)" : "Confidence (check)", check.curve,
                           model.threshold);
-    summary["checked"] = {{"poses_with_min_inliers", scores.size()},
-                          {"right_poses_registered", right_registered},
-                          {"right_poses_lost", right_lost},
-                          {"wrong_poses_registered", wrong_registered},
-                          {"threshold", model.threshold}};
+    summary["checked"] = check.to_json();
     write_file_atomic(out / (a->fit ? "fit.json" : "check.json"), summary.dump(2));
-    std::cout << "Poses with >= " << a->fit_options.min_inliers << " inliers: " << scores.size()
-              << "; at confidence >= " << model.threshold << ": " << right_registered << " right registered, "
-              << right_lost << " right lost, " << wrong_registered << " wrong registered.\n";
+    std::cout << "Poses with >= " << a->fit_options.min_inliers << " inliers: " << check.poses_with_min_inliers
+              << "; at confidence >= " << model.threshold << ": " << check.right_registered << " right registered, "
+              << check.right_lost << " right lost, " << check.wrong_registered << " wrong registered.\n";
   });
 }
 

@@ -32,7 +32,7 @@ void add_synth_command(CLI::App& app);
 void add_view_command(CLI::App& app);
 void add_match_command(CLI::App& app);
 void add_bench_command(CLI::App& app);
-// Standalone retrieval commands (until map building calls retrieval itself).
+// `visloc retrieval build|query`: the retrieval stage on its own (bench_retrieval.cc).
 void add_retrieval_command(CLI::App& app);
 
 // `visloc bench` kinds, one file each.

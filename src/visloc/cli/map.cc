@@ -4,7 +4,6 @@
 #include <iomanip>
 #include <iostream>
 #include <memory>
-#include <optional>
 #include <nlohmann/json.hpp>
 
 #include "visloc/cli/commands.h"
@@ -68,79 +67,27 @@ void add_import(CLI::App& map) {
   cmd->add_flag("--overwrite", args->options.overwrite, "Replace an existing map in --out");
   cmd->add_flag("--json", args->json, "Print the import statistics as JSON");
   cmd->callback([args] {
-    const bool bundler = !args->bundler.empty() || !args->list.empty();
-    if (bundler) {
-      if (args->bundler.empty() || args->list.empty() || args->out.empty())
-        throw_error(ErrorCode::kInvalidArgument, "map import needs --bundler bundle.out --list LIST --out MAP");
-      if (!args->colmap.empty() || !args->database.empty())
-        throw_error(ErrorCode::kInvalidArgument, "map import: give either --bundler/--list or --colmap/--database");
-    } else {
-      if (args->colmap.empty() || args->database.empty() || args->out.empty())
-        throw_error(ErrorCode::kInvalidArgument,
-                    "map import needs --colmap MODEL --database DB --out MAP, or --bundler FILE --list FILE --out MAP");
-      if (!args->keys.empty() || args->raw_sift)
-        throw_error(ErrorCode::kInvalidArgument, "map import: --keys and --raw-sift belong to --bundler");
-    }
+    MapImportSources in;
+    in.colmap_model = args->colmap;
+    in.database = args->database;
+    in.bundle_file = args->bundler;
+    in.bundler_list = args->list;
+    in.bundler.keys_dir = args->keys;
+    in.bundler.images_dir = args->images;
+    in.bundler.root_sift = !args->raw_sift;
+    in.holdout_list = args->holdout;
+    in.pq_training_list = args->pq_images;
     ColmapImportOptions o = args->options;
-    o.pq.seed = o.itq.seed;
-    if (!args->holdout.empty()) o.holdout_images = read_name_list(args->holdout);
+    o.pq.seed = o.itq.seed;  // --seed seeds both
     o.pq_training_database = args->pq_database;
-    if (!args->pq_images.empty()) o.pq_training_images = read_name_list(args->pq_images);
-    ColmapImportResult r;
-    std::optional<BundlerConversionStats> conv;
-    if (bundler) {
-      BundlerConversionOptions b;
-      b.keys_dir = args->keys;
-      b.images_dir = args->images;
-      b.root_sift = !args->raw_sift;
-      BundlerImportResult br = import_bundler_map(args->bundler, args->list, args->out, b, o);
-      r = br.map;
-      conv = br.conversion;
-    } else {
-      r = import_colmap_map(args->colmap, args->database, args->out, o);
-    }
-    nlohmann::json j = to_json(r);
-    j["map"] = args->out;
-    if (conv)
-      j["bundler"] = {{"cameras", conv->cameras},
-                      {"cameras_unregistered", conv->cameras_unregistered},
-                      {"images", conv->images},
-                      {"images_dropped_no_principal_point", conv->images_dropped_no_principal_point},
-                      {"points_read", conv->points_read},
-                      {"points", conv->points},
-                      {"observations", conv->observations},
-                      {"observations_dropped", conv->observations_dropped},
-                      {"observations_off_key", conv->observations_off_key},
-                      {"keys", conv->keys},
-                      {"principal_point", conv->principal_point},
-                      {"descriptors", args->raw_sift ? "lowe" : "rootsift"},
-                      {"ms", {{"bundle", conv->ms_bundle}, {"keys", conv->ms_keys}}}};
+    const MapImportResult r = import_map(in, args->out, o);
     if (args->json) {
+      nlohmann::json j = to_json(r);
+      j["map"] = args->out;
       std::cout << j.dump(2) << "\n";
       return;
     }
-    std::cout << "imported " << (bundler ? args->bundler : args->colmap) << " -> " << args->out << "\n";
-    if (conv) {
-      std::cout << "  bundler: " << conv->cameras << " cameras (" << conv->cameras_unregistered
-                << " unregistered, dropped with " << conv->observations_dropped << " observations), "
-                << conv->points_read << " points read, " << conv->keys << " keys; principal point from "
-                << conv->principal_point << "; descriptors " << (args->raw_sift ? "Lowe's (raw)" : "RootSIFT") << "\n";
-      if (conv->images_dropped_no_principal_point)
-        std::cout << "  " << conv->images_dropped_no_principal_point
-                  << " registered images without observations dropped (no principal point: give --images)\n";
-      if (conv->observations_off_key)
-        std::cout << "  warning: " << conv->observations_off_key
-                  << " observations lie more than 1 px from their key (key files from another run?)\n";
-    }
-    std::cout << "  images " << r.images << ", points " << r.points << ", observations " << r.observations << "\n";
-    if (r.holdout.images_removed)
-      std::cout << "  held out " << r.holdout.images_removed << " images: " << r.holdout.observations_removed
-                << " observations removed, " << r.holdout.points_dropped << " points dropped (< 2 observations)\n";
-    std::cout << "  PQ codebook trained on " << r.pq_training_descriptors << " descriptors (" << r.pq_training_source
-              << ")\n"
-              << std::fixed << std::setprecision(0) << "  time ms: read " << r.ms_read << ", descriptors "
-              << r.ms_descriptors << ", pq " << r.ms_pq << ", itq " << r.ms_itq << ", encode " << r.ms_encode
-              << ", write " << r.ms_write << "\n";
+    std::cout << import_summary(r, in, args->out);
   });
 }
 

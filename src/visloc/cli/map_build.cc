@@ -14,7 +14,6 @@
 #include "visloc/cli/sift_options.h"
 #include "visloc/map_building/map_builder.h"
 #include "visloc/util/error.h"
-#include "visloc/util/file_io.h"
 #include "visloc/util/timer.h"
 
 namespace visloc::cli {
@@ -212,21 +211,7 @@ void run_build(const std::string& map_dir, MapBuildArgs& a, const CLI::App* cmd)
   if (a.segment >= 0) o.only_segments = {a.segment};
   BuildProgressPrinter printer;
   MapBuildResult r = build_map(map_dir, o, [&printer](const MapBuildProgress& p) { printer(p); });
-  std::cout << std::left << std::setw(8) << "segment" << std::right << std::setw(8) << "images" << std::setw(11)
-            << "registered" << std::setw(9) << "points" << std::setw(10) << "B/point" << std::setw(12) << "GPS rms m"
-            << std::setw(12) << "GPS max m" << std::setw(10) << "seconds" << std::setw(9) << "match s" << std::setw(9)
-            << "triang s" << "  status\n";
-  for (const auto& s : r.segments) {
-    std::cout << std::left << std::setw(8) << s.id << std::right << std::setw(8) << s.images << std::setw(11)
-              << s.registered_images << std::setw(9) << s.points << std::fixed << std::setprecision(1)
-              << std::setw(10) << s.bytes_per_point << std::setprecision(2) << std::setw(12) << s.registration_rms_m
-              << std::setw(12) << s.registration_max_m << std::setprecision(1) << std::setw(10) << s.seconds
-              << std::setw(9) << s.seconds_matching << std::setw(9) << s.seconds_triangulation << "  "
-              << (s.ok ? (s.reused ? "reused" : "ok") : "FAILED: " + s.error) << "\n";
-  }
-  std::cout << r.images << " images, " << r.placemarks << " placemarks, " << r.segments.size() << " segments ("
-            << r.failed() << " failed); features " << std::setprecision(1) << r.seconds_features << " s, segments "
-            << r.seconds_segments << " s, total " << r.seconds_total << " s\n";
+  std::cout << build_summary(r);
   if (r.failed() == r.segments.size())
     throw_error(ErrorCode::kExternalTool, "no segment could be built (see the logs under ", map_dir, "/work)");
 }
@@ -273,55 +258,31 @@ void add_map_build_commands(CLI::App& map) {
   auto task_list = std::make_shared<std::string>();
   t->add_option("--task-list", *task_list, "File of segment ids, one per line (a Slurm array's task list)");
   t->callback([task_map, task_segment, task_list] {
-    if (!task_list->empty()) {
-      std::istringstream list(read_file(*task_list));
-      std::vector<int> ids;
-      try {
-        for (std::string line; std::getline(list, line);)
-          if (!line.empty()) ids.push_back(std::stoi(line));
-      } catch (const std::exception&) {
-        throw_error(ErrorCode::kFormat, *task_list, ": not a list of segment ids");
-      }
-      if (*task_segment >= static_cast<int>(ids.size()))
-        throw_error(ErrorCode::kInvalidArgument, *task_list, ": no line ", *task_segment, " (", ids.size(), " segments)");
-      *task_segment = ids[static_cast<size_t>(*task_segment)];
-    }
+    if (!task_list->empty()) *task_segment = task_list_segment(*task_list, *task_segment);
     const fs::path map_dir = fs::absolute(*task_map);
-    const fs::path record = map_dir / "work" / "build.json";
-    if (!fs::exists(record))
-      throw_error(ErrorCode::kNotFound, record.string(), ": no recorded build; start the map with 'visloc map build'");
-    std::vector<std::string> args;
-    std::string cwd;
-    try {
-      const auto j = nlohmann::json::parse(read_file(record));
-      if (j.at("version").get<int>() != 1) throw std::runtime_error("unknown version");
-      args = j.at("args").get<std::vector<std::string>>();
-      cwd = j.at("cwd").get<std::string>();
-    } catch (const std::exception& e) {
-      throw_error(ErrorCode::kFormat, record.string(), ": bad build record: ", e.what());
-    }
+    const BuildRecord record = read_build_record(map_dir);
     // Parse the recorded options exactly as 'map build' did.
     MapBuildArgs a;
     std::string out;
     CLI::App parser;
     parser.add_option("--out", out);
     bind_build_options(&parser, a, false);
-    std::vector<std::string> reversed(args.rbegin(), args.rend());
+    std::vector<std::string> reversed(record.args.rbegin(), record.args.rend());
     try {
       parser.parse(reversed);
     } catch (const CLI::ParseError& e) {
-      throw_error(ErrorCode::kFormat, record.string(), ": recorded options do not parse: ", e.what());
+      throw_error(ErrorCode::kFormat, record.file.string(), ": recorded options do not parse: ", e.what());
     }
     std::error_code ec;
-    fs::current_path(cwd, ec);  // relative paths in the record are relative to where the build started
-    if (ec) throw_error(ErrorCode::kIo, record.string(), ": cannot change to the build's directory ", cwd, ": ", ec.message());
+    fs::current_path(record.cwd, ec);  // relative paths in the record are relative to where the build started
+    if (ec)
+      throw_error(ErrorCode::kIo, record.file.string(), ": cannot change to the build's directory ", record.cwd, ": ",
+                  ec.message());
     apply_arguments(a);
     a.options.executor = BuildExecutor::kLocal;  // this task builds its segment here
     const SegmentBuildResult r = build_planned_segment(map_dir, a.options, *task_segment);
     if (!r.ok) throw_error(ErrorCode::kExternalTool, "segment ", r.id, ": ", r.error);
-    std::cout << "segment " << r.id << ": " << r.images << " images, " << r.points << " points, " << std::fixed
-              << std::setprecision(1) << r.seconds << " s (matching " << r.seconds_matching << " s, triangulation "
-              << r.seconds_triangulation << " s)\n";
+    std::cout << segment_summary(r);
   });
 }
 

@@ -383,6 +383,160 @@ DescriptorMatrix BundlerModel::descriptors(const ColmapImage& image) const {
   return std::move(k.descriptors);
 }
 
+namespace {
+
+// Views of registered cameras grouped by camera: (point index, view index).
+using ViewsByCamera = std::vector<std::vector<std::pair<uint32_t, uint32_t>>>;
+
+// Counts the unregistered cameras (f = 0); a registered camera's R must be a
+// proper rotation.
+void check_camera_rotations(const BundlerFile& bf, const fs::path& bundle_file, BundlerConversionStats& st) {
+  for (size_t i = 0; i < bf.cameras.size(); ++i) {
+    const BundlerCamera& cam = bf.cameras[i];
+    if (!cam.registered()) {
+      ++st.cameras_unregistered;
+      continue;
+    }
+    Eigen::Matrix3d R = Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(cam.rotation.data());
+    const double orth = (R * R.transpose() - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff();
+    if (orth > 1e-4 || R.determinant() < 0)
+      throw_error(ErrorCode::kFormat, bundle_file.string(), ":", cam.line, ": camera ", i,
+                  ": R is not a rotation (max |R Rᵀ − I| = ", orth, ", det = ", R.determinant(), ")");
+  }
+}
+
+// Views of registered cameras by camera; counts the views of unregistered ones as dropped.
+ViewsByCamera group_views_by_camera(const BundlerFile& bf, BundlerConversionStats& st) {
+  ViewsByCamera by_camera(bf.cameras.size());
+  for (size_t p = 0; p < bf.points.size(); ++p)
+    for (size_t v = 0; v < bf.points[p].views.size(); ++v) {
+      const uint32_t cam = bf.points[p].views[v].camera;
+      if (bf.cameras[cam].registered()) by_camera[cam].emplace_back(uint32_t(p), uint32_t(v));
+      else ++st.observations_dropped;
+    }
+  return by_camera;
+}
+
+// cam_from_world = diag(1, −1, −1) [R | t] (Bundler's camera looks down −z with +y up).
+void set_cam_from_world(const BundlerCamera& cam, ColmapImage& im) {
+  Eigen::Matrix3d R = Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(cam.rotation.data());
+  Eigen::Vector3d tv(cam.translation[0], cam.translation[1], cam.translation[2]);
+  const Eigen::Vector3d flip(1, -1, -1);
+  R = flip.asDiagonal() * R;
+  tv = flip.asDiagonal() * tv;
+  Eigen::Quaterniond q(R);
+  q.normalize();
+  im.cam_from_world_q_wxyz = {q.w(), q.x(), q.y(), q.z()};
+  im.cam_from_world_t = {tv[0], tv[1], tv[2]};
+}
+
+// Principal point (cx, cy) and image size of camera c: from the image's
+// header when there is an images folder, otherwise the median offset of the
+// views from their keys (image size = twice the principal point).
+std::array<double, 2> principal_point(const BundlerFile& bf, const std::vector<std::pair<uint32_t, uint32_t>>& views,
+                                      const std::vector<Keypoint>& keys, const std::string& image_name,
+                                      const BundlerConversionOptions& options, ColmapCamera& camera) {
+  double cx = 0, cy = 0;
+  if (!options.images_dir.empty()) {
+    const ImageMetadata md = read_image_metadata(find_image_file(options.images_dir, image_name));
+    camera.width = static_cast<uint64_t>(md.width);
+    camera.height = static_cast<uint64_t>(md.height);
+    cx = 0.5 * md.width;
+    cy = 0.5 * md.height;
+  } else {
+    std::vector<double> ox, oy;
+    ox.reserve(views.size());
+    oy.reserve(views.size());
+    for (auto [p, v] : views) {
+      const BundlerView& view = bf.points[p].views[v];
+      ox.push_back(double(keys[view.key].x) - view.x);
+      oy.push_back(double(keys[view.key].y) + view.y);
+    }
+    VISLOC_CHECK(!ox.empty());
+    cx = median(ox);
+    cy = median(oy);
+    camera.width = static_cast<uint64_t>(std::max(0.0, std::round(2 * cx)));
+    camera.height = static_cast<uint64_t>(std::max(0.0, std::round(2 * cy)));
+  }
+  return {cx, cy};
+}
+
+// Registered camera c as a COLMAP image and RADIAL camera appended to
+// out.model: its keys (every view must name one of them) become the 2D
+// points, the views' positions replace their keys' and link them to the
+// points. False (nothing added) when it has no view and no images folder.
+bool convert_camera(size_t c, const BundlerFile& bf, const std::vector<std::pair<uint32_t, uint32_t>>& views,
+                    const std::string& image_name, const fs::path& list_dir, const fs::path& bundle_file,
+                    const BundlerConversionOptions& options, BundlerModel& out) {
+  BundlerConversionStats& st = out.stats;
+  const BundlerCamera& cam = bf.cameras[c];
+  if (views.empty() && options.images_dir.empty()) {
+    ++st.images_dropped_no_principal_point;
+    return false;
+  }
+  ColmapImage im;
+  im.image_id = static_cast<uint32_t>(c + 1);
+  im.camera_id = im.image_id;
+  im.name = image_name;
+  set_cam_from_world(cam, im);
+
+  ColmapCamera camera;
+  camera.camera_id = im.camera_id;
+  camera.model_id = colmap_camera_model_id("RADIAL");
+  std::vector<Keypoint> keys;
+  if (!views.empty()) {
+    out.key_files[c] = find_lowe_key_file(list_dir, options.keys_dir, im.name);
+    keys = parse_lowe_keys(out.key_files[c], /*want_descriptors=*/false, false).keypoints;
+    st.keys += keys.size();
+    for (auto [p, v] : views) {
+      const BundlerView& view = bf.points[p].views[v];
+      if (view.key >= keys.size())
+        throw_error(ErrorCode::kFormat, bundle_file.string(), ":", bf.points[p].line, ": point ", p, ": view ", v,
+                    " names key ", view.key, " of camera ", c, " (", im.name, ") but ",
+                    out.key_files[c].string(), " has ", keys.size(), " keys");
+    }
+  }
+  const auto [cx, cy] = principal_point(bf, views, keys, im.name, options, camera);
+  camera.params = {cam.focal, cx, cy, cam.k1, cam.k2};
+
+  im.points2d.resize(keys.size());
+  im.point3d_ids.assign(keys.size(), kColmapInvalidPoint3DId);
+  for (size_t k = 0; k < keys.size(); ++k) im.points2d[k] = {keys[k].x, keys[k].y};
+  const double tol2 = options.max_key_offset_px * options.max_key_offset_px;
+  for (auto [p, v] : views) {
+    const BundlerView& view = bf.points[p].views[v];
+    const std::array<double, 2> obs{cx + view.x, cy - view.y};
+    const double dx = obs[0] - keys[view.key].x, dy = obs[1] - keys[view.key].y;
+    if (dx * dx + dy * dy > tol2) ++st.observations_off_key;
+    im.points2d[view.key] = obs;
+    im.point3d_ids[view.key] = int64_t(p) + 1;
+  }
+  out.model.cameras.push_back(std::move(camera));
+  out.model.images.push_back(std::move(im));
+  return true;
+}
+
+// Points: id = index in bundle.out + 1; tracks keep the views of kept images
+// (points left without a view are dropped).
+void convert_points(const BundlerFile& bf, const std::vector<bool>& image_kept, BundlerModel& out) {
+  BundlerConversionStats& st = out.stats;
+  out.model.points.reserve(bf.points.size());
+  for (size_t p = 0; p < bf.points.size(); ++p) {
+    const BundlerPoint& bp = bf.points[p];
+    ColmapPoint3D pt;
+    pt.point3d_id = int64_t(p) + 1;
+    pt.xyz = bp.xyz;
+    pt.rgb = bp.rgb;
+    for (const auto& v : bp.views)
+      if (image_kept[v.camera]) pt.track.push_back({v.camera + 1, v.key});
+    if (pt.track.empty()) continue;
+    st.observations += pt.track.size();
+    out.model.points.push_back(std::move(pt));
+  }
+}
+
+}  // namespace
+
 BundlerModel read_bundler_model(const fs::path& bundle_file, const fs::path& list_file,
                                 const BundlerConversionOptions& options) {
   options.validate();
@@ -399,29 +553,8 @@ BundlerModel read_bundler_model(const fs::path& bundle_file, const fs::path& lis
   st.cameras = bf.cameras.size();
   st.points_read = bf.points.size();
   st.principal_point = options.images_dir.empty() ? "key files" : "image size";
-
-  // Registered cameras: a proper rotation.
-  for (size_t i = 0; i < bf.cameras.size(); ++i) {
-    const BundlerCamera& cam = bf.cameras[i];
-    if (!cam.registered()) {
-      ++st.cameras_unregistered;
-      continue;
-    }
-    Eigen::Matrix3d R = Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(cam.rotation.data());
-    const double orth = (R * R.transpose() - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff();
-    if (orth > 1e-4 || R.determinant() < 0)
-      throw_error(ErrorCode::kFormat, bundle_file.string(), ":", cam.line, ": camera ", i,
-                  ": R is not a rotation (max |R Rᵀ − I| = ", orth, ", det = ", R.determinant(), ")");
-  }
-
-  // Views grouped by camera: (point index, view index).
-  std::vector<std::vector<std::pair<uint32_t, uint32_t>>> by_camera(bf.cameras.size());
-  for (size_t p = 0; p < bf.points.size(); ++p)
-    for (size_t v = 0; v < bf.points[p].views.size(); ++v) {
-      const uint32_t cam = bf.points[p].views[v].camera;
-      if (bf.cameras[cam].registered()) by_camera[cam].emplace_back(uint32_t(p), uint32_t(v));
-      else ++st.observations_dropped;
-    }
+  check_camera_rotations(bf, bundle_file, st);
+  const ViewsByCamera by_camera = group_views_by_camera(bf, st);
   st.ms_bundle = t.elapsed_ms();
 
   t.reset();
@@ -429,100 +562,12 @@ BundlerModel read_bundler_model(const fs::path& bundle_file, const fs::path& lis
   out.key_files.assign(bf.cameras.size(), {});
   std::vector<bool> image_kept(bf.cameras.size(), false);
   for (size_t c = 0; c < bf.cameras.size(); ++c) {
-    const BundlerCamera& cam = bf.cameras[c];
-    if (!cam.registered()) continue;
-    const auto& views = by_camera[c];
-    if (views.empty() && options.images_dir.empty()) {
-      ++st.images_dropped_no_principal_point;
-      continue;
-    }
-    ColmapImage im;
-    im.image_id = static_cast<uint32_t>(c + 1);
-    im.camera_id = im.image_id;
-    im.name = list[c].name;
-    // cam_from_world = diag(1, −1, −1) [R | t].
-    Eigen::Matrix3d R = Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(cam.rotation.data());
-    Eigen::Vector3d tv(cam.translation[0], cam.translation[1], cam.translation[2]);
-    const Eigen::Vector3d flip(1, -1, -1);
-    R = flip.asDiagonal() * R;
-    tv = flip.asDiagonal() * tv;
-    Eigen::Quaterniond q(R);
-    q.normalize();
-    im.cam_from_world_q_wxyz = {q.w(), q.x(), q.y(), q.z()};
-    im.cam_from_world_t = {tv[0], tv[1], tv[2]};
-
-    ColmapCamera camera;
-    camera.camera_id = im.camera_id;
-    camera.model_id = colmap_camera_model_id("RADIAL");
-    std::vector<Keypoint> keys;
-    if (!views.empty()) {
-      out.key_files[c] = find_lowe_key_file(list_dir, options.keys_dir, im.name);
-      keys = parse_lowe_keys(out.key_files[c], /*want_descriptors=*/false, false).keypoints;
-      st.keys += keys.size();
-      for (auto [p, v] : views) {
-        const BundlerView& view = bf.points[p].views[v];
-        if (view.key >= keys.size())
-          throw_error(ErrorCode::kFormat, bundle_file.string(), ":", bf.points[p].line, ": point ", p, ": view ", v,
-                      " names key ", view.key, " of camera ", c, " (", im.name, ") but ",
-                      out.key_files[c].string(), " has ", keys.size(), " keys");
-      }
-    }
-    double cx = 0, cy = 0;
-    if (!options.images_dir.empty()) {
-      const ImageMetadata md = read_image_metadata(find_image_file(options.images_dir, im.name));
-      camera.width = static_cast<uint64_t>(md.width);
-      camera.height = static_cast<uint64_t>(md.height);
-      cx = 0.5 * md.width;
-      cy = 0.5 * md.height;
-    } else {
-      std::vector<double> ox, oy;
-      ox.reserve(views.size());
-      oy.reserve(views.size());
-      for (auto [p, v] : views) {
-        const BundlerView& view = bf.points[p].views[v];
-        ox.push_back(double(keys[view.key].x) - view.x);
-        oy.push_back(double(keys[view.key].y) + view.y);
-      }
-      VISLOC_CHECK(!ox.empty());
-      cx = median(ox);
-      cy = median(oy);
-      camera.width = static_cast<uint64_t>(std::max(0.0, std::round(2 * cx)));
-      camera.height = static_cast<uint64_t>(std::max(0.0, std::round(2 * cy)));
-    }
-    camera.params = {cam.focal, cx, cy, cam.k1, cam.k2};
-
-    im.points2d.resize(keys.size());
-    im.point3d_ids.assign(keys.size(), kColmapInvalidPoint3DId);
-    for (size_t k = 0; k < keys.size(); ++k) im.points2d[k] = {keys[k].x, keys[k].y};
-    const double tol2 = options.max_key_offset_px * options.max_key_offset_px;
-    for (auto [p, v] : views) {
-      const BundlerView& view = bf.points[p].views[v];
-      const std::array<double, 2> obs{cx + view.x, cy - view.y};
-      const double dx = obs[0] - keys[view.key].x, dy = obs[1] - keys[view.key].y;
-      if (dx * dx + dy * dy > tol2) ++st.observations_off_key;
-      im.points2d[view.key] = obs;
-      im.point3d_ids[view.key] = int64_t(p) + 1;
-    }
-    out.model.cameras.push_back(std::move(camera));
-    out.model.images.push_back(std::move(im));
-    image_kept[c] = true;
+    if (!bf.cameras[c].registered()) continue;
+    image_kept[c] = convert_camera(c, bf, by_camera[c], list[c].name, list_dir, bundle_file, options, out);
   }
   st.ms_keys = t.elapsed_ms();
 
-  // Points: id = index in bundle.out + 1; tracks keep the views of kept images.
-  out.model.points.reserve(bf.points.size());
-  for (size_t p = 0; p < bf.points.size(); ++p) {
-    const BundlerPoint& bp = bf.points[p];
-    ColmapPoint3D pt;
-    pt.point3d_id = int64_t(p) + 1;
-    pt.xyz = bp.xyz;
-    pt.rgb = bp.rgb;
-    for (const auto& v : bp.views)
-      if (image_kept[v.camera]) pt.track.push_back({v.camera + 1, v.key});
-    if (pt.track.empty()) continue;
-    st.observations += pt.track.size();
-    out.model.points.push_back(std::move(pt));
-  }
+  convert_points(bf, image_kept, out);
   st.images = out.model.images.size();
   st.points = out.model.points.size();
   return out;

@@ -188,17 +188,13 @@ std::vector<double> visible_points(const synth::ViewRenderer& scene, const Pinho
   }
   return counts;
 }
-}  // namespace
 
-nlohmann::json run_city_benchmark(const fs::path& out, const CityBenchmarkOptions& opt,
-                                  const std::function<void(const CityBenchmarkProgress&)>& progress,
-                                  const std::function<void(const MapBuildProgress&)>& map_progress) {
-  opt.validate();
-  fs::create_directories(out);
-  const fs::path city_dir = out / "city";
+using CityProgressCallback = std::function<void(const CityBenchmarkProgress&)>;
 
-  // 1. The whole city (resumes: images already written are kept; a city made
-  // with other options is refused, since its scene is regenerated below).
+// Stage 1: the whole city (resumes: images already written are kept; a city
+// made with other options is refused, since its scene is regenerated later).
+void write_or_check_city(const fs::path& city_dir, const CityBenchmarkOptions& opt,
+                         const CityProgressCallback& progress) {
   const bool city_complete = fs::exists(city_dir / "queries" / "truth.txt") && fs::exists(city_dir / "city.json");
   if (opt.stage != CityBenchmarkStage::kLocalize && !city_complete) {
     synth::CityOptions city = opt.city;
@@ -213,32 +209,49 @@ nlohmann::json run_city_benchmark(const fs::path& out, const CityBenchmarkOption
       throw_error(ErrorCode::kInvalidArgument, (city_dir / "city.json").string(),
                   ": the city was made with other options than these");
   }
-  const std::vector<CityPlacemark> placemarks = read_city_placemarks(city_dir / "city.json");
+}
+
+// The city's placemarks split into mapped roads and the roads left out.
+struct CityMapSplit {
+  std::vector<CityPlacemark> placemarks;
   int max_road = 0;
-  for (const auto& p : placemarks) max_road = std::max(max_road, p.road);
-  std::set<int> left_out;
-  for (int r = max_road; r > max_road - opt.leave_out_roads && r >= 0; --r) left_out.insert(r);
-  if (static_cast<int>(left_out.size()) > max_road)
-    throw_error(ErrorCode::kInvalidArgument, "bench city: the city has ", max_road + 1, " roads; leaving out ",
+  std::set<int> left_out;                        // roads
+  std::vector<GpsRecord> mapped;                 // every image of a placemark on a mapped road
+  std::vector<Eigen::Vector3d> mapped_centres;  // placemarks on mapped roads
+};
+
+// Leaves the last leave_out_roads roads out of the map; writes OUT/map_gps.csv.
+CityMapSplit split_city(const fs::path& city_dir, const fs::path& out, const CityBenchmarkOptions& opt) {
+  CityMapSplit s;
+  s.placemarks = read_city_placemarks(city_dir / "city.json");
+  for (const auto& p : s.placemarks) s.max_road = std::max(s.max_road, p.road);
+  for (int r = s.max_road; r > s.max_road - opt.leave_out_roads && r >= 0; --r) s.left_out.insert(r);
+  if (static_cast<int>(s.left_out.size()) > s.max_road)
+    throw_error(ErrorCode::kInvalidArgument, "bench city: the city has ", s.max_road + 1, " roads; leaving out ",
                 opt.leave_out_roads, " would map none");
 
-  // 2. The map: every image of a placemark on a mapped road.
+  // The map: every image of a placemark on a mapped road.
   std::map<int, const CityPlacemark*> placemark_by_id;
-  for (const auto& p : placemarks) placemark_by_id[p.id] = &p;
-  std::vector<GpsRecord> mapped;
+  for (const auto& p : s.placemarks) placemark_by_id[p.id] = &p;
   for (const auto& r : read_gps_csv(city_dir / "gps.csv")) {
     if (!r.placemark) throw_error(ErrorCode::kFormat, (city_dir / "gps.csv").string(), ": no placemark column");
     auto it = placemark_by_id.find(*r.placemark);
     if (it == placemark_by_id.end())
       throw_error(ErrorCode::kFormat, (city_dir / "gps.csv").string(), ": placemark ", *r.placemark, " of ", r.image,
                   " is not in city.json");
-    if (!left_out.count(it->second->road)) mapped.push_back(r);
+    if (!s.left_out.count(it->second->road)) s.mapped.push_back(r);
   }
-  write_gps_csv(out / "map_gps.csv", mapped);
-  std::vector<Eigen::Vector3d> mapped_centres;
-  for (const auto& p : placemarks)
-    if (!left_out.count(p.road)) mapped_centres.push_back(p.enu);
+  write_gps_csv(out / "map_gps.csv", s.mapped);
+  for (const auto& p : s.placemarks)
+    if (!s.left_out.count(p.road)) s.mapped_centres.push_back(p.enu);
+  return s;
+}
 
+// Stage 2: builds OUT/map from the mapped images and writes its summary to
+// OUT/map_build.json; the localize stage reads that summary instead.
+nlohmann::json build_or_read_city_map(const fs::path& out, const fs::path& city_dir, const CityBenchmarkOptions& opt,
+                                      const CityProgressCallback& progress,
+                                      const std::function<void(const MapBuildProgress&)>& map_progress) {
   const fs::path build_summary_path = out / "map_build.json";
   nlohmann::json build_summary;
   if (opt.stage != CityBenchmarkStage::kLocalize) {
@@ -262,7 +275,6 @@ nlohmann::json run_city_benchmark(const fs::path& out, const CityBenchmarkOption
     build_summary = {{"segments", built.segments.size()}, {"segments_failed", built.failed()}, {"points", points},
                      {"segment_bytes", map_bytes}, {"build_seconds_this_run", built.seconds_total}};
     write_file_atomic(build_summary_path, build_summary.dump(2));
-    if (opt.stage == CityBenchmarkStage::kPrepare) return build_summary;
   } else {
     try {
       build_summary = nlohmann::json::parse(read_file(build_summary_path));
@@ -272,7 +284,124 @@ nlohmann::json run_city_benchmark(const fs::path& out, const CityBenchmarkOption
       throw_error(ErrorCode::kFormat, build_summary_path.string(), ": ", e.what());
     }
   }
+  return build_summary;
+}
 
+// Queries of one kind: how many, registered, wrong; registered ones' position errors.
+struct QueryKindTally {
+  size_t count = 0, registered = 0, wrong = 0;
+  std::vector<double> errors_m;
+};
+
+// What localizing the queries gave: counts by kind, positives' timings and
+// retrieval, and a JSON entry per query.
+struct CityLocalizationTally {
+  QueryKindTally positives, negatives, between, near_unseen, foreigners;
+  std::vector<double> ms_excluding_features, ms_total, ms_retrieval, ms_matching, ms_ransac, ms_registered, ms_missed;
+  size_t retrieval_hits = 0;
+  std::vector<double> true_ranks, top_vote_share, voted_segments;
+  nlohmann::json per_query = nlohmann::json::array();
+  uint64_t peak_city_queries = 0;  // peak memory before the foreign photos
+};
+
+// What localizing a synthetic query needs to know of the city and the map.
+struct CityQueryContext {
+  const CityBenchmarkOptions& opt;
+  const fs::path& city_dir;
+  const CityMapSplit& split;
+  const Localizer& localizer;
+  const std::map<std::string, PinholeCamera>& intrinsics;
+  const synth::ViewRenderer& scene_probe;
+  const std::vector<SegmentPointSample>& point_samples;
+};
+
+// Localizes one synthetic query, classifies it by its distance to the map and
+// what it sees of it, and adds it to the tally.
+void localize_city_query(const NamedPose& q, const CityQueryContext& ctx, CityLocalizationTally& t) {
+  const CityBenchmarkOptions& opt = ctx.opt;
+  auto cam = ctx.intrinsics.find(q.name);
+  const LocalizationResult r = ctx.localizer.localize_file(
+      ctx.city_dir / "queries" / "images" / q.name,
+      cam == ctx.intrinsics.end() ? std::nullopt : std::optional<PinholeCamera>(cam->second));
+  const Eigen::Vector3d c = q.cam_from_world.center();
+  double nearest = std::numeric_limits<double>::infinity();
+  for (const auto& p : ctx.split.placemarks) {
+    if (ctx.split.left_out.count(p.road)) continue;
+    const double d = (p.enu - c).head<2>().norm();
+    if (d < nearest) {
+      nearest = d;
+    }
+  }
+  // What the query sees of each segment (positives only: near the map).
+  std::vector<double> seen;
+  double most_seen = 0;
+  if (nearest <= opt.positive_max_distance_m && cam != ctx.intrinsics.end()) {
+    seen = visible_points(ctx.scene_probe, cam->second, q.cam_from_world, ctx.point_samples, opt.visibility_range_m);
+    for (double v : seen) most_seen = std::max(most_seen, v);
+  }
+  const std::string kind = nearest <= opt.positive_max_distance_m
+                               ? (most_seen >= opt.positive_min_visible_points ? "positive" : "near_unseen")
+                           : nearest >= opt.negative_min_distance_m ? "negative"
+                                                                    : "between";
+  QueryKindTally& k = kind == "positive"    ? t.positives
+                      : kind == "negative"  ? t.negatives
+                      : kind == "between"   ? t.between
+                                            : t.near_unseen;
+  ++k.count;
+  double pos_err = -1, rot_err = -1;
+  bool wrong = false;
+  if (r.registered) {
+    ++k.registered;
+    pos_err = position_error(r.cam_from_segment, q.cam_from_world);
+    rot_err = rotation_error_deg(r.cam_from_segment, q.cam_from_world);
+    wrong = pos_err > opt.wrong_position_m || rot_err > opt.wrong_rotation_deg;
+    k.wrong += wrong;
+    k.errors_m.push_back(pos_err);
+  }
+  int rank = -1;
+  std::vector<int> truth_segments;
+  if (kind == "positive") {
+    // True segments: those that show the query at least true_segment_share
+    // as many points as the segment that shows it most.
+    for (size_t i = 0; i < seen.size(); ++i)
+      if (seen[i] >= opt.true_segment_share * most_seen) truth_segments.push_back(ctx.point_samples[i].segment);
+    for (size_t i = 0; i < r.retrieval_segments.size() && rank < 0; ++i)
+      if (std::find(truth_segments.begin(), truth_segments.end(), r.retrieval_segments[i]) != truth_segments.end())
+        rank = static_cast<int>(i) + 1;
+    if (rank > 0) {
+      ++t.retrieval_hits;
+      t.true_ranks.push_back(rank);
+    }
+    if (r.retrieval_total_votes > 0 && !r.retrieval_votes.empty()) {
+      t.top_vote_share.push_back(r.retrieval_votes[0] / r.retrieval_total_votes);
+      t.voted_segments.push_back(static_cast<double>(r.retrieval_voted_segments));
+    }
+    t.ms_excluding_features.push_back(r.times.total - r.times.features);
+    t.ms_total.push_back(r.times.total);
+    t.ms_retrieval.push_back(r.times.retrieval);
+    t.ms_matching.push_back(r.times.matching);
+    t.ms_ransac.push_back(r.times.ransac);
+    (r.registered ? t.ms_registered : t.ms_missed).push_back(r.times.total - r.times.features);
+  }
+  nlohmann::json entry = {{"image", q.name}, {"kind", kind}, {"distance_to_map_m", nearest},
+                          {"registered", r.registered}, {"wrong", wrong}, {"inliers", r.inliers},
+                          {"position_error_m", pos_err}, {"rotation_error_deg", rot_err},
+                          {"true_segment_rank", rank}, {"true_segments", truth_segments},
+                          {"retrieval_segments", r.retrieval_segments}, {"retrieval_votes", r.retrieval_votes},
+                          {"retrieval_voted_segments", r.retrieval_voted_segments},
+                          {"most_visible_points", most_seen}, {"error", r.error}};
+  add_pose_evidence(r, &entry);
+  if (r.segment >= 0) {  // the pose's error whether registered or not (confidence fits)
+    entry["pose_position_error_m"] = position_error(r.cam_from_segment, q.cam_from_world);
+    entry["pose_rotation_error_deg"] = rotation_error_deg(r.cam_from_segment, q.cam_from_world);
+  }
+  t.per_query.push_back(entry);
+}
+
+// Stage 3: localizes the synthetic queries (positives and negatives), then foreign photos.
+CityLocalizationTally localize_city_queries(const fs::path& out, const fs::path& city_dir,
+                                            const CityBenchmarkOptions& opt, const CityMapSplit& split,
+                                            const CityProgressCallback& progress) {
   // The scene (regenerated from the options) and the map's points, to tell
   // which segments a positive query sees.
   synth::CityScene scene = synth::generate_city_scene(opt.city.layout);
@@ -280,7 +409,6 @@ nlohmann::json run_city_benchmark(const fs::path& out, const CityBenchmarkOption
   const synth::ViewRenderer scene_probe(scene, nullptr, opt.city.render);
   const std::vector<SegmentPointSample> point_samples = sample_segment_points(out / "map", 4000);
 
-  // 3. Localize: synthetic queries (positives and negatives), then foreign photos.
   const Localizer localizer(out / "map", opt.localizer);
   std::map<std::string, PinholeCamera> intrinsics;
   for (const auto& c : read_intrinsics_list(city_dir / "queries" / "intrinsics.txt")) intrinsics[c.name] = c.camera;
@@ -288,126 +416,51 @@ nlohmann::json run_city_benchmark(const fs::path& out, const CityBenchmarkOption
   const std::vector<fs::path> foreign = foreign_photos(opt.shared_data, opt.foreign_photos);
   const size_t total = truth.size() + foreign.size();
 
-  struct Kind {
-    size_t count = 0, registered = 0, wrong = 0;
-    std::vector<double> errors_m;
-  } positives, negatives, between, near_unseen, foreigners;
-  std::vector<double> ms_excluding_features, ms_total, ms_retrieval, ms_matching, ms_ransac, ms_registered,
-      ms_missed;
-  size_t retrieval_hits = 0;
-  std::vector<double> true_ranks, top_vote_share, voted_segments;
-  nlohmann::json per_query = nlohmann::json::array();
+  CityLocalizationTally t;
+  const CityQueryContext ctx{opt, city_dir, split, localizer, intrinsics, scene_probe, point_samples};
   size_t done = 0;
   for (const NamedPose& q : truth) {
-    auto cam = intrinsics.find(q.name);
-    const LocalizationResult r = localizer.localize_file(
-        city_dir / "queries" / "images" / q.name,
-        cam == intrinsics.end() ? std::nullopt : std::optional<PinholeCamera>(cam->second));
-    const Eigen::Vector3d c = q.cam_from_world.center();
-    double nearest = std::numeric_limits<double>::infinity();
-    for (const auto& p : placemarks) {
-      if (left_out.count(p.road)) continue;
-      const double d = (p.enu - c).head<2>().norm();
-      if (d < nearest) {
-        nearest = d;
-      }
-    }
-    // What the query sees of each segment (positives only: near the map).
-    std::vector<double> seen;
-    double most_seen = 0;
-    if (nearest <= opt.positive_max_distance_m && cam != intrinsics.end()) {
-      seen = visible_points(scene_probe, cam->second, q.cam_from_world, point_samples, opt.visibility_range_m);
-      for (double v : seen) most_seen = std::max(most_seen, v);
-    }
-    const std::string kind = nearest <= opt.positive_max_distance_m
-                                 ? (most_seen >= opt.positive_min_visible_points ? "positive" : "near_unseen")
-                             : nearest >= opt.negative_min_distance_m ? "negative"
-                                                                      : "between";
-    Kind& k = kind == "positive"    ? positives
-              : kind == "negative"  ? negatives
-              : kind == "between"   ? between
-                                    : near_unseen;
-    ++k.count;
-    double pos_err = -1, rot_err = -1;
-    bool wrong = false;
-    if (r.registered) {
-      ++k.registered;
-      pos_err = position_error(r.cam_from_segment, q.cam_from_world);
-      rot_err = rotation_error_deg(r.cam_from_segment, q.cam_from_world);
-      wrong = pos_err > opt.wrong_position_m || rot_err > opt.wrong_rotation_deg;
-      k.wrong += wrong;
-      k.errors_m.push_back(pos_err);
-    }
-    int rank = -1;
-    std::vector<int> truth_segments;
-    if (kind == "positive") {
-      // True segments: those that show the query at least true_segment_share
-      // as many points as the segment that shows it most.
-      for (size_t i = 0; i < seen.size(); ++i)
-        if (seen[i] >= opt.true_segment_share * most_seen) truth_segments.push_back(point_samples[i].segment);
-      for (size_t i = 0; i < r.retrieval_segments.size() && rank < 0; ++i)
-        if (std::find(truth_segments.begin(), truth_segments.end(), r.retrieval_segments[i]) != truth_segments.end())
-          rank = static_cast<int>(i) + 1;
-      if (rank > 0) {
-        ++retrieval_hits;
-        true_ranks.push_back(rank);
-      }
-      if (r.retrieval_total_votes > 0 && !r.retrieval_votes.empty()) {
-        top_vote_share.push_back(r.retrieval_votes[0] / r.retrieval_total_votes);
-        voted_segments.push_back(static_cast<double>(r.retrieval_voted_segments));
-      }
-      ms_excluding_features.push_back(r.times.total - r.times.features);
-      ms_total.push_back(r.times.total);
-      ms_retrieval.push_back(r.times.retrieval);
-      ms_matching.push_back(r.times.matching);
-      ms_ransac.push_back(r.times.ransac);
-      (r.registered ? ms_registered : ms_missed).push_back(r.times.total - r.times.features);
-    }
-    nlohmann::json entry = {{"image", q.name}, {"kind", kind}, {"distance_to_map_m", nearest},
-                            {"registered", r.registered}, {"wrong", wrong}, {"inliers", r.inliers},
-                            {"position_error_m", pos_err}, {"rotation_error_deg", rot_err},
-                            {"true_segment_rank", rank}, {"true_segments", truth_segments},
-                            {"retrieval_segments", r.retrieval_segments}, {"retrieval_votes", r.retrieval_votes},
-                            {"retrieval_voted_segments", r.retrieval_voted_segments},
-                            {"most_visible_points", most_seen}, {"error", r.error}};
-    add_pose_evidence(r, &entry);
-    if (r.segment >= 0) {  // the pose's error whether registered or not (confidence fits)
-      entry["pose_position_error_m"] = position_error(r.cam_from_segment, q.cam_from_world);
-      entry["pose_rotation_error_deg"] = rotation_error_deg(r.cam_from_segment, q.cam_from_world);
-    }
-    per_query.push_back(entry);
+    localize_city_query(q, ctx, t);
     if (progress) progress({"localize", ++done, total});
   }
   // Peak memory over the city's queries (up to 1024×768), before the foreign
   // photos (up to 1536×1024: SIFT's pyramids of a larger image).
-  const uint64_t peak_city_queries = peak_memory_bytes();
+  t.peak_city_queries = peak_memory_bytes();
   for (const fs::path& photo : foreign) {
     const LocalizationResult r = localizer.localize_file(photo);
-    ++foreigners.count;
+    ++t.foreigners.count;
     if (r.registered) {
-      ++foreigners.registered;
-      ++foreigners.wrong;
+      ++t.foreigners.registered;
+      ++t.foreigners.wrong;
     }
     nlohmann::json entry = {{"image", photo.string()}, {"kind", "foreign"}, {"registered", r.registered},
                             {"wrong", r.registered}, {"inliers", r.inliers}, {"error", r.error}};
     add_pose_evidence(r, &entry);
-    per_query.push_back(entry);
+    t.per_query.push_back(entry);
     if (progress) progress({"localize", ++done, total});
   }
+  return t;
+}
 
-  // 4. Report.
-  std::vector<size_t> rank_histogram(static_cast<size_t>(opt.localizer.max_segments) + 1, 0);  // [0]: not found
-  for (const auto& q : per_query)
-    if (q["kind"] == "positive") {
-      const int r = q["true_segment_rank"].get<int>();
-      ++rank_histogram[r > 0 && r < static_cast<int>(rank_histogram.size()) ? r : 0];
-    }
-  const size_t points = build_summary.at("points").get<size_t>();
-  const size_t wrong_total = positives.wrong + negatives.wrong + foreigners.wrong;
+// Counts over the per-query entries that the report's JSON and Markdown share.
+struct CityQueryCounts {
+  std::vector<size_t> rank_histogram;  // [0]: not found
+  size_t wrong_total = 0;
   // Confidence: poses with enough inliers that the threshold turned away,
   // right and wrong; uncertainty: registered positives' errors within 1σ, 2σ.
   size_t turned_away_right = 0, turned_away_wrong = 0, with_sigma = 0, within1 = 0, within2 = 0;
-  for (const auto& q : per_query) {
+};
+
+CityQueryCounts count_city_queries(const CityLocalizationTally& t, const CityBenchmarkOptions& opt) {
+  CityQueryCounts c;
+  c.rank_histogram.assign(static_cast<size_t>(opt.localizer.max_segments) + 1, 0);
+  for (const auto& q : t.per_query)
+    if (q["kind"] == "positive") {
+      const int r = q["true_segment_rank"].get<int>();
+      ++c.rank_histogram[r > 0 && r < static_cast<int>(c.rank_histogram.size()) ? r : 0];
+    }
+  c.wrong_total = t.positives.wrong + t.negatives.wrong + t.foreigners.wrong;
+  for (const auto& q : t.per_query) {
     const std::string kind = q["kind"];
     if (kind == "between" || kind == "near_unseen" || !q.contains("confidence_features")) continue;
     if (!q["registered"].get<bool>() &&
@@ -415,109 +468,149 @@ nlohmann::json run_city_benchmark(const fs::path& out, const CityBenchmarkOption
       const bool right = kind != "foreign" && q.contains("pose_position_error_m") &&
                          q["pose_position_error_m"].get<double>() <= opt.wrong_position_m &&
                          q["pose_rotation_error_deg"].get<double>() <= opt.wrong_rotation_deg;
-      (right ? turned_away_right : turned_away_wrong)++;
+      (right ? c.turned_away_right : c.turned_away_wrong)++;
     }
     if (kind == "positive" && q["registered"].get<bool>() && q.contains("position_sigma")) {
       const double e = q["position_error_m"].get<double>(), sigma = q["position_sigma"].get<double>();
-      ++with_sigma;
-      within1 += e <= sigma;
-      within2 += e <= 2 * sigma;
+      ++c.with_sigma;
+      c.within1 += e <= sigma;
+      c.within2 += e <= 2 * sigma;
     }
   }
-  nlohmann::json report = {
+  return c;
+}
+
+// report.json.
+nlohmann::json city_report_json(const fs::path& city_dir, const CityBenchmarkOptions& opt, const CityMapSplit& split,
+                                const nlohmann::json& build_summary, const CityLocalizationTally& t,
+                                const CityQueryCounts& c) {
+  return {
       {"city", {{"road_length_m", nlohmann::json::parse(read_file(city_dir / "city.json")).at("counts").at("road_length_m")},
-                {"roads", max_road + 1},
-                {"roads_left_out", std::vector<int>(left_out.begin(), left_out.end())},
-                {"placemarks_mapped", mapped_centres.size()},
-                {"images_mapped", mapped.size()}}},
+                {"roads", split.max_road + 1},
+                {"roads_left_out", std::vector<int>(split.left_out.begin(), split.left_out.end())},
+                {"placemarks_mapped", split.mapped_centres.size()},
+                {"images_mapped", split.mapped.size()}}},
       {"map", build_summary},
       {"peak_memory_bytes_of_localizing_process", peak_memory_bytes()},
-      {"peak_memory_bytes_city_queries", peak_city_queries},
+      {"peak_memory_bytes_city_queries", t.peak_city_queries},
       {"localized_in_separate_process", opt.stage == CityBenchmarkStage::kLocalize},
-      {"positives", pose_summary(positives.errors_m, positives.count, positives.registered, positives.wrong)},
+      {"positives", pose_summary(t.positives.errors_m, t.positives.count, t.positives.registered, t.positives.wrong)},
       {"negatives_unmapped_streets",
-       pose_summary(negatives.errors_m, negatives.count, negatives.registered, negatives.wrong)},
-      {"between_not_scored", {{"queries", between.count}, {"registered", between.registered}}},
-      {"near_but_unseen_not_scored", {{"queries", near_unseen.count}, {"registered", near_unseen.registered},
+       pose_summary(t.negatives.errors_m, t.negatives.count, t.negatives.registered, t.negatives.wrong)},
+      {"between_not_scored", {{"queries", t.between.count}, {"registered", t.between.registered}}},
+      {"near_but_unseen_not_scored", {{"queries", t.near_unseen.count}, {"registered", t.near_unseen.registered},
                                       {"rule", {{"min_visible_points", opt.positive_min_visible_points},
                                                 {"range_m", opt.visibility_range_m}}}}},
-      {"foreign_photos", {{"queries", foreigners.count}, {"registered", foreigners.registered}}},
-      {"wrong_poses", wrong_total},
+      {"foreign_photos", {{"queries", t.foreigners.count}, {"registered", t.foreigners.registered}}},
+      {"wrong_poses", c.wrong_total},
       {"wrong_pose_rule", {{"position_m", opt.wrong_position_m}, {"rotation_deg", opt.wrong_rotation_deg}}},
       {"confidence", {{"min_confidence", opt.localizer.min_confidence},
-                      {"turned_away_right_poses", turned_away_right},
-                      {"turned_away_wrong_poses", turned_away_wrong}}},
-      {"uncertainty", {{"registered_positives_with_sigma", with_sigma},
-                       {"within_1_sigma", with_sigma ? double(within1) / double(with_sigma) : 0.0},
-                       {"within_2_sigma", with_sigma ? double(within2) / double(with_sigma) : 0.0}}},
+                      {"turned_away_right_poses", c.turned_away_right},
+                      {"turned_away_wrong_poses", c.turned_away_wrong}}},
+      {"uncertainty", {{"registered_positives_with_sigma", c.with_sigma},
+                       {"within_1_sigma", c.with_sigma ? double(c.within1) / double(c.with_sigma) : 0.0},
+                       {"within_2_sigma", c.with_sigma ? double(c.within2) / double(c.with_sigma) : 0.0}}},
       {"retrieval",
-       {{"positives_with_true_segment_among_candidates", retrieval_hits},
-        {"fraction", positives.count ? double(retrieval_hits) / double(positives.count) : 0.0},
-        {"median_rank_of_true_segment", true_ranks.empty() ? nlohmann::json(nullptr) : nlohmann::json(median(true_ranks))},
-        {"rank_histogram", rank_histogram},
+       {{"positives_with_true_segment_among_candidates", t.retrieval_hits},
+        {"fraction", t.positives.count ? double(t.retrieval_hits) / double(t.positives.count) : 0.0},
+        {"median_rank_of_true_segment", t.true_ranks.empty() ? nlohmann::json(nullptr) : nlohmann::json(median(t.true_ranks))},
+        {"rank_histogram", c.rank_histogram},
         {"true_segment_rule", {{"share_of_best", opt.true_segment_share}}},
-        {"median_top_candidate_vote_share", top_vote_share.empty() ? nlohmann::json(nullptr)
-                                                                   : nlohmann::json(median(top_vote_share))},
-        {"median_segments_voted", voted_segments.empty() ? nlohmann::json(nullptr)
-                                                         : nlohmann::json(median(voted_segments))}}},
-      {"median_ms_per_positive", {{"total", median_or_zero(ms_total)},
-                                  {"excluding_features", median_or_zero(ms_excluding_features)},
-                                  {"retrieval", median_or_zero(ms_retrieval)},
-                                  {"matching", median_or_zero(ms_matching)},
-                                  {"ransac", median_or_zero(ms_ransac)},
-                                  {"registered_excluding_features", median_or_zero(ms_registered)},
-                                  {"missed_excluding_features", median_or_zero(ms_missed)}}},
-      {"per_query", per_query}};
-  write_file_atomic(out / "report.json", report.dump(2));
+        {"median_top_candidate_vote_share", t.top_vote_share.empty() ? nlohmann::json(nullptr)
+                                                                     : nlohmann::json(median(t.top_vote_share))},
+        {"median_segments_voted", t.voted_segments.empty() ? nlohmann::json(nullptr)
+                                                           : nlohmann::json(median(t.voted_segments))}}},
+      {"median_ms_per_positive", {{"total", median_or_zero(t.ms_total)},
+                                  {"excluding_features", median_or_zero(t.ms_excluding_features)},
+                                  {"retrieval", median_or_zero(t.ms_retrieval)},
+                                  {"matching", median_or_zero(t.ms_matching)},
+                                  {"ransac", median_or_zero(t.ms_ransac)},
+                                  {"registered_excluding_features", median_or_zero(t.ms_registered)},
+                                  {"missed_excluding_features", median_or_zero(t.ms_missed)}}},
+      {"per_query", t.per_query}};
+}
 
+// report.md.
+std::string city_report_markdown(const nlohmann::json& report, const CityBenchmarkOptions& opt,
+                                 const CityMapSplit& split, const nlohmann::json& build_summary,
+                                 const CityLocalizationTally& t, const CityQueryCounts& c) {
+  const size_t points = build_summary.at("points").get<size_t>();
   std::ostringstream md;
   md << std::fixed << std::setprecision(3);
   md << "# City benchmark\n\n"
-     << "City: " << report["city"]["road_length_m"] << " m of street, " << (max_road + 1) << " roads, "
-     << left_out.size() << " left out of the map; map: " << build_summary.at("segments") << " segments ("
+     << "City: " << report["city"]["road_length_m"] << " m of street, " << (split.max_road + 1) << " roads, "
+     << split.left_out.size() << " left out of the map; map: " << build_summary.at("segments") << " segments ("
      << build_summary.at("segments_failed") << " failed), " << points << " points.\n\n"
      << "| queries | count | registered | wrong poses | misses | median position error (m) |\n|---|---|---|---|---|---|\n";
-  auto row = [&](const char* name, const Kind& k) {
+  auto row = [&](const char* name, const QueryKindTally& k) {
     md << "| " << name << " | " << k.count << " | " << k.registered << " | " << k.wrong << " | "
        << (k.count - k.registered) << " | " << (k.errors_m.empty() ? std::string("-") : std::to_string(median(k.errors_m)))
        << " |\n";
   };
-  row("positives (near mapped streets)", positives);
-  row("negatives (unmapped streets)", negatives);
-  md << "| foreign photos | " << foreigners.count << " | " << foreigners.registered << " | " << foreigners.wrong
-     << " | " << (foreigners.count - foreigners.registered) << " | - |\n\n"
-     << "Wrong poses in all: " << wrong_total << " (a wrong pose: registered more than " << opt.wrong_position_m
+  row("positives (near mapped streets)", t.positives);
+  row("negatives (unmapped streets)", t.negatives);
+  md << "| foreign photos | " << t.foreigners.count << " | " << t.foreigners.registered << " | " << t.foreigners.wrong
+     << " | " << (t.foreigners.count - t.foreigners.registered) << " | - |\n\n"
+     << "Wrong poses in all: " << c.wrong_total << " (a wrong pose: registered more than " << opt.wrong_position_m
      << " m or " << opt.wrong_rotation_deg << "° from the truth, or any registered foreign photo). "
-     << between.count << " queries between " << opt.positive_max_distance_m << " and " << opt.negative_min_distance_m
-     << " m from the map are not scored, nor " << near_unseen.count << " near the map that see fewer than "
+     << t.between.count << " queries between " << opt.positive_max_distance_m << " and " << opt.negative_min_distance_m
+     << " m from the map are not scored, nor " << t.near_unseen.count << " near the map that see fewer than "
      << opt.positive_min_visible_points << " of its points. A negative registered within the thresholds of its true pose (it sees "
-     << "mapped facades) is not a wrong pose: " << (negatives.registered - negatives.wrong) << " here.\n\n"
+     << "mapped facades) is not a wrong pose: " << (t.negatives.registered - t.negatives.wrong) << " here.\n\n"
      << "Confidence threshold " << opt.localizer.min_confidence << ": of the poses with at least "
-     << opt.localizer.ransac.min_inliers << " inliers it turned away " << turned_away_wrong << " wrong and "
-     << turned_away_right << " right ones. Uncertainty: of " << with_sigma << " registered positives, "
-     << (with_sigma ? double(within1) / double(with_sigma) : 0.0) << " have their position error within 1σ and "
-     << (with_sigma ? double(within2) / double(with_sigma) : 0.0) << " within 2σ.\n\n"
-     << "Retrieval: the true segment is among the candidates for " << retrieval_hits << "/" << positives.count
+     << opt.localizer.ransac.min_inliers << " inliers it turned away " << c.turned_away_wrong << " wrong and "
+     << c.turned_away_right << " right ones. Uncertainty: of " << c.with_sigma << " registered positives, "
+     << (c.with_sigma ? double(c.within1) / double(c.with_sigma) : 0.0) << " have their position error within 1σ and "
+     << (c.with_sigma ? double(c.within2) / double(c.with_sigma) : 0.0) << " within 2σ.\n\n"
+     << "Retrieval: the true segment is among the candidates for " << t.retrieval_hits << "/" << t.positives.count
      << " positives";
-  if (!true_ranks.empty()) md << " (median rank " << median(true_ranks) << ")";
+  if (!t.true_ranks.empty()) md << " (median rank " << median(t.true_ranks) << ")";
   md << "; by rank:";
-  for (size_t r = 1; r < rank_histogram.size(); ++r) md << " " << r << ": " << rank_histogram[r] << ",";
-  md << " not among them: " << rank_histogram[0] << ". A true segment shows the query at least "
+  for (size_t r = 1; r < c.rank_histogram.size(); ++r) md << " " << r << ": " << c.rank_histogram[r] << ",";
+  md << " not among them: " << c.rank_histogram[0] << ". A true segment shows the query at least "
      << opt.true_segment_share << " × the points of the segment that shows it most.";
-  if (!top_vote_share.empty())
-    md << " Votes: the top candidate holds a median " << median(top_vote_share) << " of the votes, spread over a median "
-       << median(voted_segments) << " segments.";
-  md << "\n\nMedian milliseconds per positive: " << (ms_total.empty() ? 0.0 : median(ms_total))
-     << " in all, " << (ms_excluding_features.empty() ? 0.0 : median(ms_excluding_features))
-     << " excluding features (one core): retrieval " << median_or_zero(ms_retrieval) << ", matching "
-     << median_or_zero(ms_matching) << ", RANSAC " << median_or_zero(ms_ransac) << "; registered positives "
-     << median_or_zero(ms_registered) << ", missed " << median_or_zero(ms_missed) << ". Peak memory of the process that localized: "
-     << std::setprecision(1) << double(peak_city_queries) / (1024.0 * 1024.0) << " MiB over the city's queries, "
+  if (!t.top_vote_share.empty())
+    md << " Votes: the top candidate holds a median " << median(t.top_vote_share) << " of the votes, spread over a median "
+       << median(t.voted_segments) << " segments.";
+  md << "\n\nMedian milliseconds per positive: " << (t.ms_total.empty() ? 0.0 : median(t.ms_total))
+     << " in all, " << (t.ms_excluding_features.empty() ? 0.0 : median(t.ms_excluding_features))
+     << " excluding features (one core): retrieval " << median_or_zero(t.ms_retrieval) << ", matching "
+     << median_or_zero(t.ms_matching) << ", RANSAC " << median_or_zero(t.ms_ransac) << "; registered positives "
+     << median_or_zero(t.ms_registered) << ", missed " << median_or_zero(t.ms_missed) << ". Peak memory of the process that localized: "
+     << std::setprecision(1) << double(t.peak_city_queries) / (1024.0 * 1024.0) << " MiB over the city's queries, "
      << double(peak_memory_bytes()) / (1024.0 * 1024.0) << " MiB with the foreign photos ("
      << (opt.stage == CityBenchmarkStage::kLocalize ? "a separate process that only localized"
                                                     : "the same process built the map: an upper bound")
      << ").\n";
-  write_file_atomic(out / "report.md", md.str());
+  return md.str();
+}
+}  // namespace
+
+nlohmann::json run_city_benchmark(const fs::path& out, const CityBenchmarkOptions& opt,
+                                  const std::function<void(const CityBenchmarkProgress&)>& progress,
+                                  const std::function<void(const MapBuildProgress&)>& map_progress) {
+  opt.validate();
+  fs::create_directories(out);
+  const fs::path city_dir = out / "city";
+
+  // 1. The whole city; the roads of the map and those left out.
+  write_or_check_city(city_dir, opt, progress);
+  const CityMapSplit split = split_city(city_dir, out, opt);
+
+  // 2. The map: every image of a placemark on a mapped road.
+  const nlohmann::json build_summary = build_or_read_city_map(out, city_dir, opt, progress, map_progress);
+  if (opt.stage == CityBenchmarkStage::kPrepare) return build_summary;
+
+  // 3. Localize: synthetic queries (positives and negatives), then foreign photos.
+  const CityLocalizationTally tally = localize_city_queries(out, city_dir, opt, split, progress);
+
+  // 4. Report.
+  const CityQueryCounts counts = count_city_queries(tally, opt);
+  const nlohmann::json report = city_report_json(city_dir, opt, split, build_summary, tally, counts);
+  // Both texts are made before either file is written: a bad build summary fails with neither file.
+  const std::string markdown = city_report_markdown(report, opt, split, build_summary, tally, counts);
+  write_file_atomic(out / "report.json", report.dump(2));
+  write_file_atomic(out / "report.md", markdown);
   return report;
 }
 

@@ -4,7 +4,9 @@
 #include <Eigen/Core>
 #include <algorithm>
 #include <cmath>
+#include <iomanip>
 #include <numeric>
+#include <sstream>
 
 #include "visloc/eval/plot.h"
 #include "visloc/util/error.h"
@@ -275,6 +277,43 @@ void plot_precision_recall(const std::filesystem::path& stem, const std::string&
     plot.label(mark->recall, mark->precision, "threshold " + Plot::fmt(threshold), -60, -10);
   }
   plot.save(stem);
+}
+
+nlohmann::json ConfidenceCheck::to_json() const {
+  return {{"poses_with_min_inliers", poses_with_min_inliers},
+          {"right_poses_registered", right_registered},
+          {"right_poses_lost", right_lost},
+          {"wrong_poses_registered", wrong_registered},
+          {"threshold", threshold}};
+}
+
+ConfidenceCheck check_confidence(const std::vector<ConfidenceSample>& samples, const ConfidenceModel& model,
+                                 double min_inliers) {
+  ConfidenceCheck out;
+  out.threshold = model.threshold;
+  std::vector<double> scores;
+  std::vector<bool> right;
+  for (const auto& s : samples) {
+    if (s.features.inliers < min_inliers) continue;
+    const double c = model.evaluate(s.features);
+    scores.push_back(c);
+    right.push_back(s.right);
+    const bool accepted = c >= model.threshold;
+    if (s.right) (accepted ? out.right_registered : out.right_lost)++;
+    else if (accepted) ++out.wrong_registered;
+  }
+  out.poses_with_min_inliers = scores.size();
+  out.curve = precision_recall_curve(scores, right, out.right_registered + out.right_lost);
+  return out;
+}
+
+std::string confidence_model_code(const ConfidenceModel& model) {
+  std::ostringstream code;
+  code << std::setprecision(17) << "    m.bias = " << model.bias << ";\n";
+  for (int k = 0; k < kConfidenceInputs; ++k)
+    code << "    m.weights[" << k << "] = " << model.weights[k] << ";  // " << confidence_input_names()[k] << "\n";
+  code << "    threshold " << model.threshold << "\n";
+  return code.str();
 }
 
 }  // namespace visloc

@@ -73,4 +73,22 @@ ConfidenceFit fit_confidence(const std::vector<ConfidenceSample>& samples, const
 void plot_precision_recall(const std::filesystem::path& stem, const std::string& title,
                            const std::vector<PrecisionRecallPoint>& curve, double threshold);
 
+// A model checked on samples: the poses with ≥ min_inliers (the registered
+// ones) split at the model's threshold into right poses kept, right poses
+// lost and wrong poses kept; the precision-recall curve of its confidence
+// over them (recall over the right ones).
+struct ConfidenceCheck {
+  size_t poses_with_min_inliers = 0;
+  size_t right_registered = 0, right_lost = 0, wrong_registered = 0;
+  double threshold = 0;  // the model's
+  std::vector<PrecisionRecallPoint> curve;
+  nlohmann::json to_json() const;  // the counts and the threshold
+};
+
+ConfidenceCheck check_confidence(const std::vector<ConfidenceSample>& samples, const ConfidenceModel& model,
+                                 double min_inliers);
+
+// The model as the C++ statements of ConfidenceModel::builtin (full precision).
+std::string confidence_model_code(const ConfidenceModel& model);
+
 }  // namespace visloc

@@ -188,22 +188,23 @@ const char* const kRowKeys[] = {"placemarks_per_segment", "overlap", "segments",
 
 std::string config_name(int p, int o) { return "p" + std::to_string(p) + "_o" + std::to_string(o); }
 
-}  // namespace
+using StudyProgressCallback = std::function<void(const SegmentStudyProgress&)>;
 
-nlohmann::json run_segment_study(const fs::path& out, const StudyDataset& all_queries, const SegmentStudyOptions& opt,
-                                 const std::function<void(const SegmentStudyProgress&)>& progress) {
-  opt.validate();
+// At most max_queries of the dataset's queries, evenly strided (0: all).
+StudyDataset study_queries(const StudyDataset& all_queries, const SegmentStudyOptions& opt) {
   StudyDataset dataset = all_queries;
   if (opt.max_queries > 0 && dataset.queries.size() > opt.max_queries) {
     dataset.queries.clear();
     const size_t n = all_queries.queries.size();
     for (size_t i = 0; i < opt.max_queries; ++i) dataset.queries.push_back(all_queries.queries[i * n / opt.max_queries]);
   }
-  const fs::path dir = out / dataset.name;
-  const fs::path shared_features = dir / "shared" / "features";
-  const fs::path shared_codebook = dir / "shared" / "pq_codebook.vlpq";
-  // The study's fingerprint: a directory made with other inputs or options
-  // is refused (its results and shared features would not apply).
+  return dataset;
+}
+
+// The study's fingerprint: a directory made with other inputs or options
+// is refused (its results and shared features would not apply). Writes it
+// into dir, with the directory of the features the configurations share.
+void claim_study_dir(const fs::path& dir, const StudyDataset& dataset, const SegmentStudyOptions& opt) {
   const fs::path fingerprint_path = dir / "study.json";
   const nlohmann::json fingerprint = study_fingerprint(dataset, opt);
   if (fs::exists(fingerprint_path)) {
@@ -213,8 +214,140 @@ nlohmann::json run_segment_study(const fs::path& out, const StudyDataset& all_qu
                   ": this study was made with other inputs or options; use another --out (or delete ", dir.string(),
                   ")");
   }
-  fs::create_directories(shared_features);
+  fs::create_directories(dir / "shared" / "features");
   write_file_atomic(fingerprint_path, fingerprint.dump(2));
+}
+
+// The result of configuration (p, o) of an earlier run, if it is whole and for this configuration.
+std::optional<nlohmann::json> earlier_result(const fs::path& result_path, int p, int o) {
+  if (fs::exists(result_path)) {
+    try {
+      nlohmann::json row = nlohmann::json::parse(read_file(result_path));
+      for (const char* key : kRowKeys) (void)row.at(key);
+      if (row.at("placemarks_per_segment").get<int>() == p && row.at("overlap").get<int>() == o) return row;
+    } catch (const std::exception&) {
+      // A damaged result: run the configuration again.
+    }
+  }
+  return std::nullopt;
+}
+
+// What building a configuration's map gave.
+struct StudyMapBuild {
+  size_t segments = 0, segments_failed = 0, points = 0;
+  uint64_t segment_bytes = 0, retrieval_bytes = 0;
+  double build_seconds = 0;
+};
+
+// Builds configuration (p, o)'s map in map_dir (features and codebook shared
+// with the configurations before, through the study's shared/ directory).
+StudyMapBuild build_study_map(const fs::path& map_dir, const fs::path& study_dir, const StudyDataset& dataset,
+                              const SegmentStudyOptions& opt, int p, int o, const StudyProgressCallback& progress) {
+  const fs::path shared_features = study_dir / "shared" / "features";
+  const fs::path shared_codebook = study_dir / "shared" / "pq_codebook.vlpq";
+  link_files(shared_features, map_dir / "work" / "features");
+  fs::create_directories(map_dir);
+  if (fs::exists(shared_codebook) && !fs::exists(map_dir / "pq_codebook.vlpq"))
+    link_or_copy(shared_codebook, map_dir / "pq_codebook.vlpq");
+  MapBuildOptions mb = opt.map;
+  mb.images_dir = dataset.images_dir;
+  mb.gps_csv = dataset.gps_csv;
+  mb.gps_lists_subset = true;  // e.g. KITTI's even frames of a folder of all frames
+  mb.poses = PoseSource::kKnown;
+  mb.known_poses = dataset.known_poses;
+  mb.known_intrinsics = dataset.known_intrinsics;
+  mb.plan.min_placemarks = mb.plan.max_placemarks = p;
+  mb.plan.overlap = o;
+  if (progress) progress({dataset.name, p, o, "build", 0, 1});
+  const MapBuildResult built = build_map(map_dir, mb);
+  if (built.failed() == built.segments.size())
+    throw_error(ErrorCode::kExternalTool, "bench segments: no segment of ", map_dir.string(),
+                " could be built (logs under its work/)");
+  link_files(map_dir / "work" / "features", shared_features);
+  if (!fs::exists(shared_codebook)) link_or_copy(map_dir / "pq_codebook.vlpq", shared_codebook);
+  StudyMapBuild b;
+  b.segments = built.segments.size();
+  b.segments_failed = built.failed();
+  // Build time: the segments' own seconds summed (reused ones included;
+  // independent of --jobs) and the retrieval index.
+  double segment_seconds = 0;
+  for (const auto& s : built.segments) segment_seconds += s.seconds;
+  for (const auto& s : built.segments) {
+    b.segment_bytes += s.file_bytes;
+    b.points += s.points;
+  }
+  std::error_code ec;
+  for (fs::recursive_directory_iterator it(map_dir / "retrieval", ec), end; !ec && it != end; it.increment(ec))
+    if (it->is_regular_file()) b.retrieval_bytes += it->file_size();
+  b.build_seconds = segment_seconds + built.seconds_retrieval;
+  return b;
+}
+
+// What localizing the queries against a configuration's map gave.
+struct StudyLocalization {
+  size_t positives = 0, negatives = 0, registered = 0, wrong = 0, negatives_registered = 0;
+  std::vector<double> errors, ms;  // positives' position errors; every query's milliseconds
+};
+
+StudyLocalization localize_study_queries(const fs::path& map_dir, const StudyDataset& dataset,
+                                         const std::vector<FeatureSet>& query_features,
+                                         const SegmentStudyOptions& opt, int p, int o,
+                                         const StudyProgressCallback& progress) {
+  const Localizer localizer(map_dir, opt.localizer);
+  StudyLocalization l;
+  for (size_t i = 0; i < dataset.queries.size(); ++i) {
+    const StudyQuery& q = dataset.queries[i];
+    const LocalizationResult r = localizer.localize_features(query_features[i], q.camera);
+    l.ms.push_back(r.times.total);
+    const bool positive = q.kind == "positive";
+    positive ? ++l.positives : ++l.negatives;
+    if (r.registered) {
+      bool is_wrong = !q.truth;
+      if (q.truth) {
+        const double pe = position_error(r.cam_from_segment, *q.truth);
+        const double re = rotation_error_deg(r.cam_from_segment, *q.truth);
+        is_wrong = pe > opt.wrong_position_m || re > opt.wrong_rotation_deg;
+        if (positive) l.errors.push_back(pe);
+      }
+      if (positive) ++l.registered;
+      else ++l.negatives_registered;
+      l.wrong += is_wrong;
+    }
+    if (progress && (i % 20 == 19 || i + 1 == dataset.queries.size()))
+      progress({dataset.name, p, o, "localize", i + 1, dataset.queries.size()});
+  }
+  return l;
+}
+
+// A configuration's result.json.
+nlohmann::json study_row(const std::string& dataset, int p, int o, const StudyMapBuild& b, const StudyLocalization& l) {
+  return {{"dataset", dataset},
+          {"placemarks_per_segment", p},
+          {"overlap", o},
+          {"segments", b.segments},
+          {"segments_failed", b.segments_failed},
+          {"points", b.points},
+          {"segment_bytes", b.segment_bytes},
+          {"retrieval_bytes", b.retrieval_bytes},
+          {"build_seconds", b.build_seconds},
+          {"positives", l.positives},
+          {"registered", l.registered},
+          {"registered_fraction", l.positives ? double(l.registered) / double(l.positives) : 0.0},
+          {"median_position_error_m", l.errors.empty() ? nlohmann::json(nullptr) : nlohmann::json(median(l.errors))},
+          {"negatives", l.negatives},
+          {"negatives_registered", l.negatives_registered},
+          {"wrong_poses", l.wrong},
+          {"median_ms_per_query_excluding_features", l.ms.empty() ? 0.0 : median(l.ms)}};
+}
+
+}  // namespace
+
+nlohmann::json run_segment_study(const fs::path& out, const StudyDataset& all_queries, const SegmentStudyOptions& opt,
+                                 const std::function<void(const SegmentStudyProgress&)>& progress) {
+  opt.validate();
+  const StudyDataset dataset = study_queries(all_queries, opt);
+  const fs::path dir = out / dataset.name;
+  claim_study_dir(dir, dataset, opt);
 
   std::vector<std::pair<int, int>> configs;
   for (int p : opt.placemarks)
@@ -236,100 +369,17 @@ nlohmann::json run_segment_study(const fs::path& out, const StudyDataset& all_qu
   for (const auto& [p, o] : configs) {
     const fs::path cdir = dir / config_name(p, o);
     const fs::path result_path = cdir / "result.json";
-    if (fs::exists(result_path)) {
-      try {
-        nlohmann::json row = nlohmann::json::parse(read_file(result_path));
-        for (const char* key : kRowKeys) (void)row.at(key);
-        if (row.at("placemarks_per_segment").get<int>() == p && row.at("overlap").get<int>() == o) {
-          rows.push_back(std::move(row));
-          continue;
-        }
-      } catch (const std::exception&) {
-        // A damaged result: run the configuration again.
-      }
+    if (std::optional<nlohmann::json> row = earlier_result(result_path, p, o)) {
+      rows.push_back(std::move(*row));
+      continue;
     }
-    // Build (features and codebook shared with the configurations before).
     const fs::path map_dir = cdir / "map";
-    link_files(shared_features, map_dir / "work" / "features");
-    fs::create_directories(map_dir);
-    if (fs::exists(shared_codebook) && !fs::exists(map_dir / "pq_codebook.vlpq"))
-      link_or_copy(shared_codebook, map_dir / "pq_codebook.vlpq");
-    MapBuildOptions mb = opt.map;
-    mb.images_dir = dataset.images_dir;
-    mb.gps_csv = dataset.gps_csv;
-    mb.gps_lists_subset = true;  // e.g. KITTI's even frames of a folder of all frames
-    mb.poses = PoseSource::kKnown;
-    mb.known_poses = dataset.known_poses;
-    mb.known_intrinsics = dataset.known_intrinsics;
-    mb.plan.min_placemarks = mb.plan.max_placemarks = p;
-    mb.plan.overlap = o;
-    if (progress) progress({dataset.name, p, o, "build", 0, 1});
-    const MapBuildResult built = build_map(map_dir, mb);
-    if (built.failed() == built.segments.size())
-      throw_error(ErrorCode::kExternalTool, "bench segments: no segment of ", map_dir.string(),
-                  " could be built (logs under its work/)");
-    link_files(map_dir / "work" / "features", shared_features);
-    if (!fs::exists(shared_codebook)) link_or_copy(map_dir / "pq_codebook.vlpq", shared_codebook);
-    // Build time: the segments' own seconds summed (reused ones included;
-    // independent of --jobs) and the retrieval index.
-    double segment_seconds = 0;
-    for (const auto& s : built.segments) segment_seconds += s.seconds;
-    uint64_t segment_bytes = 0;
-    size_t points = 0;
-    for (const auto& s : built.segments) {
-      segment_bytes += s.file_bytes;
-      points += s.points;
-    }
-    uint64_t retrieval_bytes = 0;
-    std::error_code ec;
-    for (fs::recursive_directory_iterator it(map_dir / "retrieval", ec), end; !ec && it != end; it.increment(ec))
-      if (it->is_regular_file()) retrieval_bytes += it->file_size();
-
-    // Localize.
+    const StudyMapBuild built = build_study_map(map_dir, dir, dataset, opt, p, o, progress);
     ensure_query_features();
-    const Localizer localizer(map_dir, opt.localizer);
-    size_t positives = 0, negatives = 0, registered = 0, wrong = 0, negatives_registered = 0;
-    std::vector<double> errors, ms;
-    for (size_t i = 0; i < dataset.queries.size(); ++i) {
-      const StudyQuery& q = dataset.queries[i];
-      const LocalizationResult r = localizer.localize_features(query_features[i], q.camera);
-      ms.push_back(r.times.total);
-      const bool positive = q.kind == "positive";
-      positive ? ++positives : ++negatives;
-      if (r.registered) {
-        bool is_wrong = !q.truth;
-        if (q.truth) {
-          const double pe = position_error(r.cam_from_segment, *q.truth);
-          const double re = rotation_error_deg(r.cam_from_segment, *q.truth);
-          is_wrong = pe > opt.wrong_position_m || re > opt.wrong_rotation_deg;
-          if (positive) errors.push_back(pe);
-        }
-        if (positive) ++registered;
-        else ++negatives_registered;
-        wrong += is_wrong;
-      }
-      if (progress && (i % 20 == 19 || i + 1 == dataset.queries.size()))
-        progress({dataset.name, p, o, "localize", i + 1, dataset.queries.size()});
-    }
-    nlohmann::json row = {
-        {"dataset", dataset.name},
-        {"placemarks_per_segment", p},
-        {"overlap", o},
-        {"segments", built.segments.size()},
-        {"segments_failed", built.failed()},
-        {"points", points},
-        {"segment_bytes", segment_bytes},
-        {"retrieval_bytes", retrieval_bytes},
-        {"build_seconds", segment_seconds + built.seconds_retrieval},
-        {"positives", positives},
-        {"registered", registered},
-        {"registered_fraction", positives ? double(registered) / double(positives) : 0.0},
-        {"median_position_error_m", errors.empty() ? nlohmann::json(nullptr) : nlohmann::json(median(errors))},
-        {"negatives", negatives},
-        {"negatives_registered", negatives_registered},
-        {"wrong_poses", wrong},
-        {"median_ms_per_query_excluding_features", ms.empty() ? 0.0 : median(ms)}};
+    const StudyLocalization localized = localize_study_queries(map_dir, dataset, query_features, opt, p, o, progress);
+    const nlohmann::json row = study_row(dataset.name, p, o, built, localized);
     write_file_atomic(result_path, row.dump(2));
+    std::error_code ec;
     if (!opt.keep_maps) fs::remove_all(map_dir, ec);
     if (progress) progress({dataset.name, p, o, "done", 1, 1});
     rows.push_back(row);

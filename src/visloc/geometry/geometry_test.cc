@@ -5,6 +5,7 @@
 #include <numbers>
 
 #include "visloc/geometry/camera.h"
+#include "visloc/geometry/correspondence_set.h"
 #include "visloc/geometry/pose.h"
 #include "visloc/util/error.h"
 
@@ -193,4 +194,47 @@ TEST(IntrinsicsList, RejectsConflictingLinesAndPrincipalPointsOutside) {
   EXPECT_THROW(read_intrinsics_list(p), Error);
   write_file_atomic(p, "q1.jpg PINHOLE 800 600 nan 502 400 300\n");
   EXPECT_THROW(read_intrinsics_list(p), Error);
+}
+
+TEST(CorrespondenceSet, ValidateNamesTheProblem) {
+  CorrespondenceSet c;
+  c.validate();  // empty is valid
+  c.add_feature({10, 10}, {Eigen::Vector3d(1, 2, 3), Eigen::Vector3d(2, 3, 4)}, true);
+  c.add_feature({20, 20}, {Eigen::Vector3d(1, 2, 5)}, false);
+  c.validate();
+  EXPECT_EQ(c.num_features(), 2u);
+  EXPECT_EQ(c.num_candidates(0), 2u);
+  EXPECT_EQ(c.num_hypothesis_features(), 1u);
+  CorrespondenceSet bad = c;
+  bad.candidate_offsets[1] = 0;
+  try {
+    bad.validate();
+    FAIL() << "expected an error";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("no candidates"), std::string::npos) << e.what();
+  }
+  bad = c;
+  bad.in_hypothesis_set.pop_back();
+  EXPECT_THROW(bad.validate(), Error);
+  bad = c;
+  bad.candidate_point_ids = {1};
+  EXPECT_THROW(bad.validate(), Error);
+  bad = c;
+  bad.candidates[0].x() = std::nan("");
+  EXPECT_THROW(bad.validate(), Error);
+  c.query_feature = {7, 3};  // optional: empty or one per feature
+  c.validate();
+  bad = c;
+  bad.query_feature.pop_back();
+  try {
+    bad.validate();
+    FAIL() << "expected an error";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("query_feature"), std::string::npos) << e.what();
+  }
+  bad.clear();
+  bad.validate();
+  bad.query_feature = {1};  // a row for a feature that is not there
+  EXPECT_THROW(bad.validate(), Error);
+  EXPECT_THROW(c.add_feature({1, 1}, {}, true), Error);
 }

@@ -309,4 +309,85 @@ nlohmann::json to_json(const ColmapImportResult& r) {
             {"write", r.ms_write}}}};
 }
 
+bool MapImportSources::is_bundler() const { return !bundle_file.empty() || !bundler_list.empty(); }
+
+void MapImportSources::validate(const fs::path& out_dir) const {
+  if (is_bundler()) {
+    if (bundle_file.empty() || bundler_list.empty() || out_dir.empty())
+      throw_error(ErrorCode::kInvalidArgument, "map import needs --bundler bundle.out --list LIST --out MAP");
+    if (!colmap_model.empty() || !database.empty())
+      throw_error(ErrorCode::kInvalidArgument, "map import: give either --bundler/--list or --colmap/--database");
+  } else {
+    if (colmap_model.empty() || database.empty() || out_dir.empty())
+      throw_error(ErrorCode::kInvalidArgument,
+                  "map import needs --colmap MODEL --database DB --out MAP, or --bundler FILE --list FILE --out MAP");
+    if (!bundler.keys_dir.empty() || !bundler.root_sift)
+      throw_error(ErrorCode::kInvalidArgument, "map import: --keys and --raw-sift belong to --bundler");
+  }
+}
+
+MapImportResult import_map(const MapImportSources& sources, const fs::path& out_dir, ColmapImportOptions options) {
+  sources.validate(out_dir);
+  if (!sources.holdout_list.empty()) options.holdout_images = read_name_list(sources.holdout_list);
+  if (!sources.pq_training_list.empty()) options.pq_training_images = read_name_list(sources.pq_training_list);
+  MapImportResult r;
+  r.root_sift = sources.bundler.root_sift;
+  if (sources.is_bundler()) {
+    BundlerImportResult b = import_bundler_map(sources.bundle_file, sources.bundler_list, out_dir, sources.bundler,
+                                               options);
+    r.map = b.map;
+    r.bundler = b.conversion;
+  } else {
+    r.map = import_colmap_map(sources.colmap_model, sources.database, out_dir, options);
+  }
+  return r;
+}
+
+nlohmann::json to_json(const MapImportResult& r) {
+  nlohmann::json j = to_json(r.map);
+  if (const auto& c = r.bundler)
+    j["bundler"] = {{"cameras", c->cameras},
+                    {"cameras_unregistered", c->cameras_unregistered},
+                    {"images", c->images},
+                    {"images_dropped_no_principal_point", c->images_dropped_no_principal_point},
+                    {"points_read", c->points_read},
+                    {"points", c->points},
+                    {"observations", c->observations},
+                    {"observations_dropped", c->observations_dropped},
+                    {"observations_off_key", c->observations_off_key},
+                    {"keys", c->keys},
+                    {"principal_point", c->principal_point},
+                    {"descriptors", r.root_sift ? "rootsift" : "lowe"},
+                    {"ms", {{"bundle", c->ms_bundle}, {"keys", c->ms_keys}}}};
+  return j;
+}
+
+std::string import_summary(const MapImportResult& r, const MapImportSources& sources, const fs::path& out_dir) {
+  std::ostringstream out;
+  out << "imported " << (r.bundler ? sources.bundle_file : sources.colmap_model).string() << " -> "
+      << out_dir.string() << "\n";
+  if (const auto& c = r.bundler) {
+    out << "  bundler: " << c->cameras << " cameras (" << c->cameras_unregistered << " unregistered, dropped with "
+        << c->observations_dropped << " observations), " << c->points_read << " points read, " << c->keys
+        << " keys; principal point from " << c->principal_point << "; descriptors "
+        << (r.root_sift ? "RootSIFT" : "Lowe's (raw)") << "\n";
+    if (c->images_dropped_no_principal_point)
+      out << "  " << c->images_dropped_no_principal_point
+          << " registered images without observations dropped (no principal point: give --images)\n";
+    if (c->observations_off_key)
+      out << "  warning: " << c->observations_off_key
+          << " observations lie more than 1 px from their key (key files from another run?)\n";
+  }
+  const ColmapImportResult& m = r.map;
+  out << "  images " << m.images << ", points " << m.points << ", observations " << m.observations << "\n";
+  if (m.holdout.images_removed)
+    out << "  held out " << m.holdout.images_removed << " images: " << m.holdout.observations_removed
+        << " observations removed, " << m.holdout.points_dropped << " points dropped (< 2 observations)\n";
+  out << "  PQ codebook trained on " << m.pq_training_descriptors << " descriptors (" << m.pq_training_source << ")\n"
+      << std::fixed << std::setprecision(0) << "  time ms: read " << m.ms_read << ", descriptors " << m.ms_descriptors
+      << ", pq " << m.ms_pq << ", itq " << m.ms_itq << ", encode " << m.ms_encode << ", write " << m.ms_write
+      << "\n";
+  return out.str();
+}
+
 }  // namespace visloc

@@ -17,6 +17,7 @@
 
 #include <filesystem>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -67,5 +68,33 @@ BundlerImportResult import_bundler_map(const std::filesystem::path& bundle_file,
                                        const std::filesystem::path& list_file, const std::filesystem::path& out_dir,
                                        const BundlerConversionOptions& bundler = {},
                                        const ColmapImportOptions& options = {});
+
+// What `visloc map import` is given: a COLMAP model and its database, or a
+// Bundler reconstruction; the holdout and PQ training images as name lists.
+struct MapImportSources {
+  std::filesystem::path colmap_model, database;     // COLMAP
+  std::filesystem::path bundle_file, bundler_list;  // Bundler
+  BundlerConversionOptions bundler;                 // key and image folders, RootSIFT or Lowe's
+  std::filesystem::path holdout_list;               // images held out as queries (empty: none)
+  std::filesystem::path pq_training_list;           // images of the PQ training database (empty: all)
+  bool is_bundler() const;  // a Bundler file or list is named
+  // Exactly one complete source (naming the command line's options) and an output directory.
+  void validate(const std::filesystem::path& out_dir) const;
+};
+
+struct MapImportResult {
+  ColmapImportResult map;
+  std::optional<BundlerConversionStats> bundler;  // a Bundler import's conversion
+  bool root_sift = true;                          // Bundler: descriptors converted to RootSIFT
+};
+
+// import_colmap_map or import_bundler_map, with the lists read into `options`.
+MapImportResult import_map(const MapImportSources& sources, const std::filesystem::path& out_dir,
+                           ColmapImportOptions options);
+// The statistics as `visloc map import --json` prints them (without "map").
+nlohmann::json to_json(const MapImportResult& r);
+// The statistics as `visloc map import` prints them.
+std::string import_summary(const MapImportResult& r, const MapImportSources& sources,
+                           const std::filesystem::path& out_dir);
 
 }  // namespace visloc

@@ -470,264 +470,321 @@ class ColmapStageWatcher {
   std::thread thread_;
 };
 
-SegmentBuildResult build_segment(const BuildContext& ctx, int id, const SegmentProgressFn& report) {
-  const MapBuildOptions& opt = *ctx.options;
-  Timer timer;
-  SegmentBuildResult res;
-  res.id = id;
-  const bool guided = opt.guided_matching();
-  res.matcher = guided ? "guided" : "colmap";
-  const fs::path work = segment_work_dir(ctx.map_dir, id);
-  fs::remove_all(work);
-  fs::create_directories(work);
-  const fs::path log = work / "log.txt";
-  const fs::path db_path = work / "database.db";
-  auto stage = [&](const char* name, size_t done = 0, size_t total = 0) {
-    if (report) report({id, name, done, total});
-  };
-
-  // Images of the segment's placemarks, in route order.
-  std::vector<size_t> images;
-  for (int pm : ctx.plan.segments[id])
-    for (size_t i : ctx.plan.placemarks[pm].images) images.push_back(i);
-  res.images = images.size();
-
-  // 0. Features of the segment's images that are not there yet (a Slurm
-  // task extracts its own; locally they were extracted for the whole map).
-  {
-    Timer t_features;
-    std::vector<size_t> missing;
-    for (size_t i : images)
-      if (!fs::exists(feature_path(ctx, ctx.records[i].image))) missing.push_back(i);
-    if (!missing.empty())
-      ensure_features(ctx, missing, 1, false, [&](size_t k) {
-        if (k % 8 == 0 || k == missing.size()) stage("features", k, missing.size());
-      });
-    res.seconds_features = t_features.elapsed_ms() / 1000;
+// One segment's build in stages: features → database (with guided matching,
+// its matches too) → COLMAP's matching → reconstruction → geo-registration →
+// compression and files. run() calls them in order; any stage may throw.
+class SegmentBuilder {
+ public:
+  SegmentBuilder(const BuildContext& ctx, int id, const SegmentProgressFn& report)
+      : ctx_(ctx), opt_(*ctx.options), id_(id), report_(report), guided_(opt_.guided_matching()) {}
+  SegmentBuildResult run() {
+    prepare_work_dir();
+    extract_missing_features();
+    fill_database();
+    match_with_colmap();
+    reconstruct();
+    read_model();
+    geo_register();
+    compress_and_write();
+    res_.ok = true;
+    res_.seconds = timer_.elapsed_ms() / 1000.0;
+    return res_;
   }
 
-  // 1. Our features into a fresh COLMAP database; with guided matching, the
-  // matches and their two-view geometries too, in the same transaction.
+ private:
+  void stage(const char* name, size_t done = 0, size_t total = 0) const {
+    if (report_) report_({id_, name, done, total});
+  }
+  void prepare_work_dir();
+  void extract_missing_features();
+  void fill_database();
+  void add_images(ColmapDatabaseWriter& db);
+  void match_guided(ColmapDatabaseWriter& db);
+  void match_with_colmap();
+  void reconstruct();
+  void read_model();
+  void geo_register();
+  void compress_and_write();
+  std::vector<CameraPose> known_poses() const {
+    std::vector<CameraPose> poses;
+    for (const auto& im : text_images_) poses.push_back(im.cam_from_world);
+    return poses;
+  }
+
+  const BuildContext& ctx_;
+  const MapBuildOptions& opt_;
+  const int id_;
+  const SegmentProgressFn& report_;
+  const bool guided_;
+  Timer timer_, t_stage_;
+  SegmentBuildResult res_;
+  fs::path work_, log_, db_path_, model_dir_;
+  std::vector<size_t> images_;  // records of the segment's placemarks, in route order
+  std::vector<ColmapTextCamera> text_cameras_;  // known poses: COLMAP's text model
+  std::vector<ColmapTextImage> text_images_;
+  std::vector<FeatureSet> features_;  // guided matching: per image
+  std::vector<PinholeCamera> cameras_;
+  std::optional<ColmapRunner> colmap_;
+  ColmapModel model_;
+  Similarity3d enu_from_segment_;
+  size_t registration_images_ = 0;  // model images with GPS
+};
+
+void SegmentBuilder::prepare_work_dir() {
+  res_.id = id_;
+  res_.matcher = guided_ ? "guided" : "colmap";
+  work_ = segment_work_dir(ctx_.map_dir, id_);
+  fs::remove_all(work_);
+  fs::create_directories(work_);
+  log_ = work_ / "log.txt";
+  db_path_ = work_ / "database.db";
+  for (int pm : ctx_.plan.segments[id_])
+    for (size_t i : ctx_.plan.placemarks[pm].images) images_.push_back(i);
+  res_.images = images_.size();
+}
+
+// Features of the segment's images that are not there yet (a Slurm task
+// extracts its own; locally they were extracted for the whole map).
+void SegmentBuilder::extract_missing_features() {
+  Timer t_features;
+  std::vector<size_t> missing;
+  for (size_t i : images_)
+    if (!fs::exists(feature_path(ctx_, ctx_.records[i].image))) missing.push_back(i);
+  if (!missing.empty())
+    ensure_features(ctx_, missing, 1, false, [&](size_t k) {
+      if (k % 8 == 0 || k == missing.size()) stage("features", k, missing.size());
+    });
+  res_.seconds_features = t_features.elapsed_ms() / 1000;
+}
+
+// Our features into a fresh COLMAP database; with guided matching, the
+// matches and their two-view geometries too, in the same transaction.
+void SegmentBuilder::fill_database() {
   stage("database");
-  Timer t_stage;
-  std::vector<ColmapTextCamera> text_cameras;
-  std::vector<ColmapTextImage> text_images;
-  {
-    ColmapDatabaseWriter db(db_path);
-    std::map<std::tuple<int, int, double, bool>, int64_t> camera_ids;
-    std::vector<FeatureSet> features;        // kept for guided matching
-    std::vector<PinholeCamera> cameras;
-    for (size_t i : images) {
-      const std::string& name = ctx.records[i].image;
-      FeatureSet f = read_feature_file(feature_path(ctx, name));
-      PinholeCamera cam;
-      if (ctx.known) {
-        const auto& im = ctx.known->images[ctx.known->image_index_by_name(name)];
-        cam = camera_of(ctx.known->cameras[ctx.known->camera_index(im.camera_id)]);
-      } else {
-        ImageMetadata meta = read_image_metadata(opt.images_dir / name, opt.sift.image);
-        cam = PinholeCamera::centered(meta.width, meta.height, meta.focal_px());
-      }
-      const double fallback = opt.fallback_focal_factor * std::max(cam.width, cam.height);
-      const auto key = std::make_tuple(cam.width, cam.height, cam.has_focal ? cam.focal : 0.0, cam.has_focal);
-      auto it = camera_ids.find(key);
-      if (it == camera_ids.end() || ctx.known) {
-        const int64_t cid = db.add_camera(cam, fallback);
-        it = camera_ids.insert_or_assign(key, cid).first;
-        if (ctx.known) text_cameras.push_back({cid, cam});
-      }
-      const int64_t iid = db.add_image(name, it->second, ctx.enu[i]);
-      db.add_features(iid, f);
-      if (ctx.known) {
-        const auto& im = ctx.known->images[ctx.known->image_index_by_name(name)];
-        text_images.push_back({iid, it->second, name, colmap_image_pose(im)});
-      }
-      if (guided) {
-        features.push_back(std::move(f));
-        cameras.push_back(cam);
-      }
-    }
-    res.seconds_database = t_stage.elapsed_ms() / 1000;
+  t_stage_ = Timer();
+  ColmapDatabaseWriter db(db_path_);
+  add_images(db);
+  res_.seconds_database = t_stage_.elapsed_ms() / 1000;
+  if (guided_) match_guided(db);
+  db.commit();
+  if (guided_) res_.seconds_matching = t_stage_.elapsed_ms() / 1000;
+  // The features were only for guided matching: free them before COLMAP
+  // reconstructs (segments build concurrently, each would hold its images').
+  std::vector<FeatureSet>().swap(features_);
+  std::vector<PinholeCamera>().swap(cameras_);
+}
 
-    if (guided) {
-      t_stage = Timer();
-      std::vector<CameraPose> poses;
-      for (const auto& im : text_images) poses.push_back(im.cam_from_world);
-      // Small segments: every pair (as COLMAP's exhaustive matching); else
-      // pairs that can overlap, distances in metres (the known frame's scale).
-      const auto pairs = images.size() <= opt.exhaustive_max_images
-                             ? overlapping_pairs(poses, std::numeric_limits<double>::infinity(), 180)
-                             : overlapping_pairs(poses, opt.pair_max_distance / ctx.enu_from_known.scale,
-                                                 opt.pair_max_angle_deg);
-      if (pairs.empty()) throw_error(ErrorCode::kInvalidArgument, "segment ", id, ": no overlapping image pairs");
-      res.pairs = pairs.size();
-      std::vector<CenteredKeypoints> centered(features.size());
-      for (size_t k = 0; k < features.size(); ++k) centered[k].assign(features[k], cameras[k]);
-      GuidedMatcher matcher(opt.guided);
-      const size_t report_every = std::max<size_t>(1, pairs.size() / 100);
-      for (size_t p = 0; p < pairs.size(); ++p) {
-        const auto [a, b] = pairs[p];
-        const TwoViewGeometry g = two_view_geometry(cameras[a], poses[a], cameras[b], poses[b]);
-        const auto& m = matcher.match(features[a], centered[a], features[b], centered[b], g);
-        if (!m.empty()) {
-          db.add_calibrated_pair(text_images[a].image_id, text_images[b].image_id, m, g.F, g.E, g.b_from_a_rotation,
-                                 g.b_from_a_direction);
-          ++res.matched_pairs;
-          res.matches += m.size();
-        }
-        if (p % report_every == 0) stage("matching", p, pairs.size());
-      }
-      stage("matching", pairs.size(), pairs.size());
-      std::ostringstream summary;
-      summary << "guided matching: " << pairs.size() << " pairs, " << res.matched_pairs << " with >= "
-              << opt.guided.min_matches << " matches, " << res.matches << " matches\n";
-      std::ofstream(log, std::ios::app) << summary.str();
+void SegmentBuilder::add_images(ColmapDatabaseWriter& db) {
+  std::map<std::tuple<int, int, double, bool>, int64_t> camera_ids;
+  for (size_t i : images_) {
+    const std::string& name = ctx_.records[i].image;
+    FeatureSet f = read_feature_file(feature_path(ctx_, name));
+    PinholeCamera cam;
+    if (ctx_.known) {
+      const auto& im = ctx_.known->images[ctx_.known->image_index_by_name(name)];
+      cam = camera_of(ctx_.known->cameras[ctx_.known->camera_index(im.camera_id)]);
+    } else {
+      ImageMetadata meta = read_image_metadata(opt_.images_dir / name, opt_.sift.image);
+      cam = PinholeCamera::centered(meta.width, meta.height, meta.focal_px());
     }
-    db.commit();
-    if (guided) res.seconds_matching = t_stage.elapsed_ms() / 1000;
+    const double fallback = opt_.fallback_focal_factor * std::max(cam.width, cam.height);
+    const auto key = std::make_tuple(cam.width, cam.height, cam.has_focal ? cam.focal : 0.0, cam.has_focal);
+    auto it = camera_ids.find(key);
+    if (it == camera_ids.end() || ctx_.known) {
+      const int64_t cid = db.add_camera(cam, fallback);
+      it = camera_ids.insert_or_assign(key, cid).first;
+      if (ctx_.known) text_cameras_.push_back({cid, cam});
+    }
+    const int64_t iid = db.add_image(name, it->second, ctx_.enu[i]);
+    db.add_features(iid, f);
+    if (ctx_.known) {
+      const auto& im = ctx_.known->images[ctx_.known->image_index_by_name(name)];
+      text_images_.push_back({iid, it->second, name, colmap_image_pose(im)});
+    }
+    if (guided_) {
+      features_.push_back(std::move(f));
+      cameras_.push_back(cam);
+    }
   }
+}
 
-  // 2. COLMAP: its matching (unless guided), then mapper or triangulation from known poses.
-  ColmapRunner colmap(opt.colmap);
-  if (!guided) {
-    t_stage = Timer();
-    stage("matching");
-    if (ctx.known && images.size() > opt.exhaustive_max_images) {
-      // Known poses: match only views that can overlap (near, looking alike).
-      std::vector<CameraPose> poses;
-      for (const auto& im : text_images) poses.push_back(im.cam_from_world);
-      const auto pairs =
-          overlapping_pairs(poses, opt.pair_max_distance / ctx.enu_from_known.scale, opt.pair_max_angle_deg);
-      if (pairs.empty()) throw_error(ErrorCode::kInvalidArgument, "segment ", id, ": no overlapping image pairs");
-      std::ostringstream list;
-      for (const auto& [a, b] : pairs) list << text_images[a].name << ' ' << text_images[b].name << '\n';
-      res.pairs = pairs.size();
-      write_file_atomic(work / "pairs.txt", list.str());
-      colmap.match_pairs(db_path, work / "pairs.txt", log);
-    } else {
-      colmap.match(db_path, choose_match_strategy(images.size(), true, opt.exhaustive_max_images), log);
+// Known poses: epipolar-guided matching of the pairs that can overlap.
+void SegmentBuilder::match_guided(ColmapDatabaseWriter& db) {
+  t_stage_ = Timer();
+  const std::vector<CameraPose> poses = known_poses();
+  // Small segments: every pair (as COLMAP's exhaustive matching); else
+  // pairs that can overlap, distances in metres (the known frame's scale).
+  const auto pairs = images_.size() <= opt_.exhaustive_max_images
+                         ? overlapping_pairs(poses, std::numeric_limits<double>::infinity(), 180)
+                         : overlapping_pairs(poses, opt_.pair_max_distance / ctx_.enu_from_known.scale,
+                                             opt_.pair_max_angle_deg);
+  if (pairs.empty()) throw_error(ErrorCode::kInvalidArgument, "segment ", id_, ": no overlapping image pairs");
+  res_.pairs = pairs.size();
+  std::vector<CenteredKeypoints> centered(features_.size());
+  for (size_t k = 0; k < features_.size(); ++k) centered[k].assign(features_[k], cameras_[k]);
+  GuidedMatcher matcher(opt_.guided);
+  const size_t report_every = std::max<size_t>(1, pairs.size() / 100);
+  for (size_t p = 0; p < pairs.size(); ++p) {
+    const auto [a, b] = pairs[p];
+    const TwoViewGeometry g = two_view_geometry(cameras_[a], poses[a], cameras_[b], poses[b]);
+    const auto& m = matcher.match(features_[a], centered[a], features_[b], centered[b], g);
+    if (!m.empty()) {
+      db.add_calibrated_pair(text_images_[a].image_id, text_images_[b].image_id, m, g.F, g.E, g.b_from_a_rotation,
+                             g.b_from_a_direction);
+      ++res_.matched_pairs;
+      res_.matches += m.size();
     }
-    res.seconds_matching = t_stage.elapsed_ms() / 1000;
+    if (p % report_every == 0) stage("matching", p, pairs.size());
   }
-  t_stage = Timer();
-  stage(ctx.known ? "triangulating" : "reconstructing (COLMAP mapper)");
-  fs::path model_dir;
+  stage("matching", pairs.size(), pairs.size());
+  std::ostringstream summary;
+  summary << "guided matching: " << pairs.size() << " pairs, " << res_.matched_pairs << " with >= "
+          << opt_.guided.min_matches << " matches, " << res_.matches << " matches\n";
+  std::ofstream(log_, std::ios::app) << summary.str();
+}
+
+// COLMAP's matching and verification (unless guided matching did it).
+void SegmentBuilder::match_with_colmap() {
+  colmap_.emplace(opt_.colmap);
+  if (guided_) return;
+  t_stage_ = Timer();
+  stage("matching");
+  if (ctx_.known && images_.size() > opt_.exhaustive_max_images) {
+    // Known poses: match only views that can overlap (near, looking alike).
+    const auto pairs =
+        overlapping_pairs(known_poses(), opt_.pair_max_distance / ctx_.enu_from_known.scale, opt_.pair_max_angle_deg);
+    if (pairs.empty()) throw_error(ErrorCode::kInvalidArgument, "segment ", id_, ": no overlapping image pairs");
+    std::ostringstream list;
+    for (const auto& [a, b] : pairs) list << text_images_[a].name << ' ' << text_images_[b].name << '\n';
+    res_.pairs = pairs.size();
+    write_file_atomic(work_ / "pairs.txt", list.str());
+    colmap_->match_pairs(db_path_, work_ / "pairs.txt", log_);
+  } else {
+    colmap_->match(db_path_, choose_match_strategy(images_.size(), true, opt_.exhaustive_max_images), log_);
+  }
+  res_.seconds_matching = t_stage_.elapsed_ms() / 1000;
+}
+
+// COLMAP: mapper, or with known poses point_triangulator (triangulation, then bundle adjustment).
+void SegmentBuilder::reconstruct() {
+  t_stage_ = Timer();
+  stage(ctx_.known ? "triangulating" : "reconstructing (COLMAP mapper)");
   {
-    // Known poses: point_triangulator triangulates, then bundle-adjusts.
-    ColmapStageWatcher watcher(log, id, ctx.known ? report : SegmentProgressFn{});
-    if (ctx.known) {
-      write_colmap_text_model(work / "known", text_cameras, text_images);
-      model_dir = work / "sparse" / "0";
-      colmap.triangulate(db_path, opt.images_dir, work / "known", model_dir, log);
+    ColmapStageWatcher watcher(log_, id_, ctx_.known ? report_ : SegmentProgressFn{});
+    if (ctx_.known) {
+      write_colmap_text_model(work_ / "known", text_cameras_, text_images_);
+      model_dir_ = work_ / "sparse" / "0";
+      colmap_->triangulate(db_path_, opt_.images_dir, work_ / "known", model_dir_, log_);
     } else {
-      model_dir = colmap.map(db_path, opt.images_dir, work / "sparse", log);
+      model_dir_ = colmap_->map(db_path_, opt_.images_dir, work_ / "sparse", log_);
     }
   }
-  res.seconds_triangulation = t_stage.elapsed_ms() / 1000;
-  t_stage = Timer();
+  res_.seconds_triangulation = t_stage_.elapsed_ms() / 1000;
+}
+
+// The model COLMAP wrote and its statistics (tracks, reprojection errors).
+void SegmentBuilder::read_model() {
+  t_stage_ = Timer();
   stage("compressing");
-  ColmapModel model = read_colmap_model(model_dir);
-  res.registered_images = model.images.size();
-  if (model.points.size() < 20)
-    throw_error(ErrorCode::kExternalTool, "segment ", id, ": COLMAP reconstructed only ", model.points.size(),
-                " points from ", images.size(), " images (log: ", log.string(), ")");
-  {
-    double track_sum = 0, error_sum = 0;
-    for (const auto& p : model.points) {
-      track_sum += static_cast<double>(p.track.size());
-      error_sum += p.error;
-      if (p.track.size() >= 3) ++res.points_track3;
-    }
-    res.mean_track_length = track_sum / static_cast<double>(model.points.size());
-    res.mean_reprojection_error = error_sum / static_cast<double>(model.points.size());
+  model_ = read_colmap_model(model_dir_);
+  res_.registered_images = model_.images.size();
+  if (model_.points.size() < 20)
+    throw_error(ErrorCode::kExternalTool, "segment ", id_, ": COLMAP reconstructed only ", model_.points.size(),
+                " points from ", images_.size(), " images (log: ", log_.string(), ")");
+  double track_sum = 0, error_sum = 0;
+  for (const auto& p : model_.points) {
+    track_sum += static_cast<double>(p.track.size());
+    error_sum += p.error;
+    if (p.track.size() >= 3) ++res_.points_track3;
   }
+  res_.mean_track_length = track_sum / static_cast<double>(model_.points.size());
+  res_.mean_reprojection_error = error_sum / static_cast<double>(model_.points.size());
+}
 
-  // 3. Geo-registration: segment frame → ENU.
-  Similarity3d enu_from_segment;
+// Geo-registration: segment frame → ENU (known poses: the map's transform, residuals measured).
+void SegmentBuilder::geo_register() {
   std::vector<Eigen::Vector3d> src, dst;
   std::map<std::string, size_t> record_of;
-  for (size_t i : images) record_of[ctx.records[i].image] = i;
+  for (size_t i : images_) record_of[ctx_.records[i].image] = i;
   Eigen::Vector3d up = Eigen::Vector3d::Zero();
-  for (const auto& im : model.images) {
+  for (const auto& im : model_.images) {
     auto it = record_of.find(im.name);
     if (it == record_of.end()) continue;
     const CameraPose pose = colmap_image_pose(im);
     src.push_back(pose.center());
     up += camera_up(pose);
-    dst.push_back(ctx.enu[it->second]);
+    dst.push_back(ctx_.enu[it->second]);
   }
-  if (ctx.known) {
-    enu_from_segment = ctx.enu_from_known;
-    res.registration_inliers = static_cast<int>(src.size());
+  registration_images_ = src.size();
+  if (ctx_.known) {
+    enu_from_segment_ = ctx_.enu_from_known;
+    res_.registration_inliers = static_cast<int>(src.size());
     std::vector<double> r;
     double sum2 = 0;
     for (size_t k = 0; k < src.size(); ++k) {
-      r.push_back((enu_from_segment.apply(src[k]) - dst[k]).norm());
+      r.push_back((enu_from_segment_.apply(src[k]) - dst[k]).norm());
       sum2 += r.back() * r.back();
     }
     std::sort(r.begin(), r.end());
-    res.registration_rms_m = r.empty() ? 0 : std::sqrt(sum2 / r.size());
-    res.registration_median_m = r.empty() ? 0 : r[r.size() / 2];
-    res.registration_max_m = r.empty() ? 0 : r.back();
+    res_.registration_rms_m = r.empty() ? 0 : std::sqrt(sum2 / r.size());
+    res_.registration_median_m = r.empty() ? 0 : r[r.size() / 2];
+    res_.registration_max_m = r.empty() ? 0 : r.back();
   } else {
-    const SimilarityEstimate e = estimate_street_similarity_ransac(src, dst, up, opt.registration);
-    enu_from_segment = e.transform;
-    res.registration_inliers = e.inlier_count;
-    res.registration_rms_m = e.rms_residual;
-    res.registration_median_m = e.median_residual;
-    res.registration_max_m = e.max_residual;
+    const SimilarityEstimate e = estimate_street_similarity_ransac(src, dst, up, opt_.registration);
+    enu_from_segment_ = e.transform;
+    res_.registration_inliers = e.inlier_count;
+    res_.registration_rms_m = e.rms_residual;
+    res_.registration_median_m = e.median_residual;
+    res_.registration_max_m = e.max_residual;
   }
-
-  // 4. Compress: mean SIFT per point, ITQ codes (the segment's rotation or the map's), PQ with the map's codebook.
-  Timer t_part;
-  ColmapDatabase db(db_path);
-  PointDescriptors desc = compute_point_descriptors(model, db);
-  const double ms_descriptors = t_part.elapsed_ms();
-  SegmentBuildStats compression_stats;
-  SegmentData data =
-      make_segment_data(model, desc, ctx.codebook, opt.itq, static_cast<uint32_t>(id), &compression_stats,
-                        ctx.map_hasher.get());
-  std::vector<int> placemark_ids;
-  for (int pm : ctx.plan.segments[id]) placemark_ids.push_back(ctx.plan.placemarks[pm].id);
-  data.extra_meta["enu_from_segment"] = similarity_json(enu_from_segment);
-  data.extra_meta["placemarks"] = placemark_ids;
-  data.extra_meta["registration"] = {{"rms_m", res.registration_rms_m},
-                                     {"median_m", res.registration_median_m},
-                                     {"max_m", res.registration_max_m},
-                                     {"inliers", res.registration_inliers},
-                                     {"images", src.size()}};
-  fs::create_directories(ctx.map_dir / "segments");
-  fs::create_directories(ctx.map_dir / "descriptors");
-  const fs::path seg_path = segment_file(ctx.map_dir, id);
-  write_segment_file(seg_path, data);
-  write_point_descriptor_file(ctx.map_dir / "descriptors" / (segment_stem(id) + ".vldesc"),
-                              round_descriptors(desc.mean), desc.track_size);
-  res.points = data.num_points();
-  {
-    const std::string contents = read_file(seg_path);
-    res.file_bytes = contents.size();
-    res.file_crc32c = crc32c(contents.data(), contents.size());
-  }
-  res.bytes_per_point = double(res.file_bytes) / std::max<size_t>(1, res.points);
-  {
-    std::ostringstream line;
-    line << std::fixed << std::setprecision(2) << "compression: point descriptors " << ms_descriptors / 1000
-         << " s, ITQ " << compression_stats.ms_itq / 1000 << " s, encoding " << compression_stats.ms_encode / 1000
-         << " s, total with files " << t_stage.elapsed_ms() / 1000 << " s\n";
-    std::ofstream(log, std::ios::app) << line.str();
-  }
-  res.seconds_compression = t_stage.elapsed_ms() / 1000;
-  res.ok = true;
-  res.seconds = timer.elapsed_ms() / 1000.0;
-  return res;
 }
 
-// build_segment with failures turned into a result (ok = false, error) and
+// Compression: mean SIFT per point, ITQ codes (the segment's rotation or the
+// map's), PQ with the map's codebook; the segment and descriptor files.
+void SegmentBuilder::compress_and_write() {
+  Timer t_part;
+  ColmapDatabase db(db_path_);
+  PointDescriptors desc = compute_point_descriptors(model_, db);
+  const double ms_descriptors = t_part.elapsed_ms();
+  SegmentBuildStats compression_stats;
+  SegmentData data = make_segment_data(model_, desc, ctx_.codebook, opt_.itq, static_cast<uint32_t>(id_),
+                                       &compression_stats, ctx_.map_hasher.get());
+  std::vector<int> placemark_ids;
+  for (int pm : ctx_.plan.segments[id_]) placemark_ids.push_back(ctx_.plan.placemarks[pm].id);
+  data.extra_meta["enu_from_segment"] = similarity_json(enu_from_segment_);
+  data.extra_meta["placemarks"] = placemark_ids;
+  data.extra_meta["registration"] = {{"rms_m", res_.registration_rms_m},
+                                     {"median_m", res_.registration_median_m},
+                                     {"max_m", res_.registration_max_m},
+                                     {"inliers", res_.registration_inliers},
+                                     {"images", registration_images_}};
+  fs::create_directories(ctx_.map_dir / "segments");
+  fs::create_directories(ctx_.map_dir / "descriptors");
+  const fs::path seg_path = segment_file(ctx_.map_dir, id_);
+  write_segment_file(seg_path, data);
+  write_point_descriptor_file(ctx_.map_dir / "descriptors" / (segment_stem(id_) + ".vldesc"),
+                              round_descriptors(desc.mean), desc.track_size);
+  res_.points = data.num_points();
+  {
+    const std::string contents = read_file(seg_path);
+    res_.file_bytes = contents.size();
+    res_.file_crc32c = crc32c(contents.data(), contents.size());
+  }
+  res_.bytes_per_point = double(res_.file_bytes) / std::max<size_t>(1, res_.points);
+  std::ostringstream line;
+  line << std::fixed << std::setprecision(2) << "compression: point descriptors " << ms_descriptors / 1000
+       << " s, ITQ " << compression_stats.ms_itq / 1000 << " s, encoding " << compression_stats.ms_encode / 1000
+       << " s, total with files " << t_stage_.elapsed_ms() / 1000 << " s\n";
+  std::ofstream(log_, std::ios::app) << line.str();
+  res_.seconds_compression = t_stage_.elapsed_ms() / 1000;
+}
+
+// A segment's build (SegmentBuilder) with failures turned into a result (ok = false, error) and
 // the result recorded in the segment's result.json.
 SegmentBuildResult build_and_record_segment(const BuildContext& ctx, int id, const SegmentProgressFn& report) {
   SegmentBuildResult r;
   try {
-    r = build_segment(ctx, id, report);
+    r = SegmentBuilder(ctx, id, report).run();
   } catch (const Error& e) {
     if (e.code() == ErrorCode::kInternal) throw;
     r = SegmentBuildResult{};
@@ -842,405 +899,496 @@ SegmentBuildResult build_planned_segment(const fs::path& map_dir, const MapBuild
   return r;
 }
 
-MapBuildResult build_map(const fs::path& map_dir, const MapBuildOptions& opt,
-                         const std::function<void(const MapBuildProgress&)>& progress) {
-  opt.validate();
+namespace {
+
+// A result is looked for by listing its directory, which makes a shared
+// filesystem revalidate what it cached about that directory.
+bool has_result(const fs::path& map_dir, int id) {
+  std::error_code ec;
+  for (fs::directory_iterator it(segment_work_dir(map_dir, id), ec), end; !ec && it != end; it.increment(ec))
+    if (it->path().filename() == "result.json") return true;
+  return false;
+}
+
+}  // namespace
+
+// What the stages of a map's build share.
+struct MapBuilder::State {
+  fs::path map_dir;
+  MapBuildOptions opt;
+  ProgressFn progress;
   Timer total;
+  int jobs = 1;
+  fs::path slurm_dir, active_file;       // MAP/work/slurm, and the arrays that may be running there
+  fs::path codebook_path, rotation_path;  // the map's PQ codebook and hash rotation
+  BuildContext ctx;
   MapBuildResult result;
-  const int jobs = opt.jobs > 0 ? opt.jobs : std::max(1u, std::thread::hardware_concurrency());
-  fs::create_directories(map_dir / "work" / "features");
-  const BuildLock lock(map_dir / "work" / "build.lock");
-  // An array of an interrupted Slurm run may still be building segments of this map.
-  const fs::path slurm_dir = map_dir / "work" / "slurm";
-  const fs::path active_file = slurm_dir / "active_job";
-  if (fs::exists(active_file)) {
-    std::istringstream jobs_listed(read_file(active_file));
-    for (std::string earlier; jobs_listed >> earlier;)
-      if (SlurmArray::attach(opt.slurm, earlier, slurm_dir).poll() != SlurmArray::State::kDone)
-        throw_error(ErrorCode::kInvalidArgument, "map build: Slurm array ", earlier, " of an earlier run may still be ",
-                    "building segments of ", map_dir.string(), "; wait for it to end or cancel it (scancel ", earlier,
-                    "), then run this again (or, if no task can run any more, delete ", active_file.string(), ")");
-    std::error_code ec;
-    fs::remove(active_file, ec);
-  }
-  if (!opt.build_record.empty()) write_file_atomic(map_dir / "work" / "build.json", opt.build_record);
-  BuildContext ctx = prepare_context(map_dir, opt);
-  const GeoPosition origin = ctx.origin;
-  {
-    // A segment finished under another plan (other segment sizes, other
-    // inputs) is built again: its result is forgotten when its images differ.
-    const fs::path plan_path = map_dir / "work" / "plan.json";
-    const nlohmann::json plan = plan_json(ctx);
-    if (fs::exists(plan_path)) {
-      nlohmann::json earlier = nlohmann::json::parse(read_file(plan_path), nullptr, false);
-      const bool usable = !earlier.is_discarded() && earlier.is_object() && earlier.contains("segments") &&
-                          earlier["segments"].is_array();
-      const size_t n_new = plan["segments"].size();
-      const size_t n_old = usable ? earlier["segments"].size() : 0;
-      std::error_code ec;
-      for (size_t id = 0; id < std::max(n_new, n_old); ++id) {
-        const bool same = usable && id < n_old && id < n_new && earlier["segments"][id] == plan["segments"][id];
-        if (!same) fs::remove(segment_result_file(map_dir, static_cast<int>(id)), ec);
-      }
-    }
-    write_file_atomic(plan_path, plan.dump());
-  }
-  result.images = ctx.records.size();
-  result.placemarks = ctx.plan.placemarks.size();
-
-  // Features, once per image (segments overlap), in parallel; cached. On
-  // Slurm only those that train the PQ codebook: the tasks extract the rest.
-  Timer t_features;
-  {
-    std::vector<size_t> records;
-    if (opt.executor == BuildExecutor::kSlurm) {
-      records = pq_training_records(ctx);
-    } else {
-      records.resize(ctx.records.size());
-      std::iota(records.begin(), records.end(), size_t{0});
-    }
-    ensure_features(ctx, records, jobs, true, [&](size_t d) {
-      if (progress) progress({"features", d, records.size(), total.elapsed_ms() / 1000, {}, -1});
-    });
-  }
-  result.seconds_features = t_features.elapsed_ms() / 1000;
-
-  // The PQ codebook (and, with a map rotation, the ITQ rotation): trained
-  // once per map on descriptors sampled across all images.
-  const fs::path codebook_path = map_dir / "pq_codebook.vlpq";
-  const fs::path rotation_path = map_dir / kHashRotationFileName;
-  const bool map_rotation = opt.hash_rotation == HashRotationScope::kMap;
-  if (fs::exists(codebook_path)) ctx.codebook = PqCodebook::read(codebook_path);
-  if (map_rotation && fs::exists(rotation_path))
-    ctx.map_hasher = std::make_shared<const BinaryHasher>(read_hash_rotation_file(rotation_path));
-  if (ctx.codebook.empty() || (map_rotation && !ctx.map_hasher)) {
-    const std::vector<size_t> training = pq_training_records(ctx);
-    const size_t per_image = (opt.pq_training_descriptors + training.size() - 1) / training.size();
-    std::vector<float> sample;
-    RandomGenerator rng(opt.pq.seed);
-    for (size_t i : training) {
-      FeatureSet f = read_feature_file(feature_path(ctx, ctx.records[i].image));
-      std::vector<size_t> rows(f.size());
-      for (size_t k = 0; k < rows.size(); ++k) rows[k] = k;
-      shuffle(rows.begin(), rows.end(), rng);
-      rows.resize(std::min(rows.size(), per_image));
-      for (size_t k : rows)
-        for (int d = 0; d < kDescriptorDim; ++d) sample.push_back(f.descriptors.row(k)[d]);
-    }
-    const size_t training_count = sample.size() / kDescriptorDim;
-    if (ctx.codebook.empty()) {
-      ctx.codebook = PqCodebook::train(sample.data(), training_count, opt.pq);
-      nlohmann::json pq_meta = {{"dimension", kDescriptorDim}, {"subvectors", kPqSubvectors}, {"bits", 8},
-                                {"training_descriptors", training_count},
-                                {"training_source", "image descriptors sampled across the map"},
-                                {"seed", opt.pq.seed}};
-      ctx.codebook.write(codebook_path, pq_meta.dump());
-    }
-    if (map_rotation && !ctx.map_hasher) {
-      ItqResult itq = train_itq(sample.data(), training_count, opt.itq);
-      write_hash_rotation_file(rotation_path, itq.hasher,
-                               nlohmann::json{{"training_descriptors", training_count},
-                                              {"training_source", "image descriptors sampled across the map"},
-                                              {"itq_iterations", opt.itq.iterations},
-                                              {"seed", opt.itq.seed}}
-                                   .dump());
-      ctx.map_hasher = std::make_shared<const BinaryHasher>(std::move(itq.hasher));
-    }
-  }
-
-  // Segments; each one's outcome is recorded as soon as it ends.
+  // Segments: which, and the live state of the running ones (for progress and the ETA).
   Timer t_segments;
-  const size_t n_segments = ctx.plan.segments.size();
-  result.segments.resize(n_segments);
-  for (size_t s = 0; s < n_segments; ++s) {
-    result.segments[s].id = static_cast<int>(s);
-    result.segments[s].error = "not built";
-  }
-  std::mutex state_mutex;
-  std::set<int> only(opt.only_segments.begin(), opt.only_segments.end());
-  for (int s : only)
-    if (s < 0 || s >= static_cast<int>(n_segments))
-      throw_error(ErrorCode::kInvalidArgument, "segment ", s, " does not exist (the map has ", n_segments, ")");
-
-  auto write_current_manifest = [&] {
-    MapManifest man;
-    man.enu_origin_lat_lon_alt = std::array<double, 3>{origin.lat, origin.lon, origin.alt};
-    nlohmann::json plan_json = nlohmann::json::array();
-    for (size_t s = 0; s < n_segments; ++s) {
-      nlohmann::json pms = nlohmann::json::array();
-      for (int pm : ctx.plan.segments[s]) pms.push_back(ctx.plan.placemarks[pm].id);
-      plan_json.push_back(pms);
-    }
-    nlohmann::json failed = nlohmann::json::array();
-    for (const auto& r : result.segments)
-      if (!r.ok && !r.error.empty() && r.error != "not built") failed.push_back({{"id", r.id}, {"error", r.error}});
-    // Listed whenever present: a segment of an earlier run may need it.
-    if (fs::exists(rotation_path)) man.hash_rotation_file = kHashRotationFileName;
-    man.parameters = {{"hash", {{"method", "itq"}, {"bits", kHashBits}, {"tables", kHashTables},
-                                {"table_bits", kHashTableBits}, {"itq_iterations", opt.itq.iterations},
-                                {"seed", opt.itq.seed}, {"rotation", to_string(opt.hash_rotation)}}},
-                      {"pq", {{"subvectors", kPqSubvectors}, {"bits", 8}, {"seed", opt.pq.seed}}},
-                      {"point_descriptor", "mean of track"},
-                      {"sift", nlohmann::json::parse(opt.sift.to_json())},
-                      {"segments", {{"min_placemarks", opt.plan.min_placemarks},
-                                    {"max_placemarks", opt.plan.max_placemarks},
-                                    {"overlap", opt.plan.overlap}}},
-                      {"matcher", opt.guided_matching() ? "guided" : "colmap"}};
-    man.source = {{"type", "build"},
-                  {"images", fs::absolute(opt.images_dir).string()},
-                  {"gps", opt.gps_csv.empty() ? std::string("exif") : fs::absolute(opt.gps_csv).string()},
-                  {"poses", opt.poses == PoseSource::kKnown ? "known" : "sfm"},
-                  {"segment_placemarks", plan_json},
-                  {"failed_segments", failed}};
-    for (const auto& r : result.segments) {
-      if (!r.ok) continue;
-      const std::string file = "segments/" + segment_stem(r.id) + ".vlseg";
-      man.segments.push_back({static_cast<uint32_t>(r.id), file, "descriptors/" + segment_stem(r.id) + ".vldesc",
-                              r.points, r.registered_images, r.file_bytes, r.file_crc32c});
-    }
-    write_manifest(map_dir, man);
-  };
-
-  // Which segments to build: not finished earlier (or asked for by update).
+  size_t n_segments = 0;
+  std::set<int> only;
   std::vector<int> to_build;
   size_t segments_done = 0;
-  for (size_t s = 0; s < n_segments; ++s) {
-    const int id = static_cast<int>(s);
-    if (!only.count(id)) {
-      if (auto r = finished_segment(map_dir, id, ctx.map_hasher)) {
-        result.segments[s] = *r;
-        result.segments[s].reused = true;
-        ++segments_done;
+  std::mutex state_mutex;
+  std::map<int, SegmentProgress> running;
+  size_t to_build_total = 0;
+  size_t built = 0;
+  double seconds_built = 0;
+  size_t concurrency = 1;  // segments built at once: the local threads, or on Slurm as many as run (at least 1)
+};
+
+// Slurm: arrays of at most max_array_size tasks; task k of an array builds
+// the k-th segment of its task list.
+struct MapBuilder::SlurmRun {
+  struct Submitted {
+    SlurmArray array;
+    std::vector<int> segments;
+    SlurmArray::State state = SlurmArray::State::kRunning;
+  };
+  std::vector<Submitted> arrays;
+  std::map<int, std::pair<size_t, int>> task_of;  // segment → (array, task index)
+  std::string active;                              // job ids, one a line (as in active_file)
+  std::set<int> pending;                           // segments without a result yet
+  std::string task_name(int id) const {
+    const auto [a, k] = task_of.at(id);
+    return arrays[a].array.job_id() + "_" + std::to_string(k);
+  }
+  std::string task_log(int id) const {
+    const auto [a, k] = task_of.at(id);
+    return arrays[a].array.task_log(k).string();
+  }
+};
+
+MapBuilder::MapBuilder(fs::path map_dir, const MapBuildOptions& options, ProgressFn progress)
+    : state_(std::make_unique<State>()) {
+  state_->map_dir = std::move(map_dir);
+  state_->opt = options;
+  state_->progress = std::move(progress);
+}
+
+MapBuilder::~MapBuilder() = default;
+
+MapBuildResult MapBuilder::run() {
+  State& s = *state_;
+  s.opt.validate();
+  s.total = Timer();
+  s.jobs = s.opt.jobs > 0 ? s.opt.jobs : std::max(1u, std::thread::hardware_concurrency());
+  fs::create_directories(s.map_dir / "work" / "features");
+  const BuildLock lock(s.map_dir / "work" / "build.lock");
+  check_earlier_slurm_arrays();
+  if (!s.opt.build_record.empty()) write_file_atomic(s.map_dir / "work" / "build.json", s.opt.build_record);
+  plan_segments();
+  extract_features();
+  train_codebook();
+  select_segments();
+  if (s.opt.executor == BuildExecutor::kLocal) build_segments_local();
+  else if (!s.to_build.empty()) build_segments_slurm();
+  s.result.seconds_segments = s.t_segments.elapsed_ms() / 1000;
+  build_retrieval();
+  s.result.seconds_total = s.total.elapsed_ms() / 1000;
+  return std::move(s.result);
+}
+
+// An array of an interrupted Slurm run may still be building segments of this map.
+void MapBuilder::check_earlier_slurm_arrays() {
+  State& s = *state_;
+  s.slurm_dir = s.map_dir / "work" / "slurm";
+  s.active_file = s.slurm_dir / "active_job";
+  if (!fs::exists(s.active_file)) return;
+  std::istringstream jobs_listed(read_file(s.active_file));
+  for (std::string earlier; jobs_listed >> earlier;)
+    if (SlurmArray::attach(s.opt.slurm, earlier, s.slurm_dir).poll() != SlurmArray::State::kDone)
+      throw_error(ErrorCode::kInvalidArgument, "map build: Slurm array ", earlier, " of an earlier run may still be ",
+                  "building segments of ", s.map_dir.string(), "; wait for it to end or cancel it (scancel ", earlier,
+                  "), then run this again (or, if no task can run any more, delete ", s.active_file.string(), ")");
+  std::error_code ec;
+  fs::remove(s.active_file, ec);
+}
+
+void MapBuilder::plan_segments() {
+  State& s = *state_;
+  s.ctx = prepare_context(s.map_dir, s.opt);
+  // A segment finished under another plan (other segment sizes, other
+  // inputs) is built again: its result is forgotten when its images differ.
+  const fs::path plan_path = s.map_dir / "work" / "plan.json";
+  const nlohmann::json plan = plan_json(s.ctx);
+  if (fs::exists(plan_path)) {
+    nlohmann::json earlier = nlohmann::json::parse(read_file(plan_path), nullptr, false);
+    const bool usable = !earlier.is_discarded() && earlier.is_object() && earlier.contains("segments") &&
+                        earlier["segments"].is_array();
+    const size_t n_new = plan["segments"].size();
+    const size_t n_old = usable ? earlier["segments"].size() : 0;
+    std::error_code ec;
+    for (size_t id = 0; id < std::max(n_new, n_old); ++id) {
+      const bool same = usable && id < n_old && id < n_new && earlier["segments"][id] == plan["segments"][id];
+      if (!same) fs::remove(segment_result_file(s.map_dir, static_cast<int>(id)), ec);
+    }
+  }
+  write_file_atomic(plan_path, plan.dump());
+  s.result.images = s.ctx.records.size();
+  s.result.placemarks = s.ctx.plan.placemarks.size();
+}
+
+// Features, once per image (segments overlap), in parallel; cached. On
+// Slurm only those that train the PQ codebook: the tasks extract the rest.
+void MapBuilder::extract_features() {
+  State& s = *state_;
+  Timer t_features;
+  std::vector<size_t> records;
+  if (s.opt.executor == BuildExecutor::kSlurm) {
+    records = pq_training_records(s.ctx);
+  } else {
+    records.resize(s.ctx.records.size());
+    std::iota(records.begin(), records.end(), size_t{0});
+  }
+  ensure_features(s.ctx, records, s.jobs, true, [&](size_t d) {
+    if (s.progress) s.progress({"features", d, records.size(), s.total.elapsed_ms() / 1000, {}, -1});
+  });
+  s.result.seconds_features = t_features.elapsed_ms() / 1000;
+}
+
+// The PQ codebook (and, with a map rotation, the ITQ rotation): trained
+// once per map on descriptors sampled across all images.
+void MapBuilder::train_codebook() {
+  State& s = *state_;
+  const MapBuildOptions& opt = s.opt;
+  BuildContext& ctx = s.ctx;
+  s.codebook_path = s.map_dir / "pq_codebook.vlpq";
+  s.rotation_path = s.map_dir / kHashRotationFileName;
+  const bool map_rotation = opt.hash_rotation == HashRotationScope::kMap;
+  if (fs::exists(s.codebook_path)) ctx.codebook = PqCodebook::read(s.codebook_path);
+  if (map_rotation && fs::exists(s.rotation_path))
+    ctx.map_hasher = std::make_shared<const BinaryHasher>(read_hash_rotation_file(s.rotation_path));
+  if (!ctx.codebook.empty() && (!map_rotation || ctx.map_hasher)) return;
+  const std::vector<size_t> training = pq_training_records(ctx);
+  const size_t per_image = (opt.pq_training_descriptors + training.size() - 1) / training.size();
+  std::vector<float> sample;
+  RandomGenerator rng(opt.pq.seed);
+  for (size_t i : training) {
+    FeatureSet f = read_feature_file(feature_path(ctx, ctx.records[i].image));
+    std::vector<size_t> rows(f.size());
+    for (size_t k = 0; k < rows.size(); ++k) rows[k] = k;
+    shuffle(rows.begin(), rows.end(), rng);
+    rows.resize(std::min(rows.size(), per_image));
+    for (size_t k : rows)
+      for (int d = 0; d < kDescriptorDim; ++d) sample.push_back(f.descriptors.row(k)[d]);
+  }
+  const size_t training_count = sample.size() / kDescriptorDim;
+  if (ctx.codebook.empty()) {
+    ctx.codebook = PqCodebook::train(sample.data(), training_count, opt.pq);
+    nlohmann::json pq_meta = {{"dimension", kDescriptorDim}, {"subvectors", kPqSubvectors}, {"bits", 8},
+                              {"training_descriptors", training_count},
+                              {"training_source", "image descriptors sampled across the map"},
+                              {"seed", opt.pq.seed}};
+    ctx.codebook.write(s.codebook_path, pq_meta.dump());
+  }
+  if (map_rotation && !ctx.map_hasher) {
+    ItqResult itq = train_itq(sample.data(), training_count, opt.itq);
+    write_hash_rotation_file(s.rotation_path, itq.hasher,
+                             nlohmann::json{{"training_descriptors", training_count},
+                                            {"training_source", "image descriptors sampled across the map"},
+                                            {"itq_iterations", opt.itq.iterations},
+                                            {"seed", opt.itq.seed}}
+                                 .dump());
+    ctx.map_hasher = std::make_shared<const BinaryHasher>(std::move(itq.hasher));
+  }
+}
+
+// Which segments to build: not finished earlier (or asked for by update).
+// Each one's outcome is recorded as soon as it ends; the first manifest
+// holds the ENU origin and plan before any task reads them.
+void MapBuilder::select_segments() {
+  State& s = *state_;
+  s.t_segments = Timer();
+  s.n_segments = s.ctx.plan.segments.size();
+  s.result.segments.resize(s.n_segments);
+  for (size_t k = 0; k < s.n_segments; ++k) {
+    s.result.segments[k].id = static_cast<int>(k);
+    s.result.segments[k].error = "not built";
+  }
+  s.only = std::set<int>(s.opt.only_segments.begin(), s.opt.only_segments.end());
+  for (int id : s.only)
+    if (id < 0 || id >= static_cast<int>(s.n_segments))
+      throw_error(ErrorCode::kInvalidArgument, "segment ", id, " does not exist (the map has ", s.n_segments, ")");
+  for (size_t k = 0; k < s.n_segments; ++k) {
+    const int id = static_cast<int>(k);
+    if (!s.only.count(id)) {
+      if (auto r = finished_segment(s.map_dir, id, s.ctx.map_hasher)) {
+        s.result.segments[k] = *r;
+        s.result.segments[k].reused = true;
+        ++s.segments_done;
         continue;
       }
       // An update keeps the other segments as they are: one that cannot be
       // kept (another hash rotation) would drop out of the map.
-      if (!only.empty() && fs::exists(segment_file(map_dir, id)))
-        throw_error(ErrorCode::kInvalidArgument, "segment ", id, " of ", map_dir.string(),
-                    " was built with another hash rotation than --hash-rotation ", to_string(opt.hash_rotation),
+      if (!s.only.empty() && fs::exists(segment_file(s.map_dir, id)))
+        throw_error(ErrorCode::kInvalidArgument, "segment ", id, " of ", s.map_dir.string(),
+                    " was built with another hash rotation than --hash-rotation ", to_string(s.opt.hash_rotation),
                     " gives; update with the same option, or rebuild the map with 'map build'");
     }
-    if (only.empty() || only.count(id)) to_build.push_back(id);
+    if (s.only.empty() || s.only.count(id)) s.to_build.push_back(id);
   }
-  write_current_manifest();  // the ENU origin and plan, before any task reads them
+  write_current_manifest();
+  s.to_build_total = s.to_build.size();
+  s.concurrency = static_cast<size_t>(s.jobs);
+}
 
-  // Live state of the running segments, for progress and the ETA.
-  std::map<int, SegmentProgress> running;
-  const size_t to_build_total = to_build.size();
-  size_t built = 0;
-  double seconds_built = 0;
-  // Segments built at once: the local threads, or on Slurm as many as run (at least 1).
-  size_t concurrency = static_cast<size_t>(jobs);
-  auto report_segments = [&] {  // with state_mutex held
-    if (!progress) return;
-    MapBuildProgress p{"segments", segments_done, n_segments, total.elapsed_ms() / 1000, {}, -1};
-    double partial = 0;
-    for (const auto& [id, sp] : running) {
-      p.running.push_back(sp);
-      partial += stage_fraction(sp);
-    }
-    const double work_done = static_cast<double>(built) + partial;
-    const double remaining = static_cast<double>(to_build_total) - work_done;
-    const double elapsed = t_segments.elapsed_ms() / 1000;
-    if (built > 0) {
-      // Measured: seconds per segment of those finished in this run, spread
-      // over the segments built at once.
-      const double parallel = std::max<double>(1.0, std::min<double>(static_cast<double>(concurrency),
-                                                                     static_cast<double>(to_build_total)));
-      p.eta_s = seconds_built / static_cast<double>(built) * remaining / parallel;
-    } else if (work_done > 0.25 && elapsed > 1) {
-      p.eta_s = elapsed / work_done * remaining;  // from the stages of the running segments
-    }
-    progress(p);
-  };
-  auto segment_finished = [&](const SegmentBuildResult& r) {  // with state_mutex held
-    result.segments[r.id] = r;
-    running.erase(r.id);
-    ++built;
-    seconds_built += r.seconds;
-    ++segments_done;
-    write_current_manifest();
-    report_segments();
-  };
+void MapBuilder::write_current_manifest() {
+  const State& s = *state_;
+  const MapBuildOptions& opt = s.opt;
+  MapManifest man;
+  man.enu_origin_lat_lon_alt = std::array<double, 3>{s.ctx.origin.lat, s.ctx.origin.lon, s.ctx.origin.alt};
+  nlohmann::json plan_json = nlohmann::json::array();
+  for (size_t k = 0; k < s.n_segments; ++k) {
+    nlohmann::json pms = nlohmann::json::array();
+    for (int pm : s.ctx.plan.segments[k]) pms.push_back(s.ctx.plan.placemarks[pm].id);
+    plan_json.push_back(pms);
+  }
+  nlohmann::json failed = nlohmann::json::array();
+  for (const auto& r : s.result.segments)
+    if (!r.ok && !r.error.empty() && r.error != "not built") failed.push_back({{"id", r.id}, {"error", r.error}});
+  // Listed whenever present: a segment of an earlier run may need it.
+  if (fs::exists(s.rotation_path)) man.hash_rotation_file = kHashRotationFileName;
+  man.parameters = {{"hash", {{"method", "itq"}, {"bits", kHashBits}, {"tables", kHashTables},
+                              {"table_bits", kHashTableBits}, {"itq_iterations", opt.itq.iterations},
+                              {"seed", opt.itq.seed}, {"rotation", to_string(opt.hash_rotation)}}},
+                    {"pq", {{"subvectors", kPqSubvectors}, {"bits", 8}, {"seed", opt.pq.seed}}},
+                    {"point_descriptor", "mean of track"},
+                    {"sift", nlohmann::json::parse(opt.sift.to_json())},
+                    {"segments", {{"min_placemarks", opt.plan.min_placemarks},
+                                  {"max_placemarks", opt.plan.max_placemarks},
+                                  {"overlap", opt.plan.overlap}}},
+                    {"matcher", opt.guided_matching() ? "guided" : "colmap"}};
+  man.source = {{"type", "build"},
+                {"images", fs::absolute(opt.images_dir).string()},
+                {"gps", opt.gps_csv.empty() ? std::string("exif") : fs::absolute(opt.gps_csv).string()},
+                {"poses", opt.poses == PoseSource::kKnown ? "known" : "sfm"},
+                {"segment_placemarks", plan_json},
+                {"failed_segments", failed}};
+  for (const auto& r : s.result.segments) {
+    if (!r.ok) continue;
+    const std::string file = "segments/" + segment_stem(r.id) + ".vlseg";
+    man.segments.push_back({static_cast<uint32_t>(r.id), file, "descriptors/" + segment_stem(r.id) + ".vldesc",
+                            r.points, r.registered_images, r.file_bytes, r.file_crc32c});
+  }
+  visloc::write_manifest(s.map_dir, man);
+}
 
-  if (opt.executor == BuildExecutor::kLocal) {
-    parallel_for(to_build.size(), jobs, [&](size_t k) {
-      const int id = to_build[k];
-      auto report = [&](const SegmentProgress& p) {
-        std::lock_guard lock(state_mutex);
-        running[id] = p;
-        report_segments();
-      };
-      SegmentBuildResult r = build_and_record_segment(ctx, id, report);
-      std::lock_guard lock(state_mutex);
-      segment_finished(r);
-    });
-  } else if (!to_build.empty()) {
-    // Slurm: arrays of at most max_array_size tasks; task k of an array builds
-    // the k-th segment of its task list. Tasks write result.json (and
-    // progress.json while they run).
-    for (int id : to_build) {
-      std::error_code ec;
-      fs::remove(segment_result_file(map_dir, id), ec);
-      fs::remove(segment_progress_file(map_dir, id), ec);
-    }
-    struct Submitted {
-      SlurmArray array;
-      std::vector<int> segments;
-      SlurmArray::State state = SlurmArray::State::kRunning;
-    };
-    std::vector<Submitted> arrays;
-    std::map<int, std::pair<size_t, int>> task_of;  // segment → (array, task index)
-    const std::string stamp = std::to_string(std::chrono::duration_cast<std::chrono::milliseconds>(
-                                                 std::chrono::system_clock::now().time_since_epoch())
-                                                 .count());
-    std::string active;
-    for (size_t first = 0; first < to_build.size(); first += opt.slurm.max_array_size) {
-      const std::vector<int> chunk(
-          to_build.begin() + static_cast<std::ptrdiff_t>(first),
-          to_build.begin() + static_cast<std::ptrdiff_t>(std::min(to_build.size(), first + opt.slurm.max_array_size)));
-      const fs::path list = slurm_dir / ("tasks-" + stamp + "-" + std::to_string(arrays.size()) + ".txt");
-      std::string text;
-      for (int id : chunk) text += std::to_string(id) + "\n";
-      fs::create_directories(slurm_dir);
-      write_file_atomic(list, text);
-      std::vector<int> indices(chunk.size());
-      std::iota(indices.begin(), indices.end(), 0);
-      std::vector<std::string> command = opt.slurm_task_command;
-      command.insert(command.end(), {"--task-list", fs::absolute(list).string()});
-      arrays.push_back({SlurmArray::submit(opt.slurm, indices, command, slurm_dir), chunk});
-      for (size_t k = 0; k < chunk.size(); ++k) task_of[chunk[k]] = {arrays.size() - 1, static_cast<int>(k)};
-      active += arrays.back().array.job_id() + "\n";
-      write_file_atomic(active_file, active);
-    }
-    auto task_name = [&](int id) {
-      const auto [a, k] = task_of.at(id);
-      return arrays[a].array.job_id() + "_" + std::to_string(k);
-    };
-    auto task_log = [&](int id) {
-      const auto [a, k] = task_of.at(id);
-      return arrays[a].array.task_log(k).string();
-    };
-    // A result is looked for by listing its directory, which makes a shared
-    // filesystem revalidate what it cached about that directory.
-    auto has_result = [&](int id) {
-      std::error_code ec;
-      for (fs::directory_iterator it(segment_work_dir(map_dir, id), ec), end; !ec && it != end; it.increment(ec))
-        if (it->path().filename() == "result.json") return true;
-      return false;
-    };
-    std::set<int> pending(to_build.begin(), to_build.end());
-    auto collect = [&] {  // results that appeared, and progress of the rest
-      std::vector<int> ended;
-      std::lock_guard lock(state_mutex);
-      for (int id : pending) {
-        if (has_result(id)) {
-          SegmentBuildResult r = recorded_segment(map_dir, id);
-          if (!r.ok) r.error += " (Slurm task " + task_name(id) + ", log: " + task_log(id) + ")";
-          segment_finished(r);
-          ended.push_back(id);
-          continue;
-        }
-        try {
-          const auto j = nlohmann::json::parse(read_file(segment_progress_file(map_dir, id)));
-          running[id] = {id, j.at("stage").get<std::string>(), j.at("done").get<size_t>(), j.at("total").get<size_t>()};
-        } catch (const std::exception&) {  // not started yet, or mid-rename
-        }
-      }
-      for (int id : ended) pending.erase(id);
-      concurrency = std::max<size_t>(concurrency, std::max<size_t>(1, running.size()));
+void MapBuilder::report_segments() {
+  State& s = *state_;
+  if (!s.progress) return;
+  MapBuildProgress p{"segments", s.segments_done, s.n_segments, s.total.elapsed_ms() / 1000, {}, -1};
+  double partial = 0;
+  for (const auto& [id, sp] : s.running) {
+    p.running.push_back(sp);
+    partial += stage_fraction(sp);
+  }
+  const double work_done = static_cast<double>(s.built) + partial;
+  const double remaining = static_cast<double>(s.to_build_total) - work_done;
+  const double elapsed = s.t_segments.elapsed_ms() / 1000;
+  if (s.built > 0) {
+    // Measured: seconds per segment of those finished in this run, spread
+    // over the segments built at once.
+    const double parallel = std::max<double>(1.0, std::min<double>(static_cast<double>(s.concurrency),
+                                                                   static_cast<double>(s.to_build_total)));
+    p.eta_s = s.seconds_built / static_cast<double>(s.built) * remaining / parallel;
+  } else if (work_done > 0.25 && elapsed > 1) {
+    p.eta_s = elapsed / work_done * remaining;  // from the stages of the running segments
+  }
+  s.progress(p);
+}
+
+void MapBuilder::segment_finished(const SegmentBuildResult& r) {
+  State& s = *state_;
+  s.result.segments[r.id] = r;
+  s.running.erase(r.id);
+  ++s.built;
+  s.seconds_built += r.seconds;
+  ++s.segments_done;
+  write_current_manifest();
+  report_segments();
+}
+
+void MapBuilder::build_segments_local() {
+  State& s = *state_;
+  parallel_for(s.to_build.size(), s.jobs, [&](size_t k) {
+    const int id = s.to_build[k];
+    auto report = [&](const SegmentProgress& p) {
+      std::lock_guard lock(s.state_mutex);
+      s.running[id] = p;
       report_segments();
     };
-    concurrency = 1;
-    Timer since_poll, unreachable;
-    bool any_running = true;
-    while (!pending.empty() && any_running) {
-      std::this_thread::sleep_for(std::chrono::seconds(1));
-      collect();
-      if (since_poll.elapsed_ms() < opt.slurm.poll_seconds * 1000) continue;
-      since_poll = Timer();
-      any_running = false;
-      bool any_unknown = false;
-      for (auto& a : arrays) {
-        if (a.state != SlurmArray::State::kDone) a.state = a.array.poll();
-        any_running |= a.state != SlurmArray::State::kDone;
-        any_unknown |= a.state == SlurmArray::State::kUnknown;
-      }
-      if (!any_unknown) unreachable = Timer();
-      if (unreachable.elapsed_ms() > opt.slurm.unreachable_seconds * 1000)
-        throw_error(ErrorCode::kExternalTool, "map build: squeue has failed for ", opt.slurm.unreachable_seconds,
-                    " s; the arrays (", active.substr(0, active.size() - 1),
-                    ") are left running; run the same command again once Slurm answers");
-    }
-    // The arrays are gone: results may still be on their way through a
-    // shared filesystem. Tasks that Slurm reports as failed are not waited for.
-    Timer grace;
-    while (!pending.empty()) {
-      collect();
-      if (pending.empty()) break;
-      std::map<size_t, std::map<int, SlurmTaskState>> states;
-      for (size_t a = 0; a < arrays.size(); ++a) states[a] = arrays[a].array.task_states();
-      bool wait = false;
-      for (int id : pending) {
-        const auto [a, k] = task_of.at(id);
-        const auto st = states[a].find(k);
-        const bool known_failure =
-            st != states[a].end() && !st->second.state.empty() && st->second.state != "COMPLETED";
-        if (!known_failure && grace.elapsed_ms() < opt.slurm.result_grace_seconds * 1000) wait = true;
-      }
-      if (wait) {
-        std::this_thread::sleep_for(std::chrono::seconds(2));
-        continue;
-      }
-      std::lock_guard lock(state_mutex);
-      for (int id : pending) {
-        const auto [a, k] = task_of.at(id);
-        std::ostringstream why;
-        why << "Slurm task " << task_name(id) << " left no result";
-        const auto st = states[a].find(k);
-        if (st != states[a].end())
-          why << " (" << st->second.state << ", exit " << st->second.exit_code << ":" << st->second.signal << ")";
-        why << "; log: " << task_log(id);
-        SegmentBuildResult r;
-        r.id = id;
-        r.error = why.str();
-        segment_finished(r);
-      }
-      pending.clear();
-    }
-    std::error_code ec;
-    fs::remove(active_file, ec);
-  }
-  result.seconds_segments = t_segments.elapsed_ms() / 1000;
+    SegmentBuildResult r = build_and_record_segment(s.ctx, id, report);
+    std::lock_guard lock(s.state_mutex);
+    segment_finished(r);
+  });
+}
 
-  // Retrieval over the images of the segments that were built.
-  if (opt.build_retrieval && result.failed() < n_segments) {
-    Timer t_retrieval;
-    if (progress) progress({"retrieval", 0, 1, total.elapsed_ms() / 1000, {}, -1});
-    std::vector<std::vector<int32_t>> segments_of_record(ctx.records.size());
-    for (const auto& r : result.segments) {
-      if (!r.ok) continue;
-      for (int pm : ctx.plan.segments[r.id])
-        for (size_t i : ctx.plan.placemarks[pm].images) segments_of_record[i].push_back(r.id);
-    }
-    std::vector<std::string> names;
-    std::vector<DescriptorMatrix> descriptors;
-    std::vector<std::vector<int32_t>> segments_of_image;
-    for (size_t i = 0; i < ctx.records.size(); ++i) {
-      if (segments_of_record[i].empty()) continue;
-      names.push_back(ctx.records[i].image);
-      descriptors.push_back(read_feature_file(feature_path(ctx, ctx.records[i].image)).descriptors);
-      segments_of_image.push_back(segments_of_record[i]);
-    }
-    std::vector<const DescriptorMatrix*> pointers;
-    for (const auto& d : descriptors) pointers.push_back(&d);
-    RetrievalMap::build(pointers, names, SegmentTable(segments_of_image), opt.embedding, opt.image_index)
-        .save(map_dir / "retrieval");
-    result.seconds_retrieval = t_retrieval.elapsed_ms() / 1000;
-    if (progress) progress({"retrieval", 1, 1, total.elapsed_ms() / 1000, {}, -1});
+// Tasks write result.json (and progress.json while they run); the arrays are
+// watched until they end, then results still on their way are waited for.
+void MapBuilder::build_segments_slurm() {
+  State& s = *state_;
+  for (int id : s.to_build) {
+    std::error_code ec;
+    fs::remove(segment_result_file(s.map_dir, id), ec);
+    fs::remove(segment_progress_file(s.map_dir, id), ec);
   }
-  result.seconds_total = total.elapsed_ms() / 1000;
-  return result;
+  SlurmRun run;
+  submit_slurm_arrays(run);
+  run.pending = std::set<int>(s.to_build.begin(), s.to_build.end());
+  s.concurrency = 1;
+  wait_for_slurm_arrays(run);
+  settle_slurm_tasks(run);
+  std::error_code ec;
+  fs::remove(s.active_file, ec);
+}
+
+void MapBuilder::submit_slurm_arrays(SlurmRun& run) {
+  const State& s = *state_;
+  const std::string stamp = std::to_string(std::chrono::duration_cast<std::chrono::milliseconds>(
+                                               std::chrono::system_clock::now().time_since_epoch())
+                                               .count());
+  const std::vector<int>& to_build = s.to_build;
+  for (size_t first = 0; first < to_build.size(); first += s.opt.slurm.max_array_size) {
+    const std::vector<int> chunk(
+        to_build.begin() + static_cast<std::ptrdiff_t>(first),
+        to_build.begin() + static_cast<std::ptrdiff_t>(std::min(to_build.size(), first + s.opt.slurm.max_array_size)));
+    const fs::path list = s.slurm_dir / ("tasks-" + stamp + "-" + std::to_string(run.arrays.size()) + ".txt");
+    std::string text;
+    for (int id : chunk) text += std::to_string(id) + "\n";
+    fs::create_directories(s.slurm_dir);
+    write_file_atomic(list, text);
+    std::vector<int> indices(chunk.size());
+    std::iota(indices.begin(), indices.end(), 0);
+    std::vector<std::string> command = s.opt.slurm_task_command;
+    command.insert(command.end(), {"--task-list", fs::absolute(list).string()});
+    run.arrays.push_back({SlurmArray::submit(s.opt.slurm, indices, command, s.slurm_dir), chunk});
+    for (size_t k = 0; k < chunk.size(); ++k) run.task_of[chunk[k]] = {run.arrays.size() - 1, static_cast<int>(k)};
+    run.active += run.arrays.back().array.job_id() + "\n";
+    write_file_atomic(s.active_file, run.active);
+  }
+}
+
+// Results that appeared, and progress of the rest.
+void MapBuilder::collect_slurm_results(SlurmRun& run) {
+  State& s = *state_;
+  std::vector<int> ended;
+  std::lock_guard lock(s.state_mutex);
+  for (int id : run.pending) {
+    if (has_result(s.map_dir, id)) {
+      SegmentBuildResult r = recorded_segment(s.map_dir, id);
+      if (!r.ok) r.error += " (Slurm task " + run.task_name(id) + ", log: " + run.task_log(id) + ")";
+      segment_finished(r);
+      ended.push_back(id);
+      continue;
+    }
+    try {
+      const auto j = nlohmann::json::parse(read_file(segment_progress_file(s.map_dir, id)));
+      s.running[id] = {id, j.at("stage").get<std::string>(), j.at("done").get<size_t>(), j.at("total").get<size_t>()};
+    } catch (const std::exception&) {  // not started yet, or mid-rename
+    }
+  }
+  for (int id : ended) run.pending.erase(id);
+  s.concurrency = std::max<size_t>(s.concurrency, std::max<size_t>(1, s.running.size()));
+  report_segments();
+}
+
+// Until every result is in or no array runs any more.
+void MapBuilder::wait_for_slurm_arrays(SlurmRun& run) {
+  const SlurmOptions& slurm = state_->opt.slurm;
+  Timer since_poll, unreachable;
+  bool any_running = true;
+  while (!run.pending.empty() && any_running) {
+    std::this_thread::sleep_for(std::chrono::seconds(1));
+    collect_slurm_results(run);
+    if (since_poll.elapsed_ms() < slurm.poll_seconds * 1000) continue;
+    since_poll = Timer();
+    any_running = false;
+    bool any_unknown = false;
+    for (auto& a : run.arrays) {
+      if (a.state != SlurmArray::State::kDone) a.state = a.array.poll();
+      any_running |= a.state != SlurmArray::State::kDone;
+      any_unknown |= a.state == SlurmArray::State::kUnknown;
+    }
+    if (!any_unknown) unreachable = Timer();
+    if (unreachable.elapsed_ms() > slurm.unreachable_seconds * 1000)
+      throw_error(ErrorCode::kExternalTool, "map build: squeue has failed for ", slurm.unreachable_seconds,
+                  " s; the arrays (", run.active.substr(0, run.active.size() - 1),
+                  ") are left running; run the same command again once Slurm answers");
+  }
+}
+
+// The arrays are gone: results may still be on their way through a shared
+// filesystem. Tasks that Slurm reports as failed are not waited for.
+void MapBuilder::settle_slurm_tasks(SlurmRun& run) {
+  State& s = *state_;
+  Timer grace;
+  while (!run.pending.empty()) {
+    collect_slurm_results(run);
+    if (run.pending.empty()) break;
+    std::map<size_t, std::map<int, SlurmTaskState>> states;
+    for (size_t a = 0; a < run.arrays.size(); ++a) states[a] = run.arrays[a].array.task_states();
+    bool wait = false;
+    for (int id : run.pending) {
+      const auto [a, k] = run.task_of.at(id);
+      const auto st = states[a].find(k);
+      const bool known_failure = st != states[a].end() && !st->second.state.empty() && st->second.state != "COMPLETED";
+      if (!known_failure && grace.elapsed_ms() < s.opt.slurm.result_grace_seconds * 1000) wait = true;
+    }
+    if (wait) {
+      std::this_thread::sleep_for(std::chrono::seconds(2));
+      continue;
+    }
+    std::lock_guard lock(s.state_mutex);
+    for (int id : run.pending) {
+      const auto [a, k] = run.task_of.at(id);
+      std::ostringstream why;
+      why << "Slurm task " << run.task_name(id) << " left no result";
+      const auto st = states[a].find(k);
+      if (st != states[a].end())
+        why << " (" << st->second.state << ", exit " << st->second.exit_code << ":" << st->second.signal << ")";
+      why << "; log: " << run.task_log(id);
+      SegmentBuildResult r;
+      r.id = id;
+      r.error = why.str();
+      segment_finished(r);
+    }
+    run.pending.clear();
+  }
+}
+
+// Retrieval over the images of the segments that were built.
+void MapBuilder::build_retrieval() {
+  State& s = *state_;
+  if (!s.opt.build_retrieval || s.result.failed() >= s.n_segments) return;
+  Timer t_retrieval;
+  if (s.progress) s.progress({"retrieval", 0, 1, s.total.elapsed_ms() / 1000, {}, -1});
+  std::vector<std::vector<int32_t>> segments_of_record(s.ctx.records.size());
+  for (const auto& r : s.result.segments) {
+    if (!r.ok) continue;
+    for (int pm : s.ctx.plan.segments[r.id])
+      for (size_t i : s.ctx.plan.placemarks[pm].images) segments_of_record[i].push_back(r.id);
+  }
+  std::vector<std::string> names;
+  std::vector<DescriptorMatrix> descriptors;
+  std::vector<std::vector<int32_t>> segments_of_image;
+  for (size_t i = 0; i < s.ctx.records.size(); ++i) {
+    if (segments_of_record[i].empty()) continue;
+    names.push_back(s.ctx.records[i].image);
+    descriptors.push_back(read_feature_file(feature_path(s.ctx, s.ctx.records[i].image)).descriptors);
+    segments_of_image.push_back(segments_of_record[i]);
+  }
+  std::vector<const DescriptorMatrix*> pointers;
+  for (const auto& d : descriptors) pointers.push_back(&d);
+  RetrievalMap::build(pointers, names, SegmentTable(segments_of_image), s.opt.embedding, s.opt.image_index)
+      .save(s.map_dir / "retrieval");
+  s.result.seconds_retrieval = t_retrieval.elapsed_ms() / 1000;
+  if (s.progress) s.progress({"retrieval", 1, 1, s.total.elapsed_ms() / 1000, {}, -1});
+}
+
+MapBuildResult build_map(const fs::path& map_dir, const MapBuildOptions& opt,
+                         const std::function<void(const MapBuildProgress&)>& progress) {
+  return MapBuilder(map_dir, opt, progress).run();
 }
 
 nlohmann::json to_json(const MapBuildResult& r) {
@@ -1259,6 +1407,65 @@ nlohmann::json to_json(const MapBuildResult& r) {
             {"segments", r.seconds_segments},
             {"retrieval", r.seconds_retrieval},
             {"total", r.seconds_total}}}};
+}
+
+std::string build_summary(const MapBuildResult& r) {
+  std::ostringstream out;
+  out << std::left << std::setw(8) << "segment" << std::right << std::setw(8) << "images" << std::setw(11)
+      << "registered" << std::setw(9) << "points" << std::setw(10) << "B/point" << std::setw(12) << "GPS rms m"
+      << std::setw(12) << "GPS max m" << std::setw(10) << "seconds" << std::setw(9) << "match s" << std::setw(9)
+      << "triang s" << "  status\n";
+  for (const auto& s : r.segments) {
+    out << std::left << std::setw(8) << s.id << std::right << std::setw(8) << s.images << std::setw(11)
+        << s.registered_images << std::setw(9) << s.points << std::fixed << std::setprecision(1) << std::setw(10)
+        << s.bytes_per_point << std::setprecision(2) << std::setw(12) << s.registration_rms_m << std::setw(12)
+        << s.registration_max_m << std::setprecision(1) << std::setw(10) << s.seconds << std::setw(9)
+        << s.seconds_matching << std::setw(9) << s.seconds_triangulation << "  "
+        << (s.ok ? (s.reused ? "reused" : "ok") : "FAILED: " + s.error) << "\n";
+  }
+  out << r.images << " images, " << r.placemarks << " placemarks, " << r.segments.size() << " segments ("
+      << r.failed() << " failed); features " << std::setprecision(1) << r.seconds_features << " s, segments "
+      << r.seconds_segments << " s, total " << r.seconds_total << " s\n";
+  return out.str();
+}
+
+std::string segment_summary(const SegmentBuildResult& r) {
+  std::ostringstream out;
+  out << "segment " << r.id << ": " << r.images << " images, " << r.points << " points, " << std::fixed
+      << std::setprecision(1) << r.seconds << " s (matching " << r.seconds_matching << " s, triangulation "
+      << r.seconds_triangulation << " s)\n";
+  return out.str();
+}
+
+BuildRecord read_build_record(const fs::path& map_dir) {
+  const fs::path record = map_dir / "work" / "build.json";
+  if (!fs::exists(record))
+    throw_error(ErrorCode::kNotFound, record.string(), ": no recorded build; start the map with 'visloc map build'");
+  BuildRecord r;
+  r.file = record;
+  try {
+    const auto j = nlohmann::json::parse(read_file(record));
+    if (j.at("version").get<int>() != 1) throw std::runtime_error("unknown version");
+    r.args = j.at("args").get<std::vector<std::string>>();
+    r.cwd = j.at("cwd").get<std::string>();
+  } catch (const std::exception& e) {
+    throw_error(ErrorCode::kFormat, record.string(), ": bad build record: ", e.what());
+  }
+  return r;
+}
+
+int task_list_segment(const fs::path& task_list, int line) {
+  std::istringstream list(read_file(task_list));
+  std::vector<int> ids;
+  try {
+    for (std::string text; std::getline(list, text);)
+      if (!text.empty()) ids.push_back(std::stoi(text));
+  } catch (const std::exception&) {
+    throw_error(ErrorCode::kFormat, task_list.string(), ": not a list of segment ids");
+  }
+  if (line >= static_cast<int>(ids.size()))
+    throw_error(ErrorCode::kInvalidArgument, task_list.string(), ": no line ", line, " (", ids.size(), " segments)");
+  return ids[static_cast<size_t>(line)];
 }
 
 }  // namespace visloc

@@ -19,6 +19,7 @@
 
 #include <filesystem>
 #include <functional>
+#include <memory>
 #include <nlohmann/json.hpp>
 #include <optional>
 #include <string>
@@ -177,6 +178,64 @@ SegmentBuildResult build_planned_segment(const std::filesystem::path& map_dir, c
 
 MapBuildResult build_map(const std::filesystem::path& map_dir, const MapBuildOptions& options,
                          const std::function<void(const MapBuildProgress&)>& progress = {});
+
+// The build of a map directory in named stages (as COLMAP's controllers):
+// build_map is MapBuilder(map_dir, options, progress).run(). Each segment is
+// built in stages of its own (map_builder.cc: SegmentBuilder): features,
+// database (+ guided matching), COLMAP matching, reconstruction, geo-
+// registration, compression.
+class MapBuilder {
+ public:
+  using ProgressFn = std::function<void(const MapBuildProgress&)>;
+  MapBuilder(std::filesystem::path map_dir, const MapBuildOptions& options, ProgressFn progress = {});
+  ~MapBuilder();
+  MapBuilder(const MapBuilder&) = delete;
+  MapBuilder& operator=(const MapBuilder&) = delete;
+
+  // Validates the options, takes the map directory's build lock, then runs
+  // the stages below in order; one run per MapBuilder.
+  MapBuildResult run();
+
+ private:
+  struct State;
+  struct SlurmRun;
+  // Stages, in the order run() calls them.
+  void check_earlier_slurm_arrays();  // an interrupted run's arrays must have ended
+  void plan_segments();               // inputs, ENU frame, plan; forgets segments of another plan
+  void extract_features();            // our SIFT per image (on Slurm: the PQ training images only)
+  void train_codebook();              // PQ codebook (and the map's hash rotation), once per map
+  void select_segments();             // finished earlier (reused) or to build; the first manifest
+  void build_segments_local();        // threads of this process
+  void build_segments_slurm();        // job arrays, results collected from the shared directory
+  void build_retrieval();             // T-embedding + IVF-PQ over the built segments' images
+  // Shared by the stages.
+  void write_current_manifest();
+  void report_segments();                                  // with the state mutex held
+  void segment_finished(const SegmentBuildResult& result);  // with the state mutex held
+  void submit_slurm_arrays(SlurmRun& run);
+  void collect_slurm_results(SlurmRun& run);
+  void wait_for_slurm_arrays(SlurmRun& run);
+  void settle_slurm_tasks(SlurmRun& run);
+
+  std::unique_ptr<State> state_;
+};
+
+// Segment table and totals as `visloc map build` prints them.
+std::string build_summary(const MapBuildResult& result);
+// One line on a segment as `visloc map build-segment` prints it.
+std::string segment_summary(const SegmentBuildResult& result);
+
+// What `map build` recorded in MAP/work/build.json for `map build-segment`:
+// its arguments and the directory it ran in (their relative paths' base).
+struct BuildRecord {
+  std::filesystem::path file;  // MAP/work/build.json
+  std::vector<std::string> args;
+  std::string cwd;
+};
+BuildRecord read_build_record(const std::filesystem::path& map_dir);
+
+// The segment id on line `line` (from 0) of a Slurm array's task list.
+int task_list_segment(const std::filesystem::path& task_list, int line);
 
 // The build's statistics as a JSON object (Python's visloc.build_map returns
 // it): each segment as in its MAP/work/segNNNN/result.json, plus "reused".

@@ -189,6 +189,59 @@ void collect_all(const CascadeLookup& lookup, const HashCode& code, int probes, 
   }
 }
 
+// Refined: the `list` nearest of ws.candidates (more than `list`) by Hamming
+// distance, by a counting sort over 0..128, into ws.shortlist (candidate order
+// kept; of the candidates at the cut distance, the first ones).
+inline void refined_shortlist(const SearchKernels& kernels, const HashCode& code, const HashCode* codes,
+                              uint32_t list, CascadeWorkspace& ws) {
+  uint32_t hist[kHashBits + 1];
+  ws.hamming.resize(ws.candidates.size());
+  std::fill(std::begin(hist), std::end(hist), 0u);
+  kernels.hamming_distances(code, codes, ws.candidates.data(), ws.candidates.size(), ws.hamming.data(), hist);
+  uint32_t cut = 0, below = 0;  // distances < cut all fit; some of distance == cut
+  while (below + hist[cut] < list) below += hist[cut++];
+  uint32_t at_cut = list - below;
+  ws.shortlist.clear();
+  for (size_t i = 0; i < ws.candidates.size(); ++i) {
+    if (ws.hamming[i] < cut) ws.shortlist.push_back(ws.candidates[i]);
+    else if (ws.hamming[i] == cut && at_cut > 0) {
+      ws.shortlist.push_back(ws.candidates[i]);
+      --at_cut;
+    }
+  }
+}
+
+// The ratio tests on the `filled` nearest (squared distances best_d, at least
+// 2): feature f's 1-1 match and 1-M candidates, appended to `out`.
+inline void emit_matches(uint32_t f, const float* best_d, const uint32_t* best_id, int filled,
+                         const CascadeSearchOptions& options, float r11, float r1m, CascadeMatches& out) {
+  // Ratio tests on squared distances: d0/d1 < ν ⇔ d0² < ν² d1².
+  const float d0 = best_d[0], d1 = best_d[1];
+  if (d0 < r11 * d1) {
+    out.query.push_back(f);
+    out.point.push_back(best_id[0]);
+    out.distance.push_back(std::sqrt(std::max(0.0f, d0)));
+  }
+  int accepted = 0;
+  if (options.one_to_many_rule == OneToManyRule::kBestRatio) {
+    if (d0 < r1m * d1) accepted = std::min(filled, options.max_one_to_many);
+  } else {
+    // First j ≥ 1 whose distance is clearly larger than the best; j == filled
+    // (no further candidate) counts as infinitely far.
+    int j = 1;
+    while (j < filled && !(d0 < r1m * best_d[j])) ++j;
+    if (j <= options.max_one_to_many) accepted = j;
+  }
+  if (accepted > 0) {
+    out.many_query.push_back(f);
+    for (int i = 0; i < accepted; ++i) {
+      out.many_points.push_back(best_id[i]);
+      out.many_distances.push_back(std::sqrt(std::max(0.0f, best_d[i])));
+    }
+    out.many_offsets.push_back(static_cast<uint32_t>(out.many_points.size()));
+  }
+}
+
 }  // namespace
 
 void CascadeMatcher::coarse_sizes(std::span<const HashCode> codes, int radius, std::vector<uint32_t>& sizes) const {
@@ -256,7 +309,6 @@ void CascadeMatcher::match_hashed(const DescriptorMatrix& queries, std::span<con
   const size_t early = options.prioritize && options.early_stop > 0 ? size_t(options.early_stop) : SIZE_MAX;
   const int probes = options.lut_radius == 1 ? kHashTableBits + 1 : 1;
   float qf[kDescriptorDim];
-  uint32_t hist[kHashBits + 1];
 
   for (uint64_t entry : ws.order) {
     if (out.query.size() >= early) {
@@ -275,24 +327,10 @@ void CascadeMatcher::match_hashed(const DescriptorMatrix& queries, std::span<con
     ++out.stats.features_searched;
     if (ws.candidates.size() < 2) continue;
 
-    // Refined: top L_R by Hamming distance, counting sort over 0..128.
+    // Refined: top L_R by Hamming distance.
     const std::vector<uint32_t>* ranked = &ws.candidates;
     if (options.refined && ws.candidates.size() > size_t(options.refined_list)) {
-      ws.hamming.resize(ws.candidates.size());
-      std::fill(std::begin(hist), std::end(hist), 0u);
-      kernels.hamming_distances(code, index_.codes, ws.candidates.data(), ws.candidates.size(), ws.hamming.data(),
-                                hist);
-      uint32_t cut = 0, below = 0;  // distances < cut all fit; some of distance == cut
-      while (below + hist[cut] < uint32_t(options.refined_list)) below += hist[cut++];
-      uint32_t at_cut = uint32_t(options.refined_list) - below;
-      ws.shortlist.clear();
-      for (size_t i = 0; i < ws.candidates.size(); ++i) {
-        if (ws.hamming[i] < cut) ws.shortlist.push_back(ws.candidates[i]);
-        else if (ws.hamming[i] == cut && at_cut > 0) {
-          ws.shortlist.push_back(ws.candidates[i]);
-          --at_cut;
-        }
-      }
+      refined_shortlist(kernels, code, index_.codes, uint32_t(options.refined_list), ws);
       ranked = &ws.shortlist;
     }
     out.stats.ranked_candidates += ranked->size();
@@ -325,31 +363,7 @@ void CascadeMatcher::match_hashed(const DescriptorMatrix& queries, std::span<con
       best_d[pos] = d;
       best_id[pos] = id;
     }
-    // Ratio tests on squared distances: d0/d1 < ν ⇔ d0² < ν² d1².
-    const float d0 = best_d[0], d1 = best_d[1];
-    if (d0 < r11 * d1) {
-      out.query.push_back(f);
-      out.point.push_back(best_id[0]);
-      out.distance.push_back(std::sqrt(std::max(0.0f, d0)));
-    }
-    int accepted = 0;
-    if (options.one_to_many_rule == OneToManyRule::kBestRatio) {
-      if (d0 < r1m * d1) accepted = std::min(filled, options.max_one_to_many);
-    } else {
-      // First j ≥ 1 whose distance is clearly larger than the best; j == filled
-      // (no further candidate) counts as infinitely far.
-      int j = 1;
-      while (j < filled && !(d0 < r1m * best_d[j])) ++j;
-      if (j <= options.max_one_to_many) accepted = j;
-    }
-    if (accepted > 0) {
-      out.many_query.push_back(f);
-      for (int i = 0; i < accepted; ++i) {
-        out.many_points.push_back(best_id[i]);
-        out.many_distances.push_back(std::sqrt(std::max(0.0f, best_d[i])));
-      }
-      out.many_offsets.push_back(static_cast<uint32_t>(out.many_points.size()));
-    }
+    emit_matches(f, best_d, best_id, filled, options, r11, r1m, out);
   }
   out.stats.ms_search = t.elapsed_ms();
   out.stats.ms_total = total.elapsed_ms();

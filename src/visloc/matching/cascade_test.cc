@@ -7,7 +7,7 @@
 
 #include "visloc/matching/binary_hasher.h"
 #include "visloc/matching/cascade_index.h"
-#include "visloc/matching/correspondence_arrays.h"
+#include "visloc/matching/cascade_correspondences.h"
 #include "visloc/matching/exact_matcher.h"
 #include "visloc/baselines/faiss_baselines.h"
 #include "visloc/matching/pq_codebook.h"
@@ -296,7 +296,7 @@ TEST(CascadeSearch, PrioritizationOrderAndEarlyStop) {
   EXPECT_THROW(matcher.match(q, pri), Error);
 }
 
-TEST(CascadeSearch, OneToManyRulesAndCorrespondenceArrays) {
+TEST(CascadeSearch, OneToManyRulesAndCorrespondenceSet) {
   DescriptorMatrix db = clustered_descriptors(4000, 10);
   // Near-duplicate points (repetitive structure): pairs of rows almost equal.
   for (size_t i = 0; i < 200; ++i)
@@ -327,22 +327,70 @@ TEST(CascadeSearch, OneToManyRulesAndCorrespondenceArrays) {
   EXPECT_GT(pairs, 100u);
   for (size_t r = 0; r < best.many_query.size(); ++r) EXPECT_EQ(best.many_offsets[r + 1] - best.many_offsets[r], 5u);
 
+  // The correspondence set one-many RANSAC consumes: one row per 1-M feature,
+  // floats widened to double exactly.
   std::vector<Keypoint> kp(q.rows());
-  for (size_t i = 0; i < kp.size(); ++i) kp[i] = {float(i), float(2 * i), 1, 0};
+  for (size_t i = 0; i < kp.size(); ++i) kp[i] = {float(i) + 0.1f, float(2 * i) + 0.7f, 1, 0};
   std::vector<float> xyz(db.rows() * 3);
-  for (size_t i = 0; i < xyz.size(); ++i) xyz[i] = float(i);
-  CorrespondenceArrays c = make_correspondence_arrays(best, kp, xyz);
-  ASSERT_EQ(c.points2d.size(), best.many_query.size());
+  for (size_t i = 0; i < xyz.size(); ++i) xyz[i] = float(i) * 0.01f;
+  CorrespondenceSet c = make_correspondence_set(best, kp, xyz);
+  c.validate();
+  ASSERT_EQ(c.num_features(), best.many_query.size());
   ASSERT_EQ(c.candidate_offsets.size(), c.points2d.size() + 1);
+  EXPECT_EQ(c.candidate_offsets, best.many_offsets);
+  EXPECT_EQ(c.candidate_point_ids, best.many_points);
+  EXPECT_EQ(c.query_feature, best.many_query);
   EXPECT_EQ(c.candidates.size(), best.many_points.size());
   size_t hyp = 0;
   for (size_t r = 0; r < c.points2d.size(); ++r) {
-    EXPECT_EQ(c.points2d[r][0], float(best.many_query[r]));
-    const uint32_t p = c.candidate_point_ids[c.candidate_offsets[r]];
-    EXPECT_EQ(c.candidates[c.candidate_offsets[r]][1], double(3 * p + 1));
+    const uint32_t f = best.many_query[r];
+    EXPECT_EQ(c.points2d[r].x(), double(kp[f].x));
+    EXPECT_EQ(c.points2d[r].y(), double(kp[f].y));
+    for (uint32_t k = c.candidate_offsets[r]; k < c.candidate_offsets[r + 1]; ++k) {
+      const uint32_t p = c.candidate_point_ids[k];
+      EXPECT_EQ(c.candidates[k], Eigen::Vector3d(double(xyz[3 * p]), double(xyz[3 * p + 1]), double(xyz[3 * p + 2])));
+    }
+    const auto it = std::find(best.query.begin(), best.query.end(), f);
+    EXPECT_EQ(c.in_hypothesis_set[r], it != best.query.end() ? 1 : 0);
+    if (it != best.query.end()) {
+      EXPECT_EQ(best.point[it - best.query.begin()], c.candidate_point_ids[c.candidate_offsets[r]]);
+    }
     hyp += c.in_hypothesis_set[r];
   }
   EXPECT_EQ(hyp, best.query.size());
+  EXPECT_EQ(c.num_hypothesis_features(), best.query.size());
+  // Filling a used set replaces its content.
+  CorrespondenceSet reused = make_correspondence_set(group, kp, xyz);
+  fill_correspondence_set(best, kp, xyz, reused);
+  EXPECT_EQ(reused.points2d, c.points2d);
+  EXPECT_EQ(reused.candidate_offsets, c.candidate_offsets);
+  EXPECT_EQ(reused.candidates, c.candidates);
+  EXPECT_EQ(reused.candidate_point_ids, c.candidate_point_ids);
+  EXPECT_EQ(reused.in_hypothesis_set, c.in_hypothesis_set);
+  EXPECT_EQ(reused.query_feature, c.query_feature);
+  // Matches that are not a search's result are an internal error.
+  ASSERT_FALSE(best.query.empty());
+  CascadeMatches broken = best;
+  broken.point[0] ^= 1;  // not the first 1-M candidate
+  EXPECT_THROW(make_correspondence_set(broken, kp, xyz), Error);
+  broken = best;
+  std::reverse(broken.query.begin(), broken.query.end());  // not in search order
+  std::reverse(broken.point.begin(), broken.point.end());
+  if (best.query.size() > 1) {
+    EXPECT_THROW(make_correspondence_set(broken, kp, xyz), Error);
+  }
+  EXPECT_THROW(make_correspondence_set(best, std::span<const Keypoint>(kp).first(1), xyz), Error);
+  // A query_feature of the wrong length is named by validate().
+  CorrespondenceSet bad = c;
+  bad.query_feature.pop_back();
+  try {
+    bad.validate();
+    FAIL() << "expected an error";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("query_feature"), std::string::npos) << e.what();
+  }
+  bad.query_feature.clear();  // optional
+  bad.validate();
 }
 
 // The search gives the same matches, distances and statistics with every

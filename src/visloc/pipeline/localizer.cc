@@ -6,7 +6,7 @@
 #include <mutex>
 
 #include "visloc/map/map.h"
-#include "visloc/matching/correspondence_arrays.h"
+#include "visloc/matching/cascade_correspondences.h"
 #include "visloc/geo/similarity_transform.h"
 #include "visloc/retrieval/retrieval_map.h"
 #include "visloc/pipeline/segment_cache.h"
@@ -61,6 +61,39 @@ SegmentFrame segment_frame(const Segment& seg) {
   return f;
 }
 
+// The 1σ uncertainty of a pose from its covariance (valid), in the segment
+// frame and, when the segment is geo-registered, in metres and degrees.
+PoseUncertainty pose_uncertainty(const PoseCovariance& cov, const CameraPose& cam_from_segment,
+                                 const SegmentFrame& frame) {
+  PoseUncertainty u;
+  const Eigen::Matrix3d R = cam_from_segment.rotation_matrix();
+  const Eigen::Matrix3d center_cov = cov.center(cam_from_segment);
+  u.valid = true;
+  u.position_sigma = std::sqrt(std::max(0.0, center_cov.trace()));
+  u.rotation_sigma_deg = std::sqrt(std::max(0.0, cov.omega_t.topLeftCorner<3, 3>().trace())) * 180.0 / M_PI;
+  if (frame.georegistered) {
+    const Eigen::Matrix3d& Rs = frame.enu_from_segment.rotation;
+    const double s2 = frame.enu_from_segment.scale * frame.enu_from_segment.scale;
+    const Eigen::Matrix3d enu_cov = s2 * Rs * center_cov * Rs.transpose();
+    u.position_sigma_m = std::sqrt(std::max(0.0, enu_cov.trace()));
+    u.horizontal_sigma_m = std::sqrt(std::max(0.0, enu_cov(0, 0) + enu_cov(1, 1)));
+    u.vertical_sigma_m = std::sqrt(std::max(0.0, enu_cov(2, 2)));
+    // Heading of d = Rs Rᵀ e_z; with R ← exp([ω]×) R, ∂d/∂ω = Rs Rᵀ [e_z]×.
+    Eigen::Matrix3d ez_skew;
+    ez_skew << 0, -1, 0, 1, 0, 0, 0, 0, 0;
+    const Eigen::Matrix3d dd_domega = Rs * R.transpose() * ez_skew;
+    const Eigen::Vector3d d = Rs * cam_from_segment.viewing_direction();
+    const double h2 = d.x() * d.x() + d.y() * d.y();
+    if (h2 > 1e-12) {
+      const Eigen::RowVector3d dh_dd(d.y() / h2, -d.x() / h2, 0);
+      const Eigen::RowVector3d g = dh_dd * dd_domega;
+      const double var = g * cov.omega_t.topLeftCorner<3, 3>() * g.transpose();
+      u.heading_sigma_deg = std::sqrt(std::max(0.0, var)) * 180.0 / M_PI;
+    }
+  }
+  return u;
+}
+
 }  // namespace
 
 // The per-query buffers of the search, reused across queries: a query takes
@@ -69,6 +102,8 @@ struct QueryWorkspace {
   CascadeWorkspace cascade;
   std::vector<HashCode> map_codes;  // the query hashed once with the map's rotation
   std::vector<float> encode;
+  CascadeMatches matches;             // of the segment being searched
+  CorrespondenceSet correspondences;  // the same matches, as RANSAC takes them
 };
 
 class WorkspacePool {
@@ -100,6 +135,48 @@ struct Localizer::Impl {
   std::unique_ptr<SiftExtractor> sift;
   CascadeSearchOptions search;
   RansacOptions ransac;
+
+  // Candidate segments (positions in the manifest), best-voted first; fills
+  // the retrieval's fields and time of `res`.
+  std::vector<size_t> candidate_segments(const FeatureSet& f, LocalizationResult& res) const;
+  class Search;
+};
+
+// One query's search over its candidate segments (the steps of
+// localize_features after retrieval), keeping the best pose in `res`.
+class Localizer::Impl::Search {
+ public:
+  Search(Impl& impl, const LocalizerOptions& options, const FeatureSet& f, const PinholeCamera& camera,
+         QueryWorkspace& ws, LocalizationResult& res)
+      : impl_(impl), options_(options), f_(f), camera_(camera), ws_(ws), res_(res) {}
+
+  // One pass over the candidates with the given search; the best pose wins.
+  void search_candidates(const std::vector<size_t>& candidates, const CascadeSearchOptions& search);
+  // Confidence, uncertainty and the geographic pose of the best pose so far.
+  void assess_best();
+
+ private:
+  // Cascade search of one segment into ws_.matches and ws_.correspondences.
+  void match_segment(const Segment& seg, const CascadeSearchOptions& search);
+  // One-many RANSAC on ws_.correspondences (no pose when the segment cannot win).
+  PoseEstimate estimate_segment_pose() const;
+  // Records the segment's pose; makes it the result when it has the most inliers.
+  void keep_if_best(const std::shared_ptr<const Segment>& seg, const PoseEstimate& pose);
+  ConfidenceFeatures confidence_features() const;
+
+  Impl& impl_;
+  const LocalizerOptions& options_;
+  const FeatureSet& f_;
+  const PinholeCamera& camera_;
+  QueryWorkspace& ws_;
+  LocalizationResult& res_;
+  bool map_codes_ready_ = false;
+  // The best pose so far.
+  size_t best_inliers_ = 0;
+  bool best_has_enough_inliers_ = false;
+  PoseQuality best_quality_;
+  std::shared_ptr<const Segment> best_segment_;
+  std::map<int, size_t> inliers_per_segment_;  // best inliers of each segment searched (the margin)
 };
 
 Localizer::Localizer(const std::filesystem::path& map_dir, const LocalizerOptions& options)
@@ -220,19 +297,12 @@ LocalizationResult Localizer::localize_image(const GrayImage& image,
   return res;
 }
 
-LocalizationResult Localizer::localize_features(const FeatureSet& f, const PinholeCamera& camera) const {
-  Timer total;
-  camera.validate();
-  LocalizationResult res;
-  res.image = f.image;
-  res.features = f.size();
-  const auto& man = impl_->map.manifest();
-
-  // Candidate segments (positions in the manifest).
+std::vector<size_t> Localizer::Impl::candidate_segments(const FeatureSet& f, LocalizationResult& res) const {
   Timer t;
+  const auto& man = map.manifest();
   std::vector<size_t> candidates;
-  if (impl_->retrieval) {
-    const RetrievalQueryResult q = impl_->retrieval->query(f.descriptors, impl_->voting);
+  if (retrieval) {
+    const RetrievalQueryResult q = retrieval->query(f.descriptors, voting);
     res.retrieval_voted_segments = q.voted_segments;
     res.retrieval_total_votes = q.total_votes;
     for (const SegmentCandidate& c : q.candidates) {
@@ -246,162 +316,147 @@ LocalizationResult Localizer::localize_features(const FeatureSet& f, const Pinho
     for (size_t i = 0; i < man.segments.size(); ++i) candidates.push_back(i);
   }
   res.times.retrieval = t.elapsed_ms();
+  return candidates;
+}
+
+void Localizer::Impl::Search::search_candidates(const std::vector<size_t>& candidates,
+                                                const CascadeSearchOptions& search) {
+  for (size_t index : candidates) {
+    // Candidates come best-voted first; a pose this well supported ends
+    // the search (RANSAC on a wrong segment runs to its iteration cap).
+    // (registered: enough inliers and confidence; a rejected pose, e.g. the
+    // first pass's before the fallback, does not end it).
+    if (options_.accept_inliers > 0 && res_.registered && best_inliers_ >= static_cast<size_t>(options_.accept_inliers))
+      break;
+    std::shared_ptr<const Segment> seg = impl_.cache->get(index);
+    res_.candidates.push_back(static_cast<int>(seg->id()));
+    Timer t;
+    match_segment(*seg, search);
+    res_.times.matching += t.elapsed_ms();
+    t.reset();
+    const PoseEstimate pose = estimate_segment_pose();
+    res_.times.ransac += t.elapsed_ms();
+    keep_if_best(seg, pose);
+  }
+}
+
+void Localizer::Impl::Search::match_segment(const Segment& seg, const CascadeSearchOptions& search) {
+  CascadeMatcher matcher(seg.index(), impl_.map.codebook(), ws_.cascade);
+  if (seg.uses_map_hasher()) {
+    // One hash of the query for every segment that shares the map's rotation.
+    if (!map_codes_ready_) {
+      ws_.map_codes.resize(f_.descriptors.rows());
+      encode_hash(impl_.map.hasher()->view(), f_.descriptors.data(), f_.descriptors.rows(), ws_.map_codes.data(),
+                  ws_.encode);
+      map_codes_ready_ = true;
+    }
+    matcher.match_hashed(f_.descriptors, ws_.map_codes, search, ws_.matches);
+  } else {
+    matcher.match(f_.descriptors, search, ws_.matches);
+  }
+  fill_correspondence_set(ws_.matches, f_.keypoints, seg.xyz(), ws_.correspondences);
+}
+
+PoseEstimate Localizer::Impl::Search::estimate_segment_pose() const {
+  const CorrespondenceSet& set = ws_.correspondences;
+  PoseEstimate pose;
+  // Inliers are counted per query feature, so a segment with no more
+  // matched features than the best pose's inliers cannot win: skip it.
+  const bool can_win = set.points2d.size() > best_inliers_;
+  if (can_win && (set.num_hypothesis_features() >= 6 || (camera_.has_focal && set.num_hypothesis_features() >= 3)))
+    pose = estimate_pose(set, camera_, impl_.ransac);
+  return pose;
+}
+
+void Localizer::Impl::Search::keep_if_best(const std::shared_ptr<const Segment>& seg, const PoseEstimate& pose) {
+  if (!pose.has_pose) return;
+  size_t& seen = inliers_per_segment_[static_cast<int>(seg->id())];
+  seen = std::max(seen, pose.num_inliers);
+  if (pose.num_inliers <= best_inliers_) return;
+  best_inliers_ = pose.num_inliers;
+  best_has_enough_inliers_ = pose.registered;
+  best_quality_ = pose.quality;
+  best_segment_ = seg;
+  res_.segment = static_cast<int>(seg->id());
+  res_.inliers = pose.num_inliers;
+  res_.cam_from_segment = pose.cam_from_world;
+  res_.focal_px = pose.focal;
+  res_.focal_estimated = !camera_.has_focal;
+  res_.principal_point_offset = pose.principal_point_offset;
+  res_.matches_one_to_one = ws_.matches.query.size();
+  assess_best();  // for the early stop; assessed again once every candidate is searched
+}
+
+ConfidenceFeatures Localizer::Impl::Search::confidence_features() const {
+  ConfidenceFeatures cf;
+  cf.inliers = static_cast<double>(res_.inliers);
+  cf.inlier_ratio = best_quality_.hypothesis_features
+                        ? double(best_quality_.hypothesis_inliers) / double(best_quality_.hypothesis_features)
+                        : 0.0;
+  cf.coverage = best_quality_.coverage;
+  cf.residual = best_quality_.median_residual_px / impl_.ransac.threshold_px;
+  size_t other = 0;
+  for (const auto& [id, n] : inliers_per_segment_)
+    if (id != res_.segment) other = std::max(other, n);
+  cf.margin = std::max(res_.inliers ? double(other) / double(res_.inliers) : 0.0,
+                       best_quality_.best_score ? double(best_quality_.rival_score) / double(best_quality_.best_score)
+                                                : 0.0);
+  cf.vote_share = kVoteShareWithoutRetrieval;
+  if (impl_.retrieval) {
+    cf.vote_share = 0;
+    for (size_t k = 0; k < res_.retrieval_segments.size(); ++k)
+      if (res_.retrieval_segments[k] == res_.segment && res_.retrieval_total_votes > 0)
+        cf.vote_share = res_.retrieval_votes[k] / res_.retrieval_total_votes;
+  }
+  return cf;
+}
+
+void Localizer::Impl::Search::assess_best() {
+  LocalizationResult& res = res_;
+  res.registered = false;
+  res.confidence = 0;
+  res.center_enu.reset();
+  res.heading_deg.reset();
+  res.position.reset();
+  res.uncertainty = {};
+  if (!best_segment_) return;
+  const SegmentFrame frame = segment_frame(*best_segment_);
+  ConfidenceFeatures& cf = res.confidence_features;
+  cf = confidence_features();
+  std::optional<Eigen::Vector3d> up;
+  if (frame.georegistered) up = frame.enu_from_segment.rotation.transpose() * Eigen::Vector3d::UnitZ();
+  MapCameraRange(best_segment_->images(), up).assess(res.cam_from_segment, &cf);
+  res.confidence = ConfidenceModel::builtin().evaluate(cf);
+  res.registered = best_has_enough_inliers_ && res.confidence >= options_.min_confidence;
+  if (best_quality_.covariance.valid)
+    res.uncertainty = pose_uncertainty(best_quality_.covariance, res.cam_from_segment, frame);
+  if (frame.georegistered) {
+    const Eigen::Vector3d c = frame.enu_from_segment.apply(res.cam_from_segment.center());
+    res.center_enu = c;
+    const Eigen::Vector3d dir = frame.enu_from_segment.rotation * res.cam_from_segment.viewing_direction();
+    res.heading_deg = heading_deg_from_enu(dir);
+    if (impl_.frame) res.position = impl_.frame->to_geo(c);
+  }
+}
+
+LocalizationResult Localizer::localize_features(const FeatureSet& f, const PinholeCamera& camera) const {
+  Timer total;
+  camera.validate();
+  LocalizationResult res;
+  res.image = f.image;
+  res.features = f.size();
+  const std::vector<size_t> candidates = impl_->candidate_segments(f, res);
 
   struct Lease {
     WorkspacePool& pool;
     std::unique_ptr<QueryWorkspace> w;
     ~Lease() { pool.give_back(std::move(w)); }
   } lease{impl_->workspaces, impl_->workspaces.take()};
-  QueryWorkspace& ws = *lease.w;
-  bool map_codes_ready = false;
-  CascadeMatches matches;
-  CorrespondenceSet set;
-  size_t best_inliers = 0;
-  bool best_has_enough_inliers = false;
-  PoseQuality best_quality;
-  std::shared_ptr<const Segment> best_segment;
-  std::map<int, size_t> inliers_per_segment;  // best inliers of each segment searched (the margin)
-  // Confidence, uncertainty and the geographic pose of the best pose so far.
-  auto assess_best = [&] {
-    res.registered = false;
-    res.confidence = 0;
-    res.center_enu.reset();
-    res.heading_deg.reset();
-    res.position.reset();
-    res.uncertainty = {};
-    if (!best_segment) return;
-    const SegmentFrame frame = segment_frame(*best_segment);
-    ConfidenceFeatures& cf = res.confidence_features;
-    cf = {};
-    cf.inliers = static_cast<double>(res.inliers);
-    cf.inlier_ratio = best_quality.hypothesis_features
-                          ? double(best_quality.hypothesis_inliers) / double(best_quality.hypothesis_features)
-                          : 0.0;
-    cf.coverage = best_quality.coverage;
-    cf.residual = best_quality.median_residual_px / impl_->ransac.threshold_px;
-    size_t other = 0;
-    for (const auto& [id, n] : inliers_per_segment)
-      if (id != res.segment) other = std::max(other, n);
-    cf.margin = std::max(res.inliers ? double(other) / double(res.inliers) : 0.0,
-                         best_quality.best_score ? double(best_quality.rival_score) / double(best_quality.best_score)
-                                                 : 0.0);
-    cf.vote_share = kVoteShareWithoutRetrieval;
-    if (impl_->retrieval) {
-      cf.vote_share = 0;
-      for (size_t k = 0; k < res.retrieval_segments.size(); ++k)
-        if (res.retrieval_segments[k] == res.segment && res.retrieval_total_votes > 0)
-          cf.vote_share = res.retrieval_votes[k] / res.retrieval_total_votes;
-    }
-    std::optional<Eigen::Vector3d> up;
-    if (frame.georegistered) up = frame.enu_from_segment.rotation.transpose() * Eigen::Vector3d::UnitZ();
-    MapCameraRange(best_segment->images(), up).assess(res.cam_from_segment, &cf);
-    res.confidence = ConfidenceModel::builtin().evaluate(cf);
-    res.registered = best_has_enough_inliers && res.confidence >= options_.min_confidence;
-
-    const PoseCovariance& cov = best_quality.covariance;
-    const Eigen::Matrix3d R = res.cam_from_segment.rotation_matrix();
-    if (cov.valid) {
-      PoseUncertainty& u = res.uncertainty;
-      const Eigen::Matrix3d center_cov = cov.center(res.cam_from_segment);
-      u.valid = true;
-      u.position_sigma = std::sqrt(std::max(0.0, center_cov.trace()));
-      u.rotation_sigma_deg = std::sqrt(std::max(0.0, cov.omega_t.topLeftCorner<3, 3>().trace())) * 180.0 / M_PI;
-      if (frame.georegistered) {
-        const Eigen::Matrix3d& Rs = frame.enu_from_segment.rotation;
-        const double s2 = frame.enu_from_segment.scale * frame.enu_from_segment.scale;
-        const Eigen::Matrix3d enu_cov = s2 * Rs * center_cov * Rs.transpose();
-        u.position_sigma_m = std::sqrt(std::max(0.0, enu_cov.trace()));
-        u.horizontal_sigma_m = std::sqrt(std::max(0.0, enu_cov(0, 0) + enu_cov(1, 1)));
-        u.vertical_sigma_m = std::sqrt(std::max(0.0, enu_cov(2, 2)));
-        // Heading of d = Rs Rᵀ e_z; with R ← exp([ω]×) R, ∂d/∂ω = Rs Rᵀ [e_z]×.
-        Eigen::Matrix3d ez_skew;
-        ez_skew << 0, -1, 0, 1, 0, 0, 0, 0, 0;
-        const Eigen::Matrix3d dd_domega = Rs * R.transpose() * ez_skew;
-        const Eigen::Vector3d d = Rs * res.cam_from_segment.viewing_direction();
-        const double h2 = d.x() * d.x() + d.y() * d.y();
-        if (h2 > 1e-12) {
-          const Eigen::RowVector3d dh_dd(d.y() / h2, -d.x() / h2, 0);
-          const Eigen::RowVector3d g = dh_dd * dd_domega;
-          const double var = g * cov.omega_t.topLeftCorner<3, 3>() * g.transpose();
-          u.heading_sigma_deg = std::sqrt(std::max(0.0, var)) * 180.0 / M_PI;
-        }
-      }
-    }
-    if (frame.georegistered) {
-      const Eigen::Vector3d c = frame.enu_from_segment.apply(res.cam_from_segment.center());
-      res.center_enu = c;
-      const Eigen::Vector3d dir = frame.enu_from_segment.rotation * res.cam_from_segment.viewing_direction();
-      res.heading_deg = heading_deg_from_enu(dir);
-      if (impl_->frame) res.position = impl_->frame->to_geo(c);
-    }
-  };
-  // One pass over the candidates with the given search; the best pose wins.
-  auto search_candidates = [&](const CascadeSearchOptions& search) {
-    for (size_t index : candidates) {
-      // Candidates come best-voted first; a pose this well supported ends
-      // the search (RANSAC on a wrong segment runs to its iteration cap).
-      // (registered: enough inliers and confidence; a rejected pose, e.g. the
-      // first pass's before the fallback, does not end it).
-      if (options_.accept_inliers > 0 && res.registered && best_inliers >= static_cast<size_t>(options_.accept_inliers))
-        break;
-      std::shared_ptr<const Segment> seg = impl_->cache->get(index);
-      res.candidates.push_back(static_cast<int>(seg->id()));
-      t.reset();
-      CascadeMatcher matcher(seg->index(), impl_->map.codebook(), ws.cascade);
-      if (seg->uses_map_hasher()) {
-        // One hash of the query for every segment that shares the map's rotation.
-        if (!map_codes_ready) {
-          ws.map_codes.resize(f.descriptors.rows());
-          encode_hash(impl_->map.hasher()->view(), f.descriptors.data(), f.descriptors.rows(), ws.map_codes.data(),
-                      ws.encode);
-          map_codes_ready = true;
-        }
-        matcher.match_hashed(f.descriptors, ws.map_codes, search, matches);
-      } else {
-        matcher.match(f.descriptors, search, matches);
-      }
-      CorrespondenceArrays arrays = make_correspondence_arrays(matches, f.keypoints, seg->xyz());
-      set.clear();
-      set.points2d.reserve(arrays.points2d.size());
-      for (const auto& p : arrays.points2d) set.points2d.emplace_back(p[0], p[1]);
-      set.candidate_offsets = arrays.candidate_offsets;
-      set.candidates.reserve(arrays.candidates.size());
-      for (const auto& c : arrays.candidates) set.candidates.emplace_back(c[0], c[1], c[2]);
-      set.in_hypothesis_set = arrays.in_hypothesis_set;
-      set.candidate_point_ids = arrays.candidate_point_ids;
-      res.times.matching += t.elapsed_ms();
-      t.reset();
-      PoseEstimate pose;
-      // Inliers are counted per query feature, so a segment with no more
-      // matched features than the best pose's inliers cannot win: skip it.
-      const bool can_win = set.points2d.size() > best_inliers;
-      if (can_win && (set.num_hypothesis_features() >= 6 || (camera.has_focal && set.num_hypothesis_features() >= 3)))
-        pose = estimate_pose(set, camera, impl_->ransac);
-      res.times.ransac += t.elapsed_ms();
-      if (pose.has_pose) {
-        size_t& seen = inliers_per_segment[static_cast<int>(seg->id())];
-        seen = std::max(seen, pose.num_inliers);
-      }
-      if (pose.has_pose && pose.num_inliers > best_inliers) {
-        best_inliers = pose.num_inliers;
-        best_has_enough_inliers = pose.registered;
-        best_quality = pose.quality;
-        best_segment = seg;
-        res.segment = static_cast<int>(seg->id());
-        res.inliers = pose.num_inliers;
-        res.cam_from_segment = pose.cam_from_world;
-        res.focal_px = pose.focal;
-        res.focal_estimated = !camera.has_focal;
-        res.principal_point_offset = pose.principal_point_offset;
-        res.matches_one_to_one = matches.query.size();
-        assess_best();  // for the early stop; assessed again once every candidate is searched
-      }
-    }
-  };
+  Impl::Search search(*impl_, options_, f, camera, *lease.w, res);
   if (!candidates.empty()) {
     res.candidates.clear();
-    search_candidates(impl_->search);
-    assess_best();
+    search.search_candidates(candidates, impl_->search);
+    search.assess_best();
     // Prioritized search stops at N_early matches; on repetitive facades they
     // can all be wrong. Before giving up, search every feature once more.
     if (!res.registered && impl_->search.prioritize && options_.full_search_fallback) {
@@ -409,8 +464,8 @@ LocalizationResult Localizer::localize_features(const FeatureSet& f, const Pinho
       full.prioritize = false;
       res.candidates.clear();
       res.full_search_fallback = true;
-      search_candidates(full);
-      assess_best();
+      search.search_candidates(candidates, full);
+      search.assess_best();
     }
   }
   res.times.total = total.elapsed_ms();

@@ -27,35 +27,6 @@ RansacOptions variant(RansacVariant v, uint64_t seed = 1) {
   return o;
 }
 
-TEST(CorrespondenceSet, ValidateNamesTheProblem) {
-  CorrespondenceSet c;
-  c.validate();  // empty is valid
-  c.add_feature({10, 10}, {Eigen::Vector3d(1, 2, 3), Eigen::Vector3d(2, 3, 4)}, true);
-  c.add_feature({20, 20}, {Eigen::Vector3d(1, 2, 5)}, false);
-  c.validate();
-  EXPECT_EQ(c.num_features(), 2u);
-  EXPECT_EQ(c.num_candidates(0), 2u);
-  EXPECT_EQ(c.num_hypothesis_features(), 1u);
-  CorrespondenceSet bad = c;
-  bad.candidate_offsets[1] = 0;
-  try {
-    bad.validate();
-    FAIL() << "expected an error";
-  } catch (const Error& e) {
-    EXPECT_NE(std::string(e.what()).find("no candidates"), std::string::npos) << e.what();
-  }
-  bad = c;
-  bad.in_hypothesis_set.pop_back();
-  EXPECT_THROW(bad.validate(), Error);
-  bad = c;
-  bad.candidate_point_ids = {1};
-  EXPECT_THROW(bad.validate(), Error);
-  bad = c;
-  bad.candidates[0].x() = std::nan("");
-  EXPECT_THROW(bad.validate(), Error);
-  EXPECT_THROW(c.add_feature({1, 1}, {}, true), Error);
-}
-
 TEST(RansacOptions, ValidateNamesTheField) {
   RansacOptions o;
   o.validate();

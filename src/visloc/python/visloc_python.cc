@@ -525,9 +525,8 @@ std::vector<std::string> names_from(const py::object& o, const std::string& what
   }
 }
 
-}  // namespace
-
-void bind(py::module_& m) {
+// The visloc.Error classes by kind, and the translator that raises them for the library's errors.
+void bind_errors(py::module_& m) {
   // Error classes by kind; each is also a matching builtin exception.
   auto builtins = py::module_::import("builtins");
   auto make = [&](const char* name, py::tuple bases, const char* doc) {
@@ -558,7 +557,10 @@ void bind(py::module_& m) {
       PyErr_SetString(error_class(e.code()), e.what());
     }
   });
+}
 
+// visloc.Pose.
+void bind_pose(py::module_& m) {
   py::class_<Pose>(m, "Pose", "A camera pose, world-to-camera (COLMAP's convention), in the segment's frame.")
       .def_property_readonly("qvec", [](const Pose& p) {
         const auto q = p.cam_from_world.q_wxyz();
@@ -584,7 +586,10 @@ void bind(py::module_& m) {
                std::to_string(q[3]) + "], tvec=[" + std::to_string(t.x()) + ", " + std::to_string(t.y()) + ", " +
                std::to_string(t.z()) + "])";
       });
+}
 
+// visloc.LocalizationResult.
+void bind_localization_result(py::module_& m) {
   py::class_<Result>(m, "LocalizationResult", "One photo's localization (the CLI's JSON line as attributes).")
       .def_property_readonly("image", [](const Result& r) { return r.r.image; })
       .def_property_readonly("registered", [](const Result& r) { return r.r.registered; })
@@ -631,7 +636,10 @@ void bind(py::module_& m) {
         return "LocalizationResult(image='" + r.r.image + "', registered=" + (r.r.registered ? "True" : "False") +
                ", inliers=" + std::to_string(r.r.inliers) + ", confidence=" + std::to_string(r.r.confidence) + ")";
       });
+}
 
+// visloc.Localizer.
+void bind_localizer(py::module_& m) {
   py::class_<Localizer>(m, "Localizer", R"doc(A map opened for localization.
 
 Localizer(map_dir, **options): options are LocalizerOptions fields, named as
@@ -692,7 +700,10 @@ raises visloc.Error.)doc")
       .def_property_readonly("num_segments", &Localizer::num_segments)
       .def_property_readonly("has_retrieval", &Localizer::has_retrieval)
       .def_property_readonly("cache_resident_bytes", &Localizer::cache_resident_bytes);
+}
 
+// visloc.Segment.
+void bind_segment(py::module_& m) {
   py::class_<PySegment, std::shared_ptr<PySegment>>(m, "Segment", "One segment of a map (its file mapped in memory).")
       .def_property_readonly("id", [](const PySegment& s) { return s.segment->id(); })
       .def_property_readonly("num_points", [](const PySegment& s) { return s.segment->num_points(); })
@@ -721,7 +732,10 @@ raises visloc.Error.)doc")
         return "Segment(id=" + std::to_string(s.segment->id()) + ", points=" + std::to_string(s.segment->num_points()) +
                ", images=" + std::to_string(s.segment->images().size()) + ")";
       });
+}
 
+// visloc.Map.
+void bind_map(py::module_& m) {
   py::class_<PyMap>(m, "Map", "A map directory, opened and checked (manifest, codebook); segments mapped on use.")
       .def(py::init([](const py::object& dir) {
              const fs::path p = path_from(dir, "Map: map_dir");
@@ -761,13 +775,19 @@ raises visloc.Error.)doc")
       }, "Every segment's images (a dict each, with its segment id).")
       .def("__len__", &PyMap::size)
       .def("__getitem__", [](PyMap& m, const py::object& i) { return translate_errors([&] { return m.segment(m.position(i)); }); });
+}
 
+// visloc.set_opencv_threads.
+void bind_opencv_threads(py::module_& m) {
   m.def(
       "set_opencv_threads", [](int threads) { translate_errors([&] { set_opencv_threads(threads); }); },
       py::arg("threads"),
       "Sets OpenCV's thread count, which SIFT uses. It is process-wide (every OpenCV call of the program), "
       "so visloc never changes it by itself: set 1 when several Python threads localize at once.");
+}
 
+// visloc.read_image.
+void bind_read_image(py::module_& m) {
   m.def(
       "read_image",
       [](const py::object& path, bool with_metadata) -> py::object {
@@ -791,7 +811,10 @@ raises visloc.Error.)doc")
       py::arg("path"), py::arg("metadata") = false,
       "The greyscale pixels (numpy uint8 H×W) that localize() decodes from this file; with metadata=True, "
       "(pixels, {width, height, focal_px}).");
+}
 
+// visloc.build_map.
+void bind_build_map(py::module_& m) {
   m.def(
       "build_map",
       [](const py::object& images, const py::object& out, const py::object& progress, const py::kwargs& kwargs) {
@@ -886,7 +909,10 @@ build advances. Local executor only (Slurm builds: the CLI). Segments are
 built `jobs` at a time (default: one per core), each SIFT on OpenCV's
 process-wide pool: call visloc.set_opencv_threads(1) first, as the CLI does,
 so that they do not compete. Returns the build's statistics as a dict.)doc");
+}
 
+// visloc.import_colmap.
+void bind_import_colmap(py::module_& m) {
   m.def(
       "import_colmap",
       [](const py::object& model, const py::object& database, const py::object& out, const py::kwargs& kwargs) {
@@ -921,7 +947,10 @@ so that they do not compete. Returns the build's statistics as a dict.)doc");
 removed from the model, kept as queries), pq_train_database,
 pq_train_images, hash_rotation ('segment' or 'map'), itq_iterations, seed,
 keep_descriptors, overwrite. Returns the import statistics as a dict.)doc");
+}
 
+// visloc.evaluate.
+void bind_evaluate(py::module_& m) {
   m.def(
       "evaluate",
       [](const py::object& map_dir, const py::object& out, const py::kwargs& kwargs) {
@@ -985,6 +1014,24 @@ truth (pose list, COLMAP images.txt or model, or GPS CSV), intrinsics (a file
 compare='colmap', colmap (the executable), and the Localizer options.
 Returns report.json as a dict (with compare: 'colmap' and
 'comparison_markdown' too).)doc");
+}
+
+}  // namespace
+
+// Each type is bound before the first signature that names it (pybind11 writes
+// the Python names into the docstrings as it binds).
+void bind(py::module_& m) {
+  bind_errors(m);
+  bind_pose(m);
+  bind_localization_result(m);
+  bind_localizer(m);
+  bind_segment(m);
+  bind_map(m);
+  bind_opencv_threads(m);
+  bind_read_image(m);
+  bind_build_map(m);
+  bind_import_colmap(m);
+  bind_evaluate(m);
 }
 
 }  // namespace visloc::python

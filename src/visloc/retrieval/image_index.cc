@@ -41,6 +41,140 @@ void configure_tables(faiss::IndexIVFPQ* ivfpq, bool precomputed) {
   }
 }
 
+// Throws Error(kFormat) naming the index file, the message built from `parts`.
+struct IndexFileError {
+  const std::filesystem::path& path;
+  template <typename... Parts>
+  [[noreturn]] void operator()(const Parts&... parts) const {
+    throw_error(ErrorCode::kFormat, path.string(), ": ", parts...);
+  }
+};
+
+// What the META section of an index file says.
+struct IndexMeta {
+  ImageIndexOptions options;
+  int dims = 0;
+  size_t count = 0;
+  int effective_nlist = 0, effective_pq_bits = 0;
+};
+
+IndexMeta parse_meta(std::string_view text, const IndexFileError& fail) {
+  IndexMeta out;
+  try {
+    const auto meta = nlohmann::json::parse(text);
+    // Integers only, in range (json_fields.h): a double such as 1e73 is refused, not converted.
+    const JsonField m(meta, fail.path.string(), "META");
+    auto as_int = [&m](const char* key) {
+      return static_cast<int>(m.at(key).integer(std::numeric_limits<int>::min(), std::numeric_limits<int>::max()));
+    };
+    const std::string type = meta.at("type").get<std::string>();
+    if (type != "ivfpq" && type != "flat") fail("unknown index type '", type, "'");
+    out.options.type = type == "ivfpq" ? ImageIndexType::kIvfPq : ImageIndexType::kFlat;
+    out.dims = as_int("dims");
+    out.count = m.at("count").unsigned_integer(std::numeric_limits<size_t>::max());
+    out.options.nlist = as_int("nlist");
+    out.options.nprobe = as_int("nprobe");
+    out.options.pq_bytes = as_int("pq_bytes");
+    out.options.pq_bits = as_int("pq_bits");
+    out.options.precomputed_tables = meta.at("precomputed_tables").get<bool>();
+    out.options.max_training_vectors = as_int("max_training_vectors");
+    out.options.seed = m.at("seed").unsigned_integer();
+    out.effective_nlist = as_int("effective_nlist");
+    out.effective_pq_bits = as_int("effective_pq_bits");
+  } catch (const nlohmann::json::exception& ex) {
+    fail("META is not valid (", ex.what(), ")");
+  }
+  try {
+    out.options.validate();
+  } catch (const Error& ex) {
+    fail("stored options are invalid: ", ex.what());
+  }
+  return out;
+}
+
+// FAISS's reader allocates whatever sizes it reads before reading the data:
+// walks the bytes first (faiss_layout.h), so that no count reaches it that
+// the section's bytes do not back, and checks them against META.
+void check_faiss_section(std::span<const uint8_t> bytes, const IndexMeta& meta, const IndexFileError& fail) {
+  FaissLayoutFacts facts;
+  try {
+    facts = check_faiss_layout(bytes, meta.options.type == ImageIndexType::kIvfPq ? FaissLayout::kIvfPq
+                                                                                   : FaissLayout::kIdMapFlat);
+  } catch (const Error& ex) {
+    fail(ex.what());
+  }
+  if (facts.dims != meta.dims || static_cast<uint64_t>(facts.count) != meta.count)
+    fail("FAISS index has dimension ", facts.dims, " and ", facts.count, " vectors, META says ", meta.dims, " and ",
+         meta.count);
+  if (meta.options.type == ImageIndexType::kIvfPq &&
+      (facts.nlist != static_cast<uint64_t>(meta.effective_nlist) ||
+       facts.pq_m != static_cast<uint64_t>(meta.options.pq_bytes) ||
+       facts.pq_nbits != static_cast<uint64_t>(meta.effective_pq_bits)))
+    fail("FAISS index has ", facts.nlist, " lists and ", facts.pq_m, " sub-quantizers of ", facts.pq_nbits,
+         " bits, META says ", meta.effective_nlist, ", ", meta.options.pq_bytes, " and ", meta.effective_pq_bits);
+  if (meta.options.type == ImageIndexType::kIvfPq && meta.options.precomputed_tables) {
+    // nlist × M × 2^nbits floats, computed at load: refuse what FAISS itself
+    // would not precompute by default (faiss::precomputed_table_max_bytes).
+    const double table_bytes = 4.0 * static_cast<double>(facts.nlist) * static_cast<double>(facts.pq_m) *
+                               static_cast<double>(uint64_t{1} << facts.pq_nbits);
+    if (table_bytes > static_cast<double>(faiss::precomputed_table_max_bytes))
+      fail("precomputed tables would take ", table_bytes / (1 << 20), " MiB (", facts.nlist, " lists × ", facts.pq_m,
+           " × 2^", facts.pq_nbits, "), more than FAISS's limit of ",
+           faiss::precomputed_table_max_bytes >> 20, " MiB");
+  }
+}
+
+std::unique_ptr<faiss::Index> read_faiss_section(std::span<const uint8_t> bytes, const IndexFileError& fail) {
+  faiss::VectorIOReader reader;
+  reader.data.assign(bytes.begin(), bytes.end());
+  std::unique_ptr<faiss::Index> index;
+  try {
+    index.reset(faiss::read_index(&reader, faiss::IO_FLAG_SKIP_PRECOMPUTE_TABLE));
+  } catch (const faiss::FaissException& ex) {
+    fail("FAISS index section cannot be read (", ex.what(), ")");
+  } catch (const std::bad_alloc&) {
+    fail("FAISS index section cannot be read (its sizes ask for more memory than there is)");
+  } catch (const std::exception& ex) {
+    fail("FAISS index section cannot be read (", ex.what(), ")");
+  }
+  return index;
+}
+
+// FAISS's reader trusts the sizes it reads; searching an index whose arrays
+// disagree with its counts reads out of bounds (found by fuzzing): these
+// check every array the search touches against the counts.
+void check_flat(const faiss::Index* idx, const char* what, faiss::Index::idx_t expected_ntotal, int dims,
+                const IndexFileError& fail) {
+  const auto* flat = dynamic_cast<const faiss::IndexFlat*>(idx);
+  if (!flat) fail(what, " is not a flat FAISS index");
+  if (flat->d != dims || flat->ntotal != expected_ntotal || flat->ntotal < 0 ||
+      flat->code_size != static_cast<size_t>(flat->d) * sizeof(float) ||
+      flat->codes.size() != static_cast<size_t>(flat->ntotal) * flat->code_size)
+    fail(what, ": its sizes disagree (d ", flat->d, ", ", flat->ntotal, " vectors, ", flat->codes.size(), " bytes)");
+}
+
+void check_ivfpq(const faiss::IndexIVFPQ* ivfpq, int dims, const IndexFileError& fail) {
+  if (ivfpq->nlist < 1 || !ivfpq->quantizer) fail("IVF-PQ index without lists or coarse quantizer");
+  check_flat(ivfpq->quantizer, "coarse quantizer", static_cast<faiss::Index::idx_t>(ivfpq->nlist), dims, fail);
+  const faiss::ProductQuantizer& pq = ivfpq->pq;
+  if (pq.M < 1 || pq.nbits < 1 || pq.nbits > 16 || pq.d != static_cast<size_t>(dims) || pq.M * pq.dsub != pq.d ||
+      pq.ksub != (size_t{1} << pq.nbits) || pq.centroids.size() != pq.d * pq.ksub ||
+      ivfpq->code_size != pq.code_size || pq.code_size != (pq.M * pq.nbits + 7) / 8)
+    fail("product quantizer sizes disagree (M ", pq.M, ", ", pq.nbits, " bits, d ", pq.d, ")");
+  const auto* lists = dynamic_cast<const faiss::ArrayInvertedLists*>(ivfpq->invlists);
+  if (!lists || lists->nlist != ivfpq->nlist || lists->code_size != ivfpq->code_size ||
+      lists->codes.size() != lists->nlist || lists->ids.size() != lists->nlist)
+    fail("inverted lists disagree with the index (", ivfpq->nlist, " lists)");
+  size_t listed = 0;
+  for (size_t l = 0; l < lists->nlist; ++l) {
+    if (lists->codes[l].size() != lists->ids[l].size() * lists->code_size)
+      fail("inverted list ", l, " has ", lists->ids[l].size(), " ids and ", lists->codes[l].size(), " code bytes");
+    listed += lists->ids[l].size();
+  }
+  if (listed != static_cast<size_t>(ivfpq->ntotal))
+    fail("inverted lists hold ", listed, " vectors, the index ", ivfpq->ntotal);
+}
+
 }  // namespace
 
 void ImageIndexOptions::validate() const {
@@ -204,115 +338,24 @@ void ImageIndex::save(const std::filesystem::path& path) const {
 
 ImageIndex ImageIndex::load(const std::filesystem::path& path) {
   SectionFileReader r(path, "IIDX", 1, kImageIndexFileVersion);
-  auto fail = [&](const auto&... parts) { throw_error(ErrorCode::kFormat, path.string(), ": ", parts...); };
+  const IndexFileError fail{path};
+  const IndexMeta meta = parse_meta(r.text("META"), fail);
   ImageIndex out;
-  size_t count = 0;
-  try {
-    const auto meta = nlohmann::json::parse(r.text("META"));
-    // Integers only, in range (json_fields.h): a double such as 1e73 is refused, not converted.
-    const JsonField m(meta, path.string(), "META");
-    auto as_int = [&m](const char* key) {
-      return static_cast<int>(m.at(key).integer(std::numeric_limits<int>::min(), std::numeric_limits<int>::max()));
-    };
-    const std::string type = meta.at("type").get<std::string>();
-    if (type != "ivfpq" && type != "flat") fail("unknown index type '", type, "'");
-    out.options_.type = type == "ivfpq" ? ImageIndexType::kIvfPq : ImageIndexType::kFlat;
-    out.dims_ = as_int("dims");
-    count = m.at("count").unsigned_integer(std::numeric_limits<size_t>::max());
-    out.options_.nlist = as_int("nlist");
-    out.options_.nprobe = as_int("nprobe");
-    out.options_.pq_bytes = as_int("pq_bytes");
-    out.options_.pq_bits = as_int("pq_bits");
-    out.options_.precomputed_tables = meta.at("precomputed_tables").get<bool>();
-    out.options_.max_training_vectors = as_int("max_training_vectors");
-    out.options_.seed = m.at("seed").unsigned_integer();
-    out.effective_nlist_ = as_int("effective_nlist");
-    out.effective_pq_bits_ = as_int("effective_pq_bits");
-  } catch (const nlohmann::json::exception& ex) {
-    fail("META is not valid (", ex.what(), ")");
-  }
-  try {
-    out.options_.validate();
-  } catch (const Error& ex) {
-    fail("stored options are invalid: ", ex.what());
-  }
+  out.options_ = meta.options;
+  out.dims_ = meta.dims;
+  out.effective_nlist_ = meta.effective_nlist;
+  out.effective_pq_bits_ = meta.effective_pq_bits;
+  const size_t count = meta.count;
   const auto bytes = r.bytes("FAIS");
-  // FAISS's reader allocates whatever sizes it reads before reading the data:
-  // walk the bytes first (faiss_layout.h), so that no count reaches it that
-  // the section's bytes do not back.
-  FaissLayoutFacts facts;
-  try {
-    facts = check_faiss_layout(bytes, out.options_.type == ImageIndexType::kIvfPq ? FaissLayout::kIvfPq
-                                                                                   : FaissLayout::kIdMapFlat);
-  } catch (const Error& ex) {
-    fail(ex.what());
-  }
-  if (facts.dims != out.dims_ || static_cast<uint64_t>(facts.count) != count)
-    fail("FAISS index has dimension ", facts.dims, " and ", facts.count, " vectors, META says ", out.dims_, " and ",
-         count);
-  if (out.options_.type == ImageIndexType::kIvfPq &&
-      (facts.nlist != static_cast<uint64_t>(out.effective_nlist_) ||
-       facts.pq_m != static_cast<uint64_t>(out.options_.pq_bytes) ||
-       facts.pq_nbits != static_cast<uint64_t>(out.effective_pq_bits_)))
-    fail("FAISS index has ", facts.nlist, " lists and ", facts.pq_m, " sub-quantizers of ", facts.pq_nbits,
-         " bits, META says ", out.effective_nlist_, ", ", out.options_.pq_bytes, " and ", out.effective_pq_bits_);
-  if (out.options_.type == ImageIndexType::kIvfPq && out.options_.precomputed_tables) {
-    // nlist × M × 2^nbits floats, computed at load: refuse what FAISS itself
-    // would not precompute by default (faiss::precomputed_table_max_bytes).
-    const double table_bytes = 4.0 * static_cast<double>(facts.nlist) * static_cast<double>(facts.pq_m) *
-                               static_cast<double>(uint64_t{1} << facts.pq_nbits);
-    if (table_bytes > static_cast<double>(faiss::precomputed_table_max_bytes))
-      fail("precomputed tables would take ", table_bytes / (1 << 20), " MiB (", facts.nlist, " lists × ", facts.pq_m,
-           " × 2^", facts.pq_nbits, "), more than FAISS's limit of ",
-           faiss::precomputed_table_max_bytes >> 20, " MiB");
-  }
-  faiss::VectorIOReader reader;
-  reader.data.assign(bytes.begin(), bytes.end());
-  std::unique_ptr<faiss::Index> index;
-  try {
-    index.reset(faiss::read_index(&reader, faiss::IO_FLAG_SKIP_PRECOMPUTE_TABLE));
-  } catch (const faiss::FaissException& ex) {
-    fail("FAISS index section cannot be read (", ex.what(), ")");
-  } catch (const std::bad_alloc&) {
-    fail("FAISS index section cannot be read (its sizes ask for more memory than there is)");
-  } catch (const std::exception& ex) {
-    fail("FAISS index section cannot be read (", ex.what(), ")");
-  }
+  check_faiss_section(bytes, meta, fail);
+  std::unique_ptr<faiss::Index> index = read_faiss_section(bytes, fail);
   if (index->d != out.dims_ || static_cast<size_t>(index->ntotal) != count)
     fail("FAISS index has dimension ", index->d, " and ", index->ntotal, " vectors, META says ", out.dims_, " and ",
          count);
-  // FAISS's reader trusts the sizes it reads; searching an index whose arrays
-  // disagree with its counts reads out of bounds (found by fuzzing): check
-  // every array the search touches against the counts.
-  auto check_flat = [&](const faiss::Index* idx, const char* what, faiss::Index::idx_t expected_ntotal) {
-    const auto* flat = dynamic_cast<const faiss::IndexFlat*>(idx);
-    if (!flat) fail(what, " is not a flat FAISS index");
-    if (flat->d != out.dims_ || flat->ntotal != expected_ntotal || flat->ntotal < 0 ||
-        flat->code_size != static_cast<size_t>(flat->d) * sizeof(float) ||
-        flat->codes.size() != static_cast<size_t>(flat->ntotal) * flat->code_size)
-      fail(what, ": its sizes disagree (d ", flat->d, ", ", flat->ntotal, " vectors, ", flat->codes.size(), " bytes)");
-  };
   if (out.options_.type == ImageIndexType::kIvfPq) {
     auto* ivfpq = dynamic_cast<faiss::IndexIVFPQ*>(index.get());
     if (!ivfpq) fail("META says ivfpq but the FAISS index is not an IndexIVFPQ");
-    if (ivfpq->nlist < 1 || !ivfpq->quantizer) fail("IVF-PQ index without lists or coarse quantizer");
-    check_flat(ivfpq->quantizer, "coarse quantizer", static_cast<faiss::Index::idx_t>(ivfpq->nlist));
-    const faiss::ProductQuantizer& pq = ivfpq->pq;
-    if (pq.M < 1 || pq.nbits < 1 || pq.nbits > 16 || pq.d != static_cast<size_t>(out.dims_) || pq.M * pq.dsub != pq.d ||
-        pq.ksub != (size_t{1} << pq.nbits) || pq.centroids.size() != pq.d * pq.ksub ||
-        ivfpq->code_size != pq.code_size || pq.code_size != (pq.M * pq.nbits + 7) / 8)
-      fail("product quantizer sizes disagree (M ", pq.M, ", ", pq.nbits, " bits, d ", pq.d, ")");
-    const auto* lists = dynamic_cast<const faiss::ArrayInvertedLists*>(ivfpq->invlists);
-    if (!lists || lists->nlist != ivfpq->nlist || lists->code_size != ivfpq->code_size ||
-        lists->codes.size() != lists->nlist || lists->ids.size() != lists->nlist)
-      fail("inverted lists disagree with the index (", ivfpq->nlist, " lists)");
-    size_t listed = 0;
-    for (size_t l = 0; l < lists->nlist; ++l) {
-      if (lists->codes[l].size() != lists->ids[l].size() * lists->code_size)
-        fail("inverted list ", l, " has ", lists->ids[l].size(), " ids and ", lists->codes[l].size(), " code bytes");
-      listed += lists->ids[l].size();
-    }
-    if (listed != static_cast<size_t>(ivfpq->ntotal)) fail("inverted lists hold ", listed, " vectors, the index ", ivfpq->ntotal);
+    check_ivfpq(ivfpq, out.dims_, fail);
     ivfpq->nprobe = static_cast<size_t>(out.options_.nprobe);
     configure_tables(ivfpq, out.options_.precomputed_tables);
     out.impl_->ivfpq = ivfpq;
@@ -320,7 +363,7 @@ ImageIndex ImageIndex::load(const std::filesystem::path& path) {
     const auto* idmap = dynamic_cast<faiss::IndexIDMap*>(index.get());
     if (!idmap) fail("META says flat but the FAISS index is not an IndexIDMap");
     if (idmap->id_map.size() != static_cast<size_t>(idmap->ntotal)) fail("id map disagrees with the vector count");
-    check_flat(idmap->index, "flat index", idmap->ntotal);
+    check_flat(idmap->index, "flat index", idmap->ntotal, out.dims_, fail);
   }
   out.impl_->index = std::move(index);
   return out;

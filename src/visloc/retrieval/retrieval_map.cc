@@ -4,6 +4,7 @@
 #include <numeric>
 
 #include "visloc/util/error.h"
+#include "visloc/util/json_fields.h"
 #include "visloc/util/section_file.h"
 #include "visloc/util/timer.h"
 
@@ -70,12 +71,15 @@ RetrievalMap RetrievalMap::load(const fs::path& dir) {
   RetrievalMap m;
   const fs::path images_path = dir / "images.vlimg";
   SectionFileReader r(images_path, "RIMG", 1, kRetrievalImagesFileVersion);
-  size_t count = 0;
+  nlohmann::json meta;
   try {
-    count = nlohmann::json::parse(r.text("META")).at("count").get<size_t>();
+    meta = nlohmann::json::parse(r.text("META"));
   } catch (const nlohmann::json::exception& ex) {
-    throw_error(ErrorCode::kFormat, images_path.string(), ": META is not valid (", ex.what(), ")");
+    throw_error(ErrorCode::kFormat, images_path.string(), ": META is not valid JSON (", ex.what(), ")");
   }
+  // An integer that fits (a count of 1e102 is refused, not converted): the
+  // names below must then agree with it.
+  const size_t count = JsonField(meta, images_path.string(), "META").at("count").unsigned_integer(UINT32_MAX - 1);
   const std::string_view names = r.text("NAME");
   size_t start = 0;
   while (count > 0 && start <= names.size()) {

@@ -9,6 +9,7 @@
 
 #include "visloc/retrieval/image_index.h"
 #include "visloc/retrieval/retrieval_map.h"
+#include "visloc/util/section_file.h"
 #include "visloc/baselines/retrieval_truth.h"
 #include "visloc/retrieval/segment_voter.h"
 #include "visloc/retrieval/triangulation_embedding.h"
@@ -481,6 +482,24 @@ TEST(RetrievalMap, BuildSaveLoadQuery) {
     top_scene_correct += fixture().scene_of[a.images[0].image] == fixture().scene_of[i];
   }
   EXPECT_GE(top_scene_correct, static_cast<int>(p.size()) * 9 / 10);
+  // A META count that does not fit an integer (found by fuzzing: 1.6e102 was
+  // converted with get<size_t>, undefined behaviour) is refused naming the field.
+  for (const std::string count : {"1.61111e+102", "-3", "\"12\"", "2.5"}) {
+    SectionFileWriter w(dir / "images.vlimg", "RIMG", kRetrievalImagesFileVersion);
+    w.add_text("META", "{\"count\": " + count + ", \"segments\": 4}");
+    w.add_text("NAME", "a");
+    w.add_array<uint32_t>("SOFF", map.segments().offsets());
+    w.add_array<int32_t>("SIDS", map.segments().segment_ids());
+    w.commit();
+    try {
+      RetrievalMap::load(dir);
+      ADD_FAILURE() << "count " << count << " accepted";
+    } catch (const Error& ex) {
+      EXPECT_EQ(ex.code(), ErrorCode::kFormat) << ex.what();
+      EXPECT_NE(std::string(ex.what()).find("images.vlimg: field 'META.count'"), std::string::npos) << ex.what();
+    }
+  }
+  map.save(dir);  // valid again
   // A map missing its index is rejected naming the file.
   fs::remove(dir / "index.vlidx");
   try {

@@ -94,6 +94,111 @@ DescriptorMatrix gather(std::span<const DescriptorMatrix* const> images, const s
 
 const char* pooling_name(EmbeddingPooling p) { return p == EmbeddingPooling::kSum ? "sum" : "democratic"; }
 
+// Vocabulary: FAISS k-means on a uniform sample of descriptors; k × 128
+// centroids. Sets stats->kmeans_descriptors.
+std::vector<float> train_vocabulary(std::span<const DescriptorMatrix* const> images, size_t total_rows, int k,
+                                    const TriangulationEmbeddingOptions& options,
+                                    TriangulationEmbeddingTrainStats* stats) {
+  const auto idx = sample_indices(total_rows, static_cast<size_t>(options.max_kmeans_descriptors), options.seed);
+  const RowMatrixF x = to_unit_float(gather(images, idx));
+  faiss::ClusteringParameters cp;
+  cp.niter = options.kmeans_iterations;
+  cp.seed = static_cast<int>(options.seed & 0x7fffffff);
+  cp.max_points_per_centroid = 1 << 30;  // our sample is the training set
+  cp.verbose = false;
+  faiss::Clustering clustering(kDescriptorDim, k, cp);
+  faiss::IndexFlatL2 assigner(kDescriptorDim);
+  clustering.train(static_cast<faiss::Index::idx_t>(x.rows()), x.data(), assigner);
+  stats->kmeans_descriptors = idx.size();
+  return std::vector<float>(clustering.centroids.begin(), clustering.centroids.end());
+}
+
+// Squared norm of each of the k centroids (k × 128 row-major).
+std::vector<float> squared_norms(const std::vector<float>& centroids, int k) {
+  std::vector<float> sqnorm(k);
+  for (int j = 0; j < k; ++j) {
+    float s = 0;
+    for (int t2 = 0; t2 < kDescriptorDim; ++t2)
+      s += centroids[j * kDescriptorDim + t2] * centroids[j * kDescriptorDim + t2];
+    sqnorm[j] = s;
+  }
+  return sqnorm;
+}
+
+// Covariance Σ of the centred residuals R(x) − R0 of the descriptors (lower
+// triangle, column-major in_dims × in_dims): Aᵀ-chunks accumulated by SYRK,
+// then divided by their number.
+std::vector<float> residual_covariance(const DescriptorMatrix& descriptors, const std::vector<float>& centroids,
+                                       const std::vector<float>& centroid_sqnorm, const std::vector<float>& mean,
+                                       int k, size_t chunk_rows) {
+  const int in_dims = k * kDescriptorDim;
+  const size_t n = descriptors.rows();
+  std::vector<float> cov(static_cast<size_t>(in_dims) * in_dims, 0.0f);
+  const RowMatrixF c = ConstMapRowF(centroids.data(), k, kDescriptorDim);
+  const Eigen::VectorXf c_sqnorm = Eigen::Map<const Eigen::VectorXf>(centroid_sqnorm.data(), k);
+  std::vector<float> a(chunk_rows * static_cast<size_t>(in_dims));
+  const float one = 1.0f;
+  for (size_t s = 0; s < n; s += chunk_rows) {
+    const int rows = static_cast<int>(std::min(chunk_rows, n - s));
+    const RowMatrixF x = to_unit_float(DescriptorMatrix(descriptors.row(s), static_cast<size_t>(rows)));
+    centred_residuals(x, c, c_sqnorm, mean.data(), a.data());
+    // a is rows × in_dims row-major = in_dims × rows column-major.
+    ssyrk_("L", "N", &in_dims, &rows, &one, a.data(), &in_dims, &one, cov.data(), &in_dims);
+  }
+  const float inv_n = 1.0f / static_cast<float>(n);
+  for (float& v : cov) v *= inv_n;
+  return cov;
+}
+
+// The whitening projection from the top eigenpairs of the covariance.
+struct Whitening {
+  std::vector<float> eigenvalues;  // out_dims, largest first
+  std::vector<float> projection;   // out_dims × in_dims: eigenvectors scaled by regularized inverse square roots
+  double kept_variance = 0;        // sum of the kept eigenvalues (negative ones as 0)
+};
+
+// Top out_dims eigenpairs of cov (LAPACK SSYEVR; cov is overwritten), scaled
+// by 1 / sqrt(max(λ, floor)).
+Whitening top_eigenpairs(std::vector<float>& cov, int in_dims, int out_dims, float floor) {
+  Whitening out;
+  const int il = in_dims - out_dims + 1, iu = in_dims;
+  const char* range = out_dims == in_dims ? "A" : "I";
+  const float vl = 0, vu = 0, abstol = 0;
+  int m = 0, info = 0;
+  std::vector<float> w(in_dims), z(static_cast<size_t>(in_dims) * out_dims);
+  std::vector<int> isuppz(2 * static_cast<size_t>(std::max(1, out_dims)));
+  float work_query = 0;
+  int iwork_query = 0, lwork = -1, liwork = -1;
+  ssyevr_("V", range, "L", &in_dims, cov.data(), &in_dims, &vl, &vu, &il, &iu, &abstol, &m, w.data(), z.data(),
+          &in_dims, isuppz.data(), &work_query, &lwork, &iwork_query, &liwork, &info);
+  VISLOC_CHECK(info == 0, "ssyevr workspace query");
+  lwork = static_cast<int>(work_query) + 1;
+  liwork = iwork_query;
+  std::vector<float> work(lwork);
+  std::vector<int> iwork(liwork);
+  ssyevr_("V", range, "L", &in_dims, cov.data(), &in_dims, &vl, &vu, &il, &iu, &abstol, &m, w.data(), z.data(),
+          &in_dims, isuppz.data(), work.data(), &lwork, iwork.data(), &liwork, &info);
+  if (info != 0 || m != out_dims)
+    throw_error(ErrorCode::kInternal, "LAPACK ssyevr failed (info ", info, ", ", m, " of ", out_dims,
+                " eigenpairs)");
+  // Ascending order from LAPACK: output component r is eigenpair m-1-r.
+  out.eigenvalues.resize(out_dims);
+  out.projection.resize(static_cast<size_t>(out_dims) * in_dims);
+  double kept = 0;
+  for (int r = 0; r < out_dims; ++r) {
+    const int src = m - 1 - r;
+    const float lambda = w[src];
+    kept += std::max(0.0f, lambda);
+    out.eigenvalues[r] = lambda;
+    const float scale = 1.0f / std::sqrt(std::max(lambda, floor));
+    const float* u = z.data() + static_cast<size_t>(src) * in_dims;
+    float* p = out.projection.data() + static_cast<size_t>(r) * in_dims;
+    for (int d = 0; d < in_dims; ++d) p[d] = u[d] * scale;
+  }
+  out.kept_variance = kept;
+  return out;
+}
+
 }  // namespace
 
 void TriangulationEmbeddingOptions::validate() const {
@@ -158,26 +263,8 @@ TriangulationEmbedding TriangulationEmbedding::train(std::span<const DescriptorM
 
   // 1. Vocabulary: FAISS k-means on a uniform sample of descriptors.
   Timer t;
-  {
-    const auto idx = sample_indices(total_rows, static_cast<size_t>(options.max_kmeans_descriptors), options.seed);
-    const RowMatrixF x = to_unit_float(gather(images, idx));
-    faiss::ClusteringParameters cp;
-    cp.niter = options.kmeans_iterations;
-    cp.seed = static_cast<int>(options.seed & 0x7fffffff);
-    cp.max_points_per_centroid = 1 << 30;  // our sample is the training set
-    cp.verbose = false;
-    faiss::Clustering clustering(kDescriptorDim, k, cp);
-    faiss::IndexFlatL2 assigner(kDescriptorDim);
-    clustering.train(static_cast<faiss::Index::idx_t>(x.rows()), x.data(), assigner);
-    e.centroids_.assign(clustering.centroids.begin(), clustering.centroids.end());
-    stats.kmeans_descriptors = idx.size();
-  }
-  e.centroid_sqnorm_.resize(k);
-  for (int j = 0; j < k; ++j) {
-    float s = 0;
-    for (int t2 = 0; t2 < kDescriptorDim; ++t2) s += e.centroids_[j * kDescriptorDim + t2] * e.centroids_[j * kDescriptorDim + t2];
-    e.centroid_sqnorm_[j] = s;
-  }
+  e.centroids_ = train_vocabulary(images, total_rows, k, options, &stats);
+  e.centroid_sqnorm_ = squared_norms(e.centroids_, k);
   stats.kmeans_ms = t.elapsed_ms();
 
   // 2. Centring R0 and covariance Σ of R(x) over a second sample.
@@ -202,23 +289,7 @@ TriangulationEmbedding TriangulationEmbedding::train(std::span<const DescriptorM
     }
     for (int d = 0; d < in_dims; ++d) e.mean_[d] = static_cast<float>(sum[d] / static_cast<double>(n));
   }
-  // Σ (lower triangle, column-major in_dims × in_dims) += Aᵀ-chunks by SYRK.
-  std::vector<float> cov(static_cast<size_t>(in_dims) * in_dims, 0.0f);
-  {
-    const RowMatrixF c = ConstMapRowF(e.centroids_.data(), k, kDescriptorDim);
-    const Eigen::VectorXf c_sqnorm = Eigen::Map<const Eigen::VectorXf>(e.centroid_sqnorm_.data(), k);
-    std::vector<float> a(kChunk * static_cast<size_t>(in_dims));
-    const float one = 1.0f;
-    for (size_t s = 0; s < n; s += kChunk) {
-      const int rows = static_cast<int>(std::min(kChunk, n - s));
-      const RowMatrixF x = to_unit_float(DescriptorMatrix(wdesc.row(s), static_cast<size_t>(rows)));
-      centred_residuals(x, c, c_sqnorm, e.mean_.data(), a.data());
-      // a is rows × in_dims row-major = in_dims × rows column-major.
-      ssyrk_("L", "N", &in_dims, &rows, &one, a.data(), &in_dims, &one, cov.data(), &in_dims);
-    }
-    const float inv_n = 1.0f / static_cast<float>(n);
-    for (float& v : cov) v *= inv_n;
-  }
+  std::vector<float> cov = residual_covariance(wdesc, e.centroids_, e.centroid_sqnorm_, e.mean_, k, kChunk);
   stats.whitening_descriptors = n;
   stats.covariance_ms = t.elapsed_ms();
 
@@ -230,44 +301,11 @@ TriangulationEmbedding TriangulationEmbedding::train(std::span<const DescriptorM
   if (!(mean_eigenvalue > 0))
     throw_error(ErrorCode::kInvalidArgument, "triangulation embedding training: the residual covariance is zero ",
                 "(all training descriptors identical?)");
-  {
-    const int il = in_dims - out_dims + 1, iu = in_dims;
-    const char* range = out_dims == in_dims ? "A" : "I";
-    const float vl = 0, vu = 0, abstol = 0;
-    int m = 0, info = 0;
-    std::vector<float> w(in_dims), z(static_cast<size_t>(in_dims) * out_dims);
-    std::vector<int> isuppz(2 * static_cast<size_t>(std::max(1, out_dims)));
-    float work_query = 0;
-    int iwork_query = 0, lwork = -1, liwork = -1;
-    ssyevr_("V", range, "L", &in_dims, cov.data(), &in_dims, &vl, &vu, &il, &iu, &abstol, &m, w.data(), z.data(),
-            &in_dims, isuppz.data(), &work_query, &lwork, &iwork_query, &liwork, &info);
-    VISLOC_CHECK(info == 0, "ssyevr workspace query");
-    lwork = static_cast<int>(work_query) + 1;
-    liwork = iwork_query;
-    std::vector<float> work(lwork);
-    std::vector<int> iwork(liwork);
-    ssyevr_("V", range, "L", &in_dims, cov.data(), &in_dims, &vl, &vu, &il, &iu, &abstol, &m, w.data(), z.data(),
-            &in_dims, isuppz.data(), work.data(), &lwork, iwork.data(), &liwork, &info);
-    if (info != 0 || m != out_dims)
-      throw_error(ErrorCode::kInternal, "LAPACK ssyevr failed (info ", info, ", ", m, " of ", out_dims,
-                  " eigenpairs)");
-    // Ascending order from LAPACK: output component r is eigenpair m-1-r.
-    e.eigenvalues_.resize(out_dims);
-    e.projection_.resize(static_cast<size_t>(out_dims) * in_dims);
-    const float floor = static_cast<float>(options.eigenvalue_floor * mean_eigenvalue);
-    double kept = 0;
-    for (int r = 0; r < out_dims; ++r) {
-      const int src = m - 1 - r;
-      const float lambda = w[src];
-      kept += std::max(0.0f, lambda);
-      e.eigenvalues_[r] = lambda;
-      const float scale = 1.0f / std::sqrt(std::max(lambda, floor));
-      const float* u = z.data() + static_cast<size_t>(src) * in_dims;
-      float* p = e.projection_.data() + static_cast<size_t>(r) * in_dims;
-      for (int d = 0; d < in_dims; ++d) p[d] = u[d] * scale;
-    }
-    stats.retained_variance = kept / trace;
-  }
+  const float floor = static_cast<float>(options.eigenvalue_floor * mean_eigenvalue);
+  Whitening whitening = top_eigenpairs(cov, in_dims, out_dims, floor);
+  e.eigenvalues_ = std::move(whitening.eigenvalues);
+  e.projection_ = std::move(whitening.projection);
+  stats.retained_variance = whitening.kept_variance / trace;
   stats.eigen_ms = t.elapsed_ms();
   stats.total_ms = total.elapsed_ms();
   e.train_stats_ = stats;

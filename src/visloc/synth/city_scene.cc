@@ -208,15 +208,10 @@ bool footprint_contains(const BoxPrimitive& box, const Eigen::Vector2d& p, doubl
          std::abs(-box.sin_yaw * dx + box.cos_yaw * dy) <= box.half_y + margin;
 }
 
-CityScene generate_city_scene(const CityLayoutOptions& options) {
-  options.validate();
-  CityScene scene;
-  scene.layout = options;
-  scene.road_half_width = options.road_half_width_m;
-  scene.sidewalk_width = options.sidewalk_width_m;
-  SplitMix64 rng(hash_keys(options.seed, 0x5c17));
+namespace {
 
-  // --- Roads ---
+// The roads of the layout, and their straight pieces (road_segments).
+void add_roads(const CityLayoutOptions& options, SplitMix64& rng, CityScene& scene) {
   switch (options.layout) {
     case RoadLayout::kLine: {
       const double h = options.road_length_m / 2;
@@ -266,8 +261,10 @@ CityScene generate_city_scene(const CityLayoutOptions& options) {
       scene.road_segments.push_back(seg);
     }
   }
+}
 
-  // --- Buildings along both sides of every road segment ---
+// Buildings along both sides of every road segment, some with a wing behind.
+void add_buildings(const CityLayoutOptions& options, SplitMix64& rng, CityScene& scene) {
   const double corridor = options.road_half_width_m + options.sidewalk_width_m;
   std::vector<BoxPrimitive>& boxes = scene.objects.boxes;
   const auto fits = [&](const BoxPrimitive& b, size_t skip) {
@@ -332,8 +329,10 @@ CityScene generate_city_scene(const CityLayoutOptions& options) {
       }
     }
   }
+}
 
-  // --- Placemarks every 10-12 m along each road ---
+// Placemarks every placemark_spacing_min_m to _max_m metres along each road.
+void add_placemarks(const CityLayoutOptions& options, SplitMix64& rng, CityScene& scene) {
   int id = 0;
   for (size_t r = 0; r < scene.roads.size(); ++r) {
     const double len = scene.roads[r].length();
@@ -350,6 +349,21 @@ CityScene generate_city_scene(const CityLayoutOptions& options) {
       scene.placemarks.push_back(pm);
     }
   }
+}
+
+}  // namespace
+
+CityScene generate_city_scene(const CityLayoutOptions& options) {
+  options.validate();
+  CityScene scene;
+  scene.layout = options;
+  scene.road_half_width = options.road_half_width_m;
+  scene.sidewalk_width = options.sidewalk_width_m;
+  SplitMix64 rng(hash_keys(options.seed, 0x5c17));
+
+  add_roads(options, rng, scene);
+  add_buildings(options, rng, scene);
+  add_placemarks(options, rng, scene);
   return scene;
 }
 

@@ -404,13 +404,10 @@ void apply_photometric(const QuerySpec& q, RgbImage& image) {
   }
 }
 
-CityStats write_city(const CityOptions& options_in, const fs::path& out, const CityProgressCallback& progress) {
-  CityOptions options = options_in;
-  options.validate();
-  Timer wall;
-  const std::string options_json = city_options_json(options);
+namespace {
 
-  // Output directory: new, or a resume of the same options.
+// Output directory: new, or a resume of the same options; creates its subdirectories.
+void prepare_city_dir(const fs::path& out, const CityOptions& options, const std::string& options_json) {
   const fs::path city_json = out / "city.json";
   std::error_code ec;
   if (fs::exists(city_json, ec)) {
@@ -427,90 +424,94 @@ CityStats write_city(const CityOptions& options_in, const fs::path& out, const C
     fs::create_directories(dir, ec);
     if (ec) throw_error(ErrorCode::kIo, dir.string(), ": cannot create directory: ", ec.message());
   }
+}
 
-  const CityScene scene_base = generate_city_scene(options.layout);
-  CityScene scene = scene_base;
-  add_markers(options, scene);
-  PhotoCropSet photos;
-  if (!options.photo_dir.empty()) photos = load_photo_crops(options.photo_dir, options.photo_crops);
-  const EnuFrame enu(options.origin);
-  const ViewSetOptions& views = options.views;
-  const int views_per_placemark = views.headings * static_cast<int>(views.elevations_deg.size());
-  const size_t n_db = scene.placemarks.size() * static_cast<size_t>(views_per_placemark);
-  const size_t n_q = static_cast<size_t>(options.queries.count);
-  const PinholeCamera db_camera = camera_from_fov(views.width, views.height, views.fov_deg);
-  const std::string ext = "." + options.image_format;
-  const auto db_view = [&](size_t i, std::string& name, CameraPose& pose) {
-    const auto& pm = scene.placemarks[i / static_cast<size_t>(views_per_placemark)];
-    const int v = static_cast<int>(i % static_cast<size_t>(views_per_placemark));
+// The database views: every heading and elevation at every placemark, in
+// that order; image i's name and pose.
+struct DatabaseViews {
+  const CityScene& scene;
+  const ViewSetOptions& views;
+  std::string ext;  // the image files' extension, with its dot
+  int per_placemark = views.headings * static_cast<int>(views.elevations_deg.size());
+  size_t count = scene.placemarks.size() * static_cast<size_t>(per_placemark);
+  PinholeCamera camera = camera_from_fov(views.width, views.height, views.fov_deg);
+
+  const Placemark& placemark(size_t i) const { return scene.placemarks[i / static_cast<size_t>(per_placemark)]; }
+
+  void view(size_t i, std::string& name, CameraPose& pose) const {
+    const auto& pm = placemark(i);
+    const int v = static_cast<int>(i % static_cast<size_t>(per_placemark));
     const int hi = v / static_cast<int>(views.elevations_deg.size());
     const int ei = v % static_cast<int>(views.elevations_deg.size());
     name = database_image_name(pm.id, hi, ei) + ext;
     pose = street_view_pose(pm.position, 360.0 * hi / views.headings, views.elevations_deg[static_cast<size_t>(ei)]);
-  };
-
-  // --- Metadata first (cheap, deterministic) ---
-  CityStats stats;
-  stats.placemarks = static_cast<int>(scene.placemarks.size());
-  stats.buildings = scene.buildings;
-  stats.road_length_m = scene.total_road_length();
-  stats.database_images = n_db;
-  stats.query_images = n_q;
-  {
-    std::string cams =
-        "# Camera list with one line of data per camera:\n#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n"
-        "# Number of cameras: 1\n";
-    cams += "1 PINHOLE " + std::to_string(db_camera.width) + " " + std::to_string(db_camera.height) + " " +
-            format_g(db_camera.focal) + " " + format_g(db_camera.focal) + " " + format_g(db_camera.cx) + " " +
-            format_g(db_camera.cy) + "\n";
-    write_file_atomic(out / "sparse" / "cameras.txt", cams);
-    AtomicFileWriter images(out / "sparse" / "images.txt");
-    images.write("# Image list with two lines of data per image:\n"
-                 "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME\n"
-                 "#   POINTS2D[] as (X, Y, POINT3D_ID)\n# Number of images: " +
-                 std::to_string(n_db) + ", mean observations per image: 0\n");
-    std::vector<GpsRecord> gps;
-    gps.reserve(n_db);
-    for (size_t i = 0; i < n_db; ++i) {
-      std::string name;
-      CameraPose pose;
-      db_view(i, name, pose);
-      images.write(std::to_string(i + 1) + " " + pose_fields(pose) + " 1 " + name + "\n\n");
-      GeoPosition g = enu.to_geo(pose.center());
-      gps.push_back({name, g, scene.placemarks[i / static_cast<size_t>(views_per_placemark)].id});
-    }
-    images.commit();
-    write_file_atomic(out / "sparse" / "points3D.txt",
-                      "# 3D point list with one line of data per point:\n"
-                      "#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)\n"
-                      "# Number of points: 0, mean track length: 0\n");
-    write_gps_csv(out / "gps.csv", gps);
-
-    std::string list, truth, intrinsics, conditions = "name,exposure,gamma,blur_px,noise,cars,trees,fov_deg\n";
-    std::vector<GpsRecord> qgps;
-    for (size_t i = 0; i < n_q; ++i) {
-      const QuerySpec q = make_query(scene, options, static_cast<int>(i));
-      const std::string name = q.name + ext;
-      list += name + "\n";
-      truth += name + " " + pose_fields(q.cam_from_world) + "\n";
-      intrinsics += name + " PINHOLE " + std::to_string(q.camera.width) + " " + std::to_string(q.camera.height) + " " +
-                    format_g(q.camera.focal) + " " + format_g(q.camera.focal) + " " + format_g(q.camera.cx) + " " +
-                    format_g(q.camera.cy) + "\n";
-      char buf[256];
-      std::snprintf(buf, sizeof buf, "%s,%.4f,%.4f,%.4f,%.4f,%d,%d,%.4f\n", name.c_str(), q.exposure, q.gamma, q.blur_px,
-                    q.noise, q.cars, q.trees, q.fov_deg);
-      conditions += buf;
-      qgps.push_back({name, enu.to_geo(q.gps_enu), std::nullopt});
-    }
-    write_file_atomic(out / "queries" / "list.txt", list);
-    write_file_atomic(out / "queries" / "truth.txt", truth);
-    write_file_atomic(out / "queries" / "intrinsics.txt", intrinsics);
-    write_file_atomic(out / "queries" / "conditions.csv", conditions);
-    write_gps_csv(out / "queries" / "gps.csv", qgps);
   }
+};
 
-  // city.json before any image: it marks the directory as made by this
-  // command with these options (checked by --resume).
+// The database's COLMAP text model (cameras, images with their poses, no
+// points) and its GPS list.
+void write_database_metadata(const fs::path& out, const DatabaseViews& db, const EnuFrame& enu) {
+  const PinholeCamera& db_camera = db.camera;
+  std::string cams =
+      "# Camera list with one line of data per camera:\n#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n"
+      "# Number of cameras: 1\n";
+  cams += "1 PINHOLE " + std::to_string(db_camera.width) + " " + std::to_string(db_camera.height) + " " +
+          format_g(db_camera.focal) + " " + format_g(db_camera.focal) + " " + format_g(db_camera.cx) + " " +
+          format_g(db_camera.cy) + "\n";
+  write_file_atomic(out / "sparse" / "cameras.txt", cams);
+  AtomicFileWriter images(out / "sparse" / "images.txt");
+  images.write("# Image list with two lines of data per image:\n"
+               "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME\n"
+               "#   POINTS2D[] as (X, Y, POINT3D_ID)\n# Number of images: " +
+               std::to_string(db.count) + ", mean observations per image: 0\n");
+  std::vector<GpsRecord> gps;
+  gps.reserve(db.count);
+  for (size_t i = 0; i < db.count; ++i) {
+    std::string name;
+    CameraPose pose;
+    db.view(i, name, pose);
+    images.write(std::to_string(i + 1) + " " + pose_fields(pose) + " 1 " + name + "\n\n");
+    GeoPosition g = enu.to_geo(pose.center());
+    gps.push_back({name, g, db.placemark(i).id});
+  }
+  images.commit();
+  write_file_atomic(out / "sparse" / "points3D.txt",
+                    "# 3D point list with one line of data per point:\n"
+                    "#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)\n"
+                    "# Number of points: 0, mean track length: 0\n");
+  write_gps_csv(out / "gps.csv", gps);
+}
+
+// The queries' list, true poses, intrinsics, conditions and GPS.
+void write_query_metadata(const fs::path& out, const CityScene& scene, const CityOptions& options,
+                          const EnuFrame& enu, const std::string& ext) {
+  const size_t n_q = static_cast<size_t>(options.queries.count);
+  std::string list, truth, intrinsics, conditions = "name,exposure,gamma,blur_px,noise,cars,trees,fov_deg\n";
+  std::vector<GpsRecord> qgps;
+  for (size_t i = 0; i < n_q; ++i) {
+    const QuerySpec q = make_query(scene, options, static_cast<int>(i));
+    const std::string name = q.name + ext;
+    list += name + "\n";
+    truth += name + " " + pose_fields(q.cam_from_world) + "\n";
+    intrinsics += name + " PINHOLE " + std::to_string(q.camera.width) + " " + std::to_string(q.camera.height) + " " +
+                  format_g(q.camera.focal) + " " + format_g(q.camera.focal) + " " + format_g(q.camera.cx) + " " +
+                  format_g(q.camera.cy) + "\n";
+    char buf[256];
+    std::snprintf(buf, sizeof buf, "%s,%.4f,%.4f,%.4f,%.4f,%d,%d,%.4f\n", name.c_str(), q.exposure, q.gamma, q.blur_px,
+                  q.noise, q.cars, q.trees, q.fov_deg);
+    conditions += buf;
+    qgps.push_back({name, enu.to_geo(q.gps_enu), std::nullopt});
+  }
+  write_file_atomic(out / "queries" / "list.txt", list);
+  write_file_atomic(out / "queries" / "truth.txt", truth);
+  write_file_atomic(out / "queries" / "intrinsics.txt", intrinsics);
+  write_file_atomic(out / "queries" / "conditions.csv", conditions);
+  write_gps_csv(out / "queries" / "gps.csv", qgps);
+}
+
+// city.json's text: options, conventions, counts and placemarks.
+std::string city_json_text(const CityOptions& options, const std::string& options_json, const CityStats& stats,
+                           const CityScene& scene_base, const CityScene& scene) {
   nlohmann::json city;
   city["format"] = "visloc synthetic city";
   city["version"] = 1;
@@ -524,19 +525,36 @@ CityStats write_city(const CityOptions& options_in, const fs::path& out, const C
       {"image_names", "pPPPPP_hHH_eE: placemark, heading index, elevation index"}};
   city["counts"] = {{"placemarks", stats.placemarks},     {"buildings", stats.buildings},
                     {"boxes", scene_base.objects.boxes.size()}, {"road_length_m", stats.road_length_m},
-                    {"database_images", n_db},            {"query_images", n_q}};
+                    {"database_images", stats.database_images}, {"query_images", stats.query_images}};
   nlohmann::json pms = nlohmann::json::array();
   for (const auto& pm : scene.placemarks)
     pms.push_back({{"id", pm.id}, {"road", pm.road}, {"arc_m", pm.arc},
                    {"enu", {pm.position.x(), pm.position.y(), pm.position.z()}}, {"road_heading_deg", pm.road_heading_deg}});
   city["placemarks"] = pms;
-  const std::string city_text = city.dump(2) + "\n";
-  write_file_atomic(city_json, city_text);
+  return city.dump(2) + "\n";
+}
 
-  // --- Images: a pool of workers, each with its renderer and one image ---
-  const size_t total = n_db + n_q;
-  std::vector<float> render_ms(total, -1.0f), total_ms(total, -1.0f);
-  std::vector<uint64_t> bytes(total, 0);
+// Per image (database images first, then queries): render and total
+// milliseconds (-1: kept from an earlier run) and file bytes.
+struct RenderedImages {
+  std::vector<float> render_ms, total_ms;
+  std::vector<uint64_t> bytes;
+  size_t rendered = 0;
+};
+
+// The images: a pool of workers, each with its renderer and one image.
+RenderedImages render_city_images(const fs::path& out, const CityOptions& options, const CityScene& scene,
+                                  const PhotoCropSet& photos, const DatabaseViews& db, const Timer& wall,
+                                  const CityProgressCallback& progress) {
+  const size_t n_db = db.count;
+  const size_t total = n_db + static_cast<size_t>(options.queries.count);
+  RenderedImages result;
+  std::vector<float>& render_ms = result.render_ms;
+  std::vector<float>& total_ms = result.total_ms;
+  std::vector<uint64_t>& bytes = result.bytes;
+  render_ms.assign(total, -1.0f);
+  total_ms.assign(total, -1.0f);
+  bytes.assign(total, 0);
   std::atomic<size_t> next{0}, done{0}, rendered{0};
   std::mutex progress_mutex;
   double last_report = -1.0;
@@ -566,17 +584,17 @@ CityStats write_city(const CityOptions& options_in, const fs::path& out, const C
         fs::path path;
         if (i < n_db) {
           CameraPose pose;
-          db_view(i, name, pose);
+          db.view(i, name, pose);
           path = out / "images" / name;
           if (!(options.resume && file_size_or_zero(path) > 0)) {
-            render_ms[i] = static_cast<float>(renderer.render(db_camera, pose, image).milliseconds);
+            render_ms[i] = static_cast<float>(renderer.render(db.camera, pose, image).milliseconds);
             write_image(path, image.width, image.height, 3, image.pixels.data(), options.jpeg_quality);
             total_ms[i] = static_cast<float>(t.elapsed_ms());
             rendered.fetch_add(1);
           }
         } else {
           const QuerySpec q = make_query(scene, options, static_cast<int>(i - n_db));
-          path = out / "queries" / "images" / (q.name + ext);
+          path = out / "queries" / "images" / (q.name + db.ext);
           if (!(options.resume && file_size_or_zero(path) > 0)) {
             render_ms[i] = static_cast<float>(renderer.render(q.camera, q.cam_from_world, image, &q.occluders).milliseconds);
             apply_photometric(q, image);
@@ -600,19 +618,61 @@ CityStats write_city(const CityOptions& options_in, const fs::path& out, const C
   for (auto& t : threads) t.join();
   if (failure) std::rethrow_exception(failure);
   report(true);
+  result.rendered = rendered.load();
+  return result;
+}
 
+// Bytes, counts and median milliseconds of the images into stats.
+void add_image_stats(const RenderedImages& images, size_t n_db, CityStats& stats) {
+  const size_t total = images.bytes.size();
   std::vector<float> db_ms, q_ms, db_total;
   for (size_t i = 0; i < total; ++i) {
-    if (i < n_db) stats.database_bytes += bytes[i]; else stats.query_bytes += bytes[i];
-    if (render_ms[i] < 0) continue;
-    (i < n_db ? db_ms : q_ms).push_back(render_ms[i]);
-    if (i < n_db) db_total.push_back(total_ms[i]);
+    if (i < n_db) stats.database_bytes += images.bytes[i]; else stats.query_bytes += images.bytes[i];
+    if (images.render_ms[i] < 0) continue;
+    (i < n_db ? db_ms : q_ms).push_back(images.render_ms[i]);
+    if (i < n_db) db_total.push_back(images.total_ms[i]);
   }
-  stats.rendered = rendered.load();
+  stats.rendered = images.rendered;
   stats.kept = total - stats.rendered;
   stats.median_database_render_ms = median_of(db_ms);
   stats.median_query_render_ms = median_of(q_ms);
   stats.median_database_total_ms = median_of(db_total);
+}
+
+}  // namespace
+
+CityStats write_city(const CityOptions& options_in, const fs::path& out, const CityProgressCallback& progress) {
+  CityOptions options = options_in;
+  options.validate();
+  Timer wall;
+  const std::string options_json = city_options_json(options);
+  prepare_city_dir(out, options, options_json);
+
+  const CityScene scene_base = generate_city_scene(options.layout);
+  CityScene scene = scene_base;
+  add_markers(options, scene);
+  PhotoCropSet photos;
+  if (!options.photo_dir.empty()) photos = load_photo_crops(options.photo_dir, options.photo_crops);
+  const EnuFrame enu(options.origin);
+  const DatabaseViews db{scene, options.views, "." + options.image_format};
+
+  // --- Metadata first (cheap, deterministic) ---
+  CityStats stats;
+  stats.placemarks = static_cast<int>(scene.placemarks.size());
+  stats.buildings = scene.buildings;
+  stats.road_length_m = scene.total_road_length();
+  stats.database_images = db.count;
+  stats.query_images = static_cast<size_t>(options.queries.count);
+  write_database_metadata(out, db, enu);
+  write_query_metadata(out, scene, options, enu, db.ext);
+
+  // city.json before any image: it marks the directory as made by this
+  // command with these options (checked by --resume).
+  const std::string city_text = city_json_text(options, options_json, stats, scene_base, scene);
+  write_file_atomic(out / "city.json", city_text);
+
+  // --- Images ---
+  add_image_stats(render_city_images(out, options, scene, photos, db, wall, progress), db.count, stats);
 
   for (const fs::path& p : {out / "sparse" / "cameras.txt", out / "sparse" / "images.txt", out / "sparse" / "points3D.txt",
                             out / "gps.csv", out / "queries" / "list.txt", out / "queries" / "truth.txt",

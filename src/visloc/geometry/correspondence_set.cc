@@ -1,4 +1,4 @@
-#include "visloc/pose/correspondence_set.h"
+#include "visloc/geometry/correspondence_set.h"
 
 #include <algorithm>
 #include <cmath>
@@ -37,29 +37,35 @@ void CorrespondenceSet::clear() {
   candidates.clear();
   in_hypothesis_set.clear();
   candidate_point_ids.clear();
+  query_feature.clear();
 }
 
 void CorrespondenceSet::validate() const {
   const size_t n = points2d.size();
-  if (n == 0 && candidate_offsets.empty() && candidates.empty() && in_hypothesis_set.empty()) return;
-  if (candidate_offsets.size() != n + 1)
-    throw_error(ErrorCode::kInvalidArgument, "correspondence set: candidate_offsets has ",
-                candidate_offsets.size(), " entries, expected ", n + 1);
-  if (in_hypothesis_set.size() != n)
-    throw_error(ErrorCode::kInvalidArgument, "correspondence set: in_hypothesis_set has ",
-                in_hypothesis_set.size(), " entries, expected ", n);
-  if (candidate_offsets[0] != 0)
-    throw_error(ErrorCode::kInvalidArgument, "correspondence set: candidate_offsets[0] must be 0");
-  for (size_t i = 0; i < n; ++i)
-    if (candidate_offsets[i + 1] <= candidate_offsets[i])
-      throw_error(ErrorCode::kInvalidArgument, "correspondence set: feature ", i,
-                  " has no candidates (candidate_offsets must increase strictly)");
-  if (candidate_offsets[n] != candidates.size())
-    throw_error(ErrorCode::kInvalidArgument, "correspondence set: candidate_offsets ends at ",
-                candidate_offsets[n], " but there are ", candidates.size(), " candidates");
+  const bool empty = n == 0 && candidate_offsets.empty() && candidates.empty() && in_hypothesis_set.empty();
+  if (!empty) {
+    if (candidate_offsets.size() != n + 1)
+      throw_error(ErrorCode::kInvalidArgument, "correspondence set: candidate_offsets has ",
+                  candidate_offsets.size(), " entries, expected ", n + 1);
+    if (in_hypothesis_set.size() != n)
+      throw_error(ErrorCode::kInvalidArgument, "correspondence set: in_hypothesis_set has ",
+                  in_hypothesis_set.size(), " entries, expected ", n);
+    if (candidate_offsets[0] != 0)
+      throw_error(ErrorCode::kInvalidArgument, "correspondence set: candidate_offsets[0] must be 0");
+    for (size_t i = 0; i < n; ++i)
+      if (candidate_offsets[i + 1] <= candidate_offsets[i])
+        throw_error(ErrorCode::kInvalidArgument, "correspondence set: feature ", i,
+                    " has no candidates (candidate_offsets must increase strictly)");
+    if (candidate_offsets[n] != candidates.size())
+      throw_error(ErrorCode::kInvalidArgument, "correspondence set: candidate_offsets ends at ",
+                  candidate_offsets[n], " but there are ", candidates.size(), " candidates");
+  }
   if (!candidate_point_ids.empty() && candidate_point_ids.size() != candidates.size())
     throw_error(ErrorCode::kInvalidArgument, "correspondence set: candidate_point_ids has ",
                 candidate_point_ids.size(), " entries, expected 0 or ", candidates.size());
+  if (!query_feature.empty() && query_feature.size() != n)
+    throw_error(ErrorCode::kInvalidArgument, "correspondence set: query_feature has ", query_feature.size(),
+                " entries, expected 0 or ", n);
   for (size_t i = 0; i < n; ++i)
     if (!points2d[i].allFinite())
       throw_error(ErrorCode::kInvalidArgument, "correspondence set: points2d[", i, "] is not finite");
