@@ -131,4 +131,11 @@ EndToEndBenchmarkResult run_end_to_end_benchmark(const EndToEndBenchmarkOptions&
   return out;
 }
 
+std::function<void(size_t, size_t)> end_to_end_progress_printer(std::ostream& out) {
+  return [&out](size_t done, size_t total) {
+    out << "\rbench end-to-end: features " << done << "/" << total << std::flush;
+    if (done == total) out << "\n";
+  };
+}
+
 }  // namespace visloc

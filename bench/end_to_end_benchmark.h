@@ -8,6 +8,7 @@
 #include <cstddef>
 #include <filesystem>
 #include <functional>
+#include <iosfwd>
 #include <string>
 #include <vector>
 
@@ -41,5 +42,12 @@ struct EndToEndBenchmarkResult {
 // `progress` (may be empty) is called after each query's features (done, total).
 EndToEndBenchmarkResult run_end_to_end_benchmark(const EndToEndBenchmarkOptions& options,
                                                  const std::function<void(size_t, size_t)>& progress = {});
+// A `progress` for a terminal: "\rbench end-to-end: features DONE/TOTAL" on `out`, a newline after the last.
+std::function<void(size_t, size_t)> end_to_end_progress_printer(std::ostream& out);
+
+class OptionTable;
+// The options as command-line options (bench/option_tables.cc): --map, --queries, --images, --truth,
+// --intrinsics, --query-features, --settings, --repeat and the localizer's (--setting, ..., --cache-mib).
+void add_options(OptionTable& table, EndToEndBenchmarkOptions& options);
 
 }  // namespace visloc

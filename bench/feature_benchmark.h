@@ -59,4 +59,10 @@ struct SiftColmapBenchmarkResult {
 SiftColmapBenchmarkResult run_sift_colmap_benchmark(const SiftColmapBenchmarkOptions& options,
                                                     const std::function<void(const std::string&)>& progress = {});
 
+class OptionTable;
+// The options as command-line options (bench/option_tables.cc). Features: the images, --max-side (a list), the
+// SIFT options but --max-side. Sift-colmap: --scene, --ratio, --threshold, --max-side.
+void add_options(OptionTable& table, FeatureBenchmarkOptions& options);
+void add_options(OptionTable& table, SiftColmapBenchmarkOptions& options);
+
 }  // namespace visloc

@@ -59,4 +59,9 @@ struct MatchingBenchmarkResult {
 MatchingBenchmarkResult run_matching_benchmark(const MatchingBenchmarkOptions& options,
                                                const std::function<void(const std::string&)>& progress = {});
 
+class OptionTable;
+// The options but the scenes as command-line options (bench/option_tables.cc): --database, --extract, --images,
+// --max-queries, --ratio, --inlier-px, --method, the SIFT options.
+void add_options(OptionTable& table, MatchingBenchmarkOptions& options);
+
 }  // namespace visloc

@@ -91,4 +91,10 @@ std::vector<PoseExpectation> pose_expectations(const std::vector<PoseMethodSumma
 PoseBenchmarkResult run_pose_benchmark(const PoseBenchmarkOptions& options,
                                        const std::function<void(const std::string&)>& progress = {});
 
+class OptionTable;
+// The options but `features` as command-line options (bench/option_tables.cc): --family, --inlier-ratio,
+// --trials, --noise, --max-candidates, --seed, --threshold, --max-iterations, --fixed-iterations,
+// --opencv-iterations, --no-opencv.
+void add_options(OptionTable& table, PoseBenchmarkOptions& options);
+
 }  // namespace visloc

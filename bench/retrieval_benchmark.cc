@@ -608,7 +608,7 @@ void query_retrieval_map(const RetrievalMapQueryOptions& o,
     for (const auto& c : r.candidates)
       candidates.push_back({{"segment", c.segment}, {"votes", c.votes}, {"best_rank", c.best_rank}});
     per_image(
-        {{"image", path.filename().string()},
+        {{"image", fs::path(path).filename().string()},
          {"candidates", candidates},
          {"retrieved", images},
          {"times_ms",

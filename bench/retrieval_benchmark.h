@@ -87,6 +87,11 @@ struct RetrievalBenchmarkResult {
 RetrievalBenchmarkResult run_retrieval_benchmark(const RetrievalBenchmarkOptions& options,
                                                  const std::function<void(const std::string&)>& progress = {});
 
+class OptionTable;
+// The options as command-line options (bench/option_tables.cc): --images, --queries, --leave-one-out, --truth,
+// the segment, embedding, index and voter options (--weighting one|rank), --synthetic-*, the SIFT options.
+void add_options(OptionTable& table, RetrievalBenchmarkOptions& options);
+
 // `visloc retrieval build`: SIFT on a folder of images, the T-embedding
 // learned on them, an IVF-PQ index over them and the image -> segment table,
 // written as a retrieval map (retrieval/retrieval_map.h; the same folder
@@ -114,12 +119,14 @@ struct RetrievalMapBuildResult {
 };
 
 RetrievalMapBuildResult build_retrieval_map(const RetrievalMapBuildOptions& options);
+// --images, --list, --gps, --out, --placemark-size, the segment, embedding and index sizes, the SIFT options.
+void add_options(OptionTable& table, RetrievalMapBuildOptions& options);
 
 // `visloc retrieval query`: candidate segments of query images in a
 // retrieval map (e.g. MAP/retrieval of a built map).
 struct RetrievalMapQueryOptions {
-  std::filesystem::path map;                  // retrieval map folder
-  std::vector<std::filesystem::path> images;  // query images
+  std::filesystem::path map;        // retrieval map folder
+  std::vector<std::string> images;  // query image files
   SegmentVoterOptions voter;
   int nprobe = 0;  // IVF cells visited (0 or less: the map's)
   SiftOptions sift = retrieval_sift_options();
@@ -130,5 +137,7 @@ struct RetrievalMapQueryOptions {
 // with {"image", "candidates", "retrieved", "times_ms"}.
 void query_retrieval_map(const RetrievalMapQueryOptions& options,
                          const std::function<void(const nlohmann::json&)>& per_image);
+// --map, the query images, --top-images, --max-candidates, --nprobe, the SIFT options.
+void add_options(OptionTable& table, RetrievalMapQueryOptions& options);
 
 }  // namespace visloc

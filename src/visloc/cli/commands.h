@@ -4,11 +4,8 @@
 #pragma once
 
 #include <CLI/CLI.hpp>
-#include <filesystem>
-#include <string>
-#include <vector>
 
-#include "visloc/map_building/map_builder.h"
+#include "visloc/cli/option_binding.h"
 
 namespace visloc::cli {
 
@@ -22,10 +19,6 @@ inline constexpr int kExitInternal = 4;
 void add_features_command(CLI::App& app);
 void add_map_command(CLI::App& app);
 void add_map_build_commands(CLI::App& map);  // map build, map update
-// The options of a `map build` (its arguments) recorded for `map
-// build-segment`, and with the Slurm executor the command each task runs.
-void record_build_for_tasks(MapBuildOptions& options, const std::filesystem::path& map_dir,
-                            const std::vector<std::string>& build_args);
 void add_localize_command(CLI::App& app);
 void add_eval_command(CLI::App& app);
 void add_synth_command(CLI::App& app);
@@ -42,8 +35,6 @@ void add_bench_matching(CLI::App& bench);
 void add_bench_pose(CLI::App& bench);
 void add_bench_retrieval(CLI::App& bench);
 void add_bench_end_to_end(CLI::App& bench);
-// "1,2.5,3" → numbers; throws Error(kInvalidArgument) naming the option and the item.
-std::vector<double> parse_numbers(const std::string& text, const char* option);
 void add_bench_city(CLI::App& bench);
 void add_bench_segments(CLI::App& bench);
 void add_bench_confidence(CLI::App& bench);

@@ -5,7 +5,7 @@
 #include <memory>
 
 #include "visloc/cli/commands.h"
-#include "visloc/cli/sift_options.h"
+#include "visloc/cli/option_binding.h"
 #include "visloc/features/sift_extractor.h"
 #include "visloc/util/error.h"
 #include "visloc/util/timer.h"
@@ -20,9 +20,11 @@ void add_features_command(CLI::App& app) {
   };
   auto args = std::make_shared<Args>();
   CLI::App* cmd = app.add_subcommand("features", "Extract SIFT features (COLMAP-compatible uint8 descriptors)");
-  cmd->add_option("images", args->images, "Image files (JPEG or PNG)")->required();
-  cmd->add_option("--out", args->out, "Write IMAGE.vlfeat files into this directory");
-  add_sift_options(cmd, args->sift);
+  OptionTable t;
+  t.add("images", args->images, "Image files (JPEG or PNG)").require();
+  t.add("--out", args->out, "Write IMAGE.vlfeat files into this directory");
+  add_options(t, args->sift);
+  bind_options(cmd, t);
   cmd->callback([args] {
     namespace fs = std::filesystem;
     if (!args->out.empty()) {

@@ -6,7 +6,7 @@
 #include <memory>
 
 #include "visloc/cli/commands.h"
-#include "visloc/cli/localizer_options.h"
+#include "visloc/cli/option_binding.h"
 #include "visloc/geometry/pose_list.h"
 #include "visloc/pipeline/localization_json.h"
 #include "visloc/pipeline/localizer.h"
@@ -17,32 +17,29 @@ namespace visloc::cli {
 
 void add_localize_command(CLI::App& app) {
   struct Args {
-    std::string map, out, setting = "3+", intrinsics, poses;
+    std::string map, out, intrinsics, poses;
     std::vector<std::string> images;
     double focal = 0;
-    double cache_mib = 512;
     LocalizerOptions options;
   };
   auto args = std::make_shared<Args>();
   CLI::App* cmd = app.add_subcommand("localize", "Localize query images against a map (one JSON line per image)");
-  cmd->add_option("--map", args->map, "Map directory")->required();
-  cmd->add_option("images", args->images, "Query images")->required();
-  cmd->add_option("--out", args->out, "Write the JSON lines to this file (default: standard output)");
-  cmd->add_option("--poses", args->poses,
-                  "Also write the registered images' poses as 'name qw qx qy qz tx ty tz' (world-to-camera in the "
-                  "segment's frame; the visuallocalization.net format)");
-  cmd->add_option("--focal", args->focal, "Focal length in pixels for every image (default: EXIF, else estimated)")
-      ->check(positive_finite_number());
-  cmd->add_option("--intrinsics", args->intrinsics,
-                  "Per-image intrinsics: 'name MODEL width height params...' (SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL)")
-      ->excludes("--focal");
-  add_localizer_options(cmd, args->options, args->setting);
-  cmd->add_option("--cache-mib", args->cache_mib, "Segment cache budget (MiB)")
-      ->check(positive_finite_number())
-      ->capture_default_str();
+  OptionTable t;
+  t.add("--map", args->map, "Map directory").require();
+  t.add("images", args->images, "Query images").require();
+  t.add("--out", args->out, "Write the JSON lines to this file (default: standard output)");
+  t.add("--poses", args->poses,
+        "Also write the registered images' poses as 'name qw qx qy qz tx ty tz' (world-to-camera in the "
+        "segment's frame; the visuallocalization.net format)");
+  t.add("--focal", args->focal, "Focal length in pixels for every image (default: EXIF, else estimated)")
+      .positive()
+      .no_default();
+  t.add("--intrinsics", args->intrinsics,
+        "Per-image intrinsics: 'name MODEL width height params...' (SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL)");
+  add_options(t, args->options);
+  bind_options(cmd, t);
+  cmd->get_option("--intrinsics")->excludes("--focal");
   cmd->callback([args] {
-    args->options.setting = parse_paper_setting(args->setting);
-    args->options.cache_bytes = static_cast<uint64_t>(args->cache_mib * 1024 * 1024);
     Localizer localizer(args->map, args->options);
     std::map<std::string, PinholeCamera> cameras;
     if (!args->intrinsics.empty())

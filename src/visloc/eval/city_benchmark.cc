@@ -1,8 +1,17 @@
 #include "visloc/eval/city_benchmark.h"
 
+#include <spawn.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
 #include <algorithm>
+#include <cerrno>
 #include <cmath>
+#include <cstring>
+#include <fstream>
 #include <iomanip>
+#include <iostream>
+#include <iterator>
 #include <limits>
 #include <map>
 #include <set>
@@ -612,6 +621,88 @@ nlohmann::json run_city_benchmark(const fs::path& out, const CityBenchmarkOption
   write_file_atomic(out / "report.json", report.dump(2));
   write_file_atomic(out / "report.md", markdown);
   return report;
+}
+
+void skip_absent_shared_data(CityBenchmarkOptions& o, std::ostream& log) {
+  if (o.shared_data.empty() || fs::is_directory(o.shared_data)) return;
+  log << "bench city: " << o.shared_data.string() << " is absent: no foreign photos\n";
+  o.shared_data.clear();
+}
+
+void record_slurm_city_build(const fs::path& out_dir, MapBuildOptions& map) {
+  if (map.executor != BuildExecutor::kSlurm) return;
+  const fs::path out = fs::absolute(out_dir);
+  const std::vector<std::string> args = {"--images",
+                                         (out / "city" / "images").string(),
+                                         "--gps",
+                                         (out / "map_gps.csv").string(),
+                                         "--gps-subset",
+                                         "--poses",
+                                         "known",
+                                         "--known-poses",
+                                         (out / "city" / "sparse").string(),
+                                         "--out",
+                                         (out / "map").string(),
+                                         "--min-placemarks",
+                                         std::to_string(map.plan.min_placemarks),
+                                         "--max-placemarks",
+                                         std::to_string(map.plan.max_placemarks),
+                                         "--overlap",
+                                         std::to_string(map.plan.overlap)};
+  record_build_for_tasks(map, out / "map", args);
+}
+
+namespace {
+
+// This process's arguments, from /proc/self/cmdline.
+std::vector<std::string> own_arguments() {
+  std::ifstream in("/proc/self/cmdline", std::ios::binary);
+  const std::string cmdline((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  std::vector<std::string> args;
+  for (size_t start = 0; start < cmdline.size();) {
+    const size_t end = cmdline.find('\0', start);
+    args.push_back(cmdline.substr(start, end == std::string::npos ? std::string::npos : end - start));
+    if (end == std::string::npos) break;
+    start = end + 1;
+  }
+  return args;
+}
+
+}  // namespace
+
+int run_localize_stage_in_new_process(std::ostream& log) {
+  std::vector<std::string> args = own_arguments();
+  if (args.empty()) throw_error(ErrorCode::kInternal, "bench city: cannot read this process's command line");
+  args.push_back("--stage");
+  args.push_back("localize");
+  std::vector<char*> argv;
+  for (auto& x : args) argv.push_back(x.data());
+  argv.push_back(nullptr);
+  std::cout.flush();  // what this process printed comes before the new one's output
+  log << "bench city: localizing in a fresh process (its peak memory goes into the report)\n";
+  pid_t pid = 0;
+  if (const int err = ::posix_spawn(&pid, "/proc/self/exe", nullptr, nullptr, argv.data(), environ))
+    throw_error(ErrorCode::kInternal, "bench city: cannot start the localization process: ", std::strerror(err));
+  int status = 0;
+  while (::waitpid(pid, &status, 0) < 0)
+    if (errno != EINTR) throw_error(ErrorCode::kInternal, "bench city: waitpid: ", std::strerror(errno));
+  if (!WIFEXITED(status))
+    throw_error(ErrorCode::kInternal, "bench city: the localization process died from signal ", WTERMSIG(status));
+  return WEXITSTATUS(status);
+}
+
+void CityBenchmarkProgressPrinter::operator()(const CityBenchmarkProgress& p) {
+  if (!terminal_ && p.stage == last_stage_ && p.done != p.total && p.done % (p.stage == "render" ? 100 : 20) != 0)
+    return;
+  last_stage_ = p.stage;
+  out_ << (terminal_ ? "\r" : "") << "bench city: " << p.stage << " " << p.done << "/" << p.total
+       << (terminal_ && p.done != p.total ? "   " : "\n") << std::flush;
+}
+
+void CityBenchmarkProgressPrinter::operator()(const MapBuildProgress& p) {
+  if (p.stage != "segments" || (p.done != p.total && !terminal_)) return;
+  out_ << (terminal_ ? "\r" : "") << "bench city: map segments " << p.done << "/" << p.total
+       << (terminal_ && p.done != p.total ? "   " : "\n") << std::flush;
 }
 
 }  // namespace visloc

@@ -15,6 +15,7 @@
 
 #include <filesystem>
 #include <functional>
+#include <iosfwd>
 #include <string>
 
 #include <nlohmann/json.hpp>
@@ -24,6 +25,8 @@
 #include "visloc/synth/city_writer.h"
 
 namespace visloc {
+
+class OptionTable;
 
 // kAll runs everything in this process. kPrepare renders and builds the map
 // and stops; kLocalize (after kPrepare, same options) only localizes and
@@ -55,6 +58,33 @@ struct CityBenchmarkOptions {
   void validate() const;
 };
 
+// `bench city`'s defaults where they differ from the struct's: a 2×2 grid layout, 8 headings at
+// 10° elevation, 540 queries (about 350 positives and 60 negatives), and as many render threads and
+// segments built at once as there are cores.
+CityBenchmarkOptions default_city_benchmark_options();
+
+// The options as command-line options (`bench city`): the city (--layout, --road-length,
+// --grid-blocks-x/-y, --block-size, --random-roads, --headings, --elevations, --size, --queries),
+// the split (--leave-out-roads, --positive-distance, --negative-distance, --negatives,
+// --shared-data), the run (--min-placemarks, --max-placemarks, --overlap, --jobs, --executor,
+// --seed) and the localizer's (pipeline/localizer.h: --setting ... --cache-mib).
+void add_options(OptionTable& table, CityBenchmarkOptions& options);
+
+// A given shared data directory that is absent means no foreign photos (said on `log`) rather
+// than validate()'s error, so that the benchmark runs where ../shared/data is not installed.
+void skip_absent_shared_data(CityBenchmarkOptions& options, std::ostream& log);
+
+// With the Slurm executor, records in `map` a `map build` equivalent to the benchmark's map build
+// in out_dir, which the Slurm tasks' `map build-segment` reads (record_build_for_tasks); with the
+// local executor, nothing.
+void record_slurm_city_build(const std::filesystem::path& out_dir, MapBuildOptions& map);
+
+// Runs this very command again with "--stage localize" appended (its --stage takes the last
+// value) in a fresh process that inherits stdout and stderr, so that the report's peak memory is
+// the localizer's; says so on `log`. Returns the process's exit status (it printed its own
+// error); throws Error(kInternal) when it cannot be started or dies from a signal.
+int run_localize_stage_in_new_process(std::ostream& log);
+
 struct CityBenchmarkProgress {
   std::string stage;  // "render", "map", "localize"
   size_t done = 0, total = 0;
@@ -65,5 +95,20 @@ struct CityBenchmarkProgress {
 nlohmann::json run_city_benchmark(const std::filesystem::path& out_dir, const CityBenchmarkOptions& options,
                                   const std::function<void(const CityBenchmarkProgress&)>& progress = {},
                                   const std::function<void(const MapBuildProgress&)>& map_progress = {});
+
+// `bench city`'s progress lines on `out` ("bench city: render 120/700"): on a terminal one line
+// redrawn in place; in a log each stage's first and last line and every 100th render or 20th of
+// other stages; of the map build only its segments, in a log only once all are built.
+class CityBenchmarkProgressPrinter {
+ public:
+  CityBenchmarkProgressPrinter(std::ostream& out, bool terminal) : out_(out), terminal_(terminal) {}
+  void operator()(const CityBenchmarkProgress& progress);
+  void operator()(const MapBuildProgress& progress);
+
+ private:
+  std::ostream& out_;
+  bool terminal_;
+  std::string last_stage_;  // of the last line written
+};
 
 }  // namespace visloc

@@ -6,6 +6,7 @@
 #include <cmath>
 #include <iomanip>
 #include <numeric>
+#include <ostream>
 #include <sstream>
 
 #include "visloc/eval/plot.h"
@@ -314,6 +315,51 @@ std::string confidence_model_code(const ConfidenceModel& model) {
     code << "    m.weights[" << k << "] = " << model.weights[k] << ";  // " << confidence_input_names()[k] << "\n";
   code << "    threshold " << model.threshold << "\n";
   return code.str();
+}
+
+void ConfidenceBenchmarkOptions::validate() const {
+  fit_options.validate();
+  if (!(rule.position_m > 0) || !(rule.rotation_deg > 0))
+    throw_error(ErrorCode::kInvalidArgument, "bench confidence: --wrong-position and --wrong-rotation must be > 0");
+  if (fit && !model_file.empty())
+    throw_error(ErrorCode::kInvalidArgument, "bench confidence: --fit and --model exclude each other");
+}
+
+void run_confidence_benchmark(const ConfidenceBenchmarkOptions& o, std::ostream& out, std::ostream& log) {
+  o.validate();
+  std::vector<ConfidenceSample> samples;
+  for (const auto& r : o.reports) {
+    const auto s = read_confidence_samples(r, o.rule);
+    log << "bench confidence: " << r << ": " << s.size() << " poses\n";
+    samples.insert(samples.end(), s.begin(), s.end());
+  }
+  std::filesystem::create_directories(o.out_dir);
+  ConfidenceModel model = ConfidenceModel::builtin();
+  nlohmann::json summary;
+  if (o.fit) {
+    const ConfidenceFit fit = fit_confidence(samples, o.fit_options);
+    model = fit.model;
+    summary = fit.to_json();
+    write_file_atomic(o.out_dir / "model.json", model.to_json().dump(2));
+    out << "Fitted model (C++ for ConfidenceModel::builtin):\n" << confidence_model_code(model);
+  } else if (!o.model_file.empty()) {
+    try {
+      model = ConfidenceModel::from_json(nlohmann::json::parse(read_file(o.model_file)));
+    } catch (const nlohmann::json::exception& e) {
+      throw_error(ErrorCode::kFormat, o.model_file.string(), ": not JSON: ", e.what());
+    } catch (const Error& e) {
+      throw_error(ErrorCode::kFormat, o.model_file.string(), ": ", e.what());
+    }
+  }
+  // Precision and recall of the model on these poses (registered: ≥ min_inliers).
+  const ConfidenceCheck check = check_confidence(samples, model, o.fit_options.min_inliers);
+  plot_precision_recall(o.out_dir / "precision_recall", o.fit ? "Confidence (fit)" : "Confidence (check)", check.curve,
+                        model.threshold);
+  summary["checked"] = check.to_json();
+  write_file_atomic(o.out_dir / (o.fit ? "fit.json" : "check.json"), summary.dump(2));
+  out << "Poses with >= " << o.fit_options.min_inliers << " inliers: " << check.poses_with_min_inliers
+      << "; at confidence >= " << model.threshold << ": " << check.right_registered << " right registered, "
+      << check.right_lost << " right lost, " << check.wrong_registered << " wrong registered.\n";
 }
 
 }  // namespace visloc

@@ -13,6 +13,7 @@
 #pragma once
 
 #include <filesystem>
+#include <iosfwd>
 #include <string>
 #include <vector>
 
@@ -90,5 +91,29 @@ ConfidenceCheck check_confidence(const std::vector<ConfidenceSample>& samples, c
 
 // The model as the C++ statements of ConfidenceModel::builtin (full precision).
 std::string confidence_model_code(const ConfidenceModel& model);
+
+// `visloc bench confidence`: fit a model on the poses of reports (fit), or
+// check one on them (model_file, else the builtin model). Writes model.json
+// (fit), fit.json or check.json and the precision-recall plot to out_dir.
+struct ConfidenceBenchmarkOptions {
+  std::vector<std::string> reports;  // report.json of `visloc bench city` or `visloc eval`
+  std::filesystem::path out_dir;
+  bool fit = false;
+  std::filesystem::path model_file;  // a model.json written by a fit
+  ConfidenceFitOptions fit_options;
+  WrongPoseRule rule;
+  void validate() const;
+};
+
+class OptionTable;
+// The fit's options: --target-precision, --l2, --min-inliers.
+void add_options(OptionTable& table, ConfidenceFitOptions& options);
+// `visloc bench confidence`'s options: --reports, --out, --fit, --model, the
+// fit's, --wrong-position, --wrong-rotation.
+void add_options(OptionTable& table, ConfidenceBenchmarkOptions& options);
+
+// Runs it: each report's pose count to `log`; the fitted model's C++ (fit)
+// and the counts at the model's threshold to `out`.
+void run_confidence_benchmark(const ConfidenceBenchmarkOptions& options, std::ostream& out, std::ostream& log);
 
 }  // namespace visloc

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <iomanip>
 #include <memory>
+#include <ostream>
 #include <sstream>
 
 #include "visloc/eval/evaluation.h"
@@ -247,6 +248,38 @@ EvaluationRunResult run_evaluation(const EvaluationRunOptions& o) {
   result.report_markdown = read_file(out / "report.md");
   if (run.peer) write_colmap_comparison(o, run, rep, context, result);
   return result;
+}
+
+void read_list_files(const EvaluationListFiles& lists, EvaluationRunOptions& o) {
+  if (o.query_features == QueryFeatureSource::kImages && o.images_dir.empty())
+    throw_error(ErrorCode::kInvalidArgument, "eval: --images is needed with --query-features images");
+  if (!o.leave_one_out && (lists.queries.empty() || o.truth.empty()))
+    throw_error(ErrorCode::kInvalidArgument, "eval: --queries and --truth are needed (or --leave-one-out)");
+  if (!lists.queries.empty()) {
+    o.queries = read_name_list(lists.queries);
+    if (o.queries.empty()) throw_error(ErrorCode::kInvalidArgument, lists.queries.string(), ": no query names");
+  }
+  if (!lists.intrinsics.empty())
+    for (auto& c : read_intrinsics_list(lists.intrinsics)) o.intrinsics[c.name] = c.camera;
+  if (!lists.negatives.empty()) {
+    o.negatives = read_name_list(lists.negatives);
+    if (o.negatives.empty()) throw_error(ErrorCode::kInvalidArgument, lists.negatives.string(), ": no image paths");
+    o.negatives_source = lists.negatives.string();
+  }
+}
+
+std::function<void(size_t, size_t, const std::string&)> evaluation_progress_printer(std::ostream& log, bool tty) {
+  return [&log, tty](size_t done, size_t total, const std::string& what) {
+    if (what == "colmap") {
+      log << "eval: registering " << total << " queries with COLMAP's image_registrator\n";
+      return;
+    }
+    const std::string label = what == "negatives" ? "eval: negatives " : "eval: ";
+    if (tty)
+      log << "\r" << label << done << "/" << total << (done == total ? "\n" : "") << std::flush;
+    else if (done == total || done % 10 == 0)
+      log << label << done << "/" << total << "\n";
+  };
 }
 
 }  // namespace visloc

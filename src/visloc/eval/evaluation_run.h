@@ -11,6 +11,7 @@
 
 #include <filesystem>
 #include <functional>
+#include <iosfwd>
 #include <map>
 #include <optional>
 #include <string>
@@ -58,6 +59,27 @@ struct EvaluationRunResult {
 };
 
 EvaluationRunResult run_evaluation(const EvaluationRunOptions& options);
+
+// The lists `visloc eval` names by file, read into EvaluationRunOptions by read_list_files.
+struct EvaluationListFiles {
+  std::filesystem::path queries;     // query names, one per line
+  std::filesystem::path intrinsics;  // 'name MODEL width height params...' per query image
+  std::filesystem::path negatives;   // paths of images that must not register, one per line
+};
+
+class OptionTable;
+// `visloc eval`'s options: --map, --queries, --images, --truth, --out, --intrinsics, --query-features,
+// --leave-one-out, --negatives, --compare, --colmap and the localizer's.
+void add_options(OptionTable& table, EvaluationRunOptions& options, EvaluationListFiles& lists);
+
+// Checks what the command line must give (--images with --query-features
+// images; --queries and --truth unless --leave-one-out), then reads the lists
+// into `options`. Throws Error(kInvalidArgument) naming the option or file.
+void read_list_files(const EvaluationListFiles& lists, EvaluationRunOptions& options);
+
+// An EvaluationRunOptions::progress that writes "eval: 12/40" lines to `log`
+// (one line rewritten in place when `tty`, else every 10th).
+std::function<void(size_t, size_t, const std::string&)> evaluation_progress_printer(std::ostream& log, bool tty);
 
 // Reference poses: a COLMAP model directory, a COLMAP images.txt, or a pose
 // list 'name qw qx qy qz tx ty tz'.

@@ -5,6 +5,7 @@
 #include <fstream>
 #include <iomanip>
 #include <map>
+#include <ostream>
 #include <set>
 #include <sstream>
 
@@ -485,6 +486,32 @@ void write_segment_study_report(const fs::path& out,
     bytes.save(out / ("segments_" + name + "_bytes"));
   }
   write_file_atomic(out / "report.md", md.str());
+}
+
+std::string run_segment_studies(const fs::path& out_dir, const fs::path& city_dir, const fs::path& kitti_dir,
+                                const SegmentStudyOptions& options, std::ostream& log, bool tty) {
+  if (city_dir.empty() && kitti_dir.empty())
+    throw_error(ErrorCode::kInvalidArgument, "bench segments: give --city, --kitti or both");
+  options.validate();
+  fs::create_directories(out_dir);
+  std::vector<StudyDataset> sets;
+  if (!city_dir.empty()) sets.push_back(city_study_dataset(city_dir));
+  if (!kitti_dir.empty()) sets.push_back(kitti_study_dataset(kitti_dir, out_dir / "kitti"));
+  auto progress = [&log, tty](const SegmentStudyProgress& p) {
+    if (p.stage == "features" && p.done != p.total && p.done % 50 != 0) return;
+    log << (tty ? "\r" : "") << "bench segments: " << p.dataset;
+    if (p.placemarks) log << " P=" << p.placemarks << " O=" << p.overlap;
+    log << " " << p.stage;
+    if (p.total > 1) log << " " << p.done << "/" << p.total;
+    log << (tty && p.stage != "done" ? "     " : "\n") << std::flush;
+  };
+  std::vector<std::pair<std::string, nlohmann::json>> rows;
+  for (const auto& d : sets) {
+    run_segment_study(out_dir, d, options, progress);
+    rows.emplace_back(d.name, collect_segment_study_rows(out_dir, d.name));  // earlier runs' configurations too
+  }
+  write_segment_study_report(out_dir, rows);
+  return read_file(out_dir / "report.md");
 }
 
 }  // namespace visloc

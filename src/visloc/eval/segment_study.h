@@ -17,6 +17,7 @@
 
 #include <filesystem>
 #include <functional>
+#include <iosfwd>
 #include <optional>
 #include <string>
 #include <vector>
@@ -62,6 +63,11 @@ struct SegmentStudyOptions {
   void validate() const;
 };
 
+class OptionTable;
+// The study's options: --placemarks, --overlaps (comma-separated lists),
+// --jobs, --max-queries, --keep-maps and the localizer's.
+void add_options(OptionTable& table, SegmentStudyOptions& options);
+
 struct SegmentStudyProgress {
   std::string dataset;
   int placemarks = 0, overlap = 0;
@@ -84,5 +90,13 @@ nlohmann::json collect_segment_study_rows(const std::filesystem::path& out_dir, 
 // run_segment_study, keyed by data set name.
 void write_segment_study_report(const std::filesystem::path& out_dir,
                                 const std::vector<std::pair<std::string, nlohmann::json>>& rows_by_dataset);
+
+// `visloc bench segments`: the study of a `visloc bench city` directory and
+// of KITTI (either path may be empty, not both) in out_dir, then the report
+// over every configuration measured there; returns report.md. Progress lines
+// go to `log` (one line rewritten in place when `tty`).
+std::string run_segment_studies(const std::filesystem::path& out_dir, const std::filesystem::path& city_dir,
+                                const std::filesystem::path& kitti_dir, const SegmentStudyOptions& options,
+                                std::ostream& log, bool tty);
 
 }  // namespace visloc

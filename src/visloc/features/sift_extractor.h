@@ -29,6 +29,11 @@ struct SiftOptions {
   std::string to_json() const;
 };
 
+class OptionTable;
+// The options as command-line options: --max-side (unless !with_max_side),
+// --max-features, --contrast-threshold, --no-root-sift, --threads, --max-pixels.
+void add_options(OptionTable& table, SiftOptions& options, bool with_max_side = true);
+
 class SiftExtractor {
  public:
   explicit SiftExtractor(const SiftOptions& options = {});

@@ -1,8 +1,10 @@
 #include "visloc/map/map.h"
 
 #include <cmath>
+#include <iomanip>
 #include <limits>
 #include <set>
+#include <sstream>
 
 #include "visloc/util/crc32c.h"
 #include "visloc/util/error.h"
@@ -198,6 +200,28 @@ nlohmann::json MapInfo::to_json() const {
             {"pq_codebook_bytes", codebook_bytes},
             {"hash_rotation_bytes", hash_rotation_bytes}}},
           {"holdout_images", manifest.holdout_images}};
+}
+
+std::string MapInfo::summary(const std::string& map_name) const {
+  std::ostringstream out;
+  out << "map " << map_name << ": " << segments.size() << " segment(s), " << total_points << " points\n"
+      << std::setw(8) << "segment" << std::setw(10) << "points" << std::setw(8) << "images" << std::setw(12)
+      << "file bytes" << std::setw(14) << "B/pt (points)" << std::setw(12) << "B/pt (file)" << "\n";
+  for (const auto& s : segments)
+    out << std::setw(8) << s.id << std::setw(10) << s.points << std::setw(8) << s.images << std::setw(12)
+        << s.bytes.file << std::fixed << std::setprecision(1) << std::setw(14)
+        << s.bytes.per_point_bytes_per_point(s.points) << std::setw(12) << s.bytes.file_bytes_per_point(s.points)
+        << "\n";
+  const double n = total_points ? double(total_points) : 1.0;
+  out << std::fixed << std::setprecision(1) << "total: " << double(total_per_point_bytes) / n
+      << " bytes/point in per-point sections (xyz 12 + hash 16 + PQ 16); " << double(total_bytes) / n
+      << " bytes/point in all files: segments (images, metadata"
+      << (hash_rotation_bytes ? "" : ", a hash rotation each") << "), the shared PQ codebook (" << codebook_bytes
+      << " bytes)"
+      << (hash_rotation_bytes ? " and the shared hash rotation (" + std::to_string(hash_rotation_bytes) + " bytes)"
+                              : std::string())
+      << "\n";
+  return out.str();
 }
 
 }  // namespace visloc

@@ -102,6 +102,8 @@ struct MapInfo {
   uint64_t total_per_point_bytes = 0;  // Σ per-point sections
   uint64_t total_bytes = 0;            // Σ segment files + codebook + shared hash rotation
   nlohmann::json to_json() const;
+  // The segment table and totals `visloc map info` prints for the map named `map_name`.
+  std::string summary(const std::string& map_name) const;
 };
 MapInfo map_info(const std::filesystem::path& dir);
 

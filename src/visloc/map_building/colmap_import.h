@@ -41,6 +41,11 @@ struct ColmapImportOptions {
   void validate() const;
 };
 
+class OptionTable;
+// The options as `visloc map import`'s command-line options: --pq-train-database, --itq-iterations,
+// --hash-rotation, --seed (ITQ's; the CLI seeds PQ training with it too), --no-descriptors, --overwrite.
+void add_options(OptionTable& table, ColmapImportOptions& options);
+
 struct ColmapImportResult {
   size_t images = 0, points = 0, observations = 0;
   ColmapHoldoutStats holdout;
@@ -81,6 +86,9 @@ struct MapImportSources {
   // Exactly one complete source (naming the command line's options) and an output directory.
   void validate(const std::filesystem::path& out_dir) const;
 };
+// The sources as `visloc map import`'s command-line options: --colmap, --database, --bundler, --list, --keys,
+// --images, --raw-sift, --holdout, --pq-train-images.
+void add_options(OptionTable& table, MapImportSources& sources);
 
 struct MapImportResult {
   ColmapImportResult map;

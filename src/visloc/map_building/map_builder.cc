@@ -1468,4 +1468,76 @@ int task_list_segment(const fs::path& task_list, int line) {
   return ids[static_cast<size_t>(line)];
 }
 
+void record_build_for_tasks(MapBuildOptions& options, const fs::path& map_dir,
+                            const std::vector<std::string>& build_args) {
+  options.build_record =
+      nlohmann::json{{"version", 1}, {"cwd", fs::current_path().string()}, {"args", build_args}}.dump(2);
+  if (options.executor != BuildExecutor::kSlurm) return;
+  std::error_code ec;
+  const fs::path self = fs::read_symlink("/proc/self/exe", ec);
+  if (ec) throw_error(ErrorCode::kIo, "cannot find this program's path for the Slurm tasks: ", ec.message());
+  options.slurm_task_command = {self.string(), "map", "build-segment", fs::absolute(map_dir).string()};
+}
+
+namespace {
+
+std::string segment_progress_line(const SegmentProgress& s) {
+  std::ostringstream l;
+  l << "  segment " << s.segment << ": " << s.stage;
+  if (s.total > 0) l << " " << s.done << "/" << s.total << (s.stage == "matching" ? " pairs" : "");
+  return l.str();
+}
+
+std::string map_progress_line(const MapBuildProgress& p) {
+  std::ostringstream l;
+  l << "map build: " << p.stage << " " << p.done << "/" << p.total << ", " << std::fixed << std::setprecision(0)
+    << p.elapsed_s << " s";
+  if (p.eta_s >= 0 && p.done < p.total) l << ", ETA " << p.eta_s << " s";
+  return l.str();
+}
+
+}  // namespace
+
+MapBuildProgressPrinter::MapBuildProgressPrinter(std::ostream& out, bool live) : out_(out), live_(live) {}
+
+void MapBuildProgressPrinter::operator()(const MapBuildProgress& progress) {
+  if (live_) draw(progress);
+  else log(progress);
+}
+
+void MapBuildProgressPrinter::draw(const MapBuildProgress& p) {
+  const bool final_update = p.done == p.total && p.running.empty();
+  if (!final_update && p.stage == last_stage_ && redraw_.elapsed_ms() < 200) return;
+  redraw_ = Timer();
+  std::string text;
+  if (lines_ > 0) text += "\033[" + std::to_string(lines_) + "F";  // back to the block's first line
+  text += map_progress_line(p) + "\033[K\n";
+  for (const auto& s : p.running) text += segment_progress_line(s) + "\033[K\n";
+  text += "\033[J";
+  lines_ = 1 + static_cast<int>(p.running.size());
+  if (final_update) lines_ = 0;  // the next stage starts below
+  last_stage_ = p.stage;
+  out_ << text << std::flush;
+}
+
+void MapBuildProgressPrinter::log(const MapBuildProgress& p) {
+  if (p.stage != "segments") {
+    // One line per 10% of a stage.
+    if (p.done != p.total && p.done != 0 && (p.done * 10 / p.total) == ((p.done - 1) * 10 / p.total)) return;
+    out_ << map_progress_line(p) << "\n" << std::flush;
+    return;
+  }
+  std::map<int, std::string> now;
+  for (const auto& s : p.running) {
+    now[s.segment] = s.stage;
+    auto it = stages_.find(s.segment);
+    if (it == stages_.end() || it->second != s.stage)
+      out_ << "map build:" << segment_progress_line(s).substr(1) << "\n";
+  }
+  if (p.done != segments_done_) out_ << map_progress_line(p) << "\n";
+  segments_done_ = p.done;
+  stages_ = std::move(now);
+  out_ << std::flush;
+}
+
 }  // namespace visloc

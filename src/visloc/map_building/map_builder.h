@@ -19,9 +19,11 @@
 
 #include <filesystem>
 #include <functional>
+#include <map>
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <optional>
+#include <ostream>
 #include <string>
 #include <vector>
 
@@ -35,6 +37,7 @@
 #include "visloc/sfm/guided_matcher.h"
 #include "visloc/sfm/segment_plan.h"
 #include "visloc/sfm/slurm.h"
+#include "visloc/util/timer.h"
 
 namespace visloc {
 
@@ -114,6 +117,13 @@ struct MapBuildOptions {
   void validate() const;
   bool guided_matching() const;  // the matcher in effect
 };
+
+class OptionTable;
+// The options as `visloc map build`'s command-line options: --images, --gps, --gps-subset, --poses,
+// --known-poses, --known-intrinsics, --matcher, --sampson, --executor, --slurm-*, --jobs, --colmap,
+// --colmap-threads, --exhaustive-max, --spatial-neighbors, the placemark plan's, --chain-order,
+// --registration-threshold, --retrieval-dims, --no-retrieval, --pq-training-images, --hash-rotation, SIFT's.
+void add_options(OptionTable& table, MapBuildOptions& options);
 
 struct SegmentBuildResult {
   int id = 0;
@@ -233,6 +243,33 @@ struct BuildRecord {
   std::string cwd;
 };
 BuildRecord read_build_record(const std::filesystem::path& map_dir);
+
+// Records a `map build`'s arguments (`build_args`, relative paths taken from
+// the current directory) in options.build_record for `map build-segment`,
+// and with the Slurm executor sets the command each task runs (this program).
+void record_build_for_tasks(MapBuildOptions& options, const std::filesystem::path& map_dir,
+                            const std::vector<std::string>& build_args);
+
+// Prints a build's progress as `visloc map build` does. Live (a terminal): a
+// block of the map's line and one line per running segment, redrawn in
+// place; otherwise (a log): one line per stage change and per 10% of a stage.
+class MapBuildProgressPrinter {
+ public:
+  MapBuildProgressPrinter(std::ostream& out, bool live);
+  void operator()(const MapBuildProgress& progress);
+
+ private:
+  void draw(const MapBuildProgress& p);
+  void log(const MapBuildProgress& p);
+
+  std::ostream& out_;
+  bool live_;
+  int lines_ = 0;  // lines of the live block drawn last
+  std::string last_stage_;
+  Timer redraw_;
+  std::map<int, std::string> stages_;  // log: each running segment's stage last printed
+  size_t segments_done_ = 0;
+};
 
 // The segment id on line `line` (from 0) of a Slurm array's task list.
 int task_list_segment(const std::filesystem::path& task_list, int line);

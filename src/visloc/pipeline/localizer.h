@@ -76,6 +76,11 @@ struct LocalizerOptions {
   void validate() const;
 };
 
+class OptionTable;
+// The options as command-line options: --setting, --top-images, ...,
+// --min-confidence, the query's SIFT options, --cache-mib.
+void add_options(OptionTable& table, LocalizerOptions& options);
+
 struct StageTimes {
   double features = 0, retrieval = 0, matching = 0, ransac = 0, total = 0;  // milliseconds
 };

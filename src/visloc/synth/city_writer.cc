@@ -4,9 +4,12 @@
 #include <atomic>
 #include <cmath>
 #include <cstdio>
+#include <iomanip>
 #include <mutex>
 #include <nlohmann/json.hpp>
 #include <numbers>
+#include <ostream>
+#include <sstream>
 #include <thread>
 
 #include "visloc/geo/gps_csv.h"
@@ -681,6 +684,50 @@ CityStats write_city(const CityOptions& options_in, const fs::path& out, const C
   stats.metadata_bytes += city_text.size();
   stats.seconds = wall.elapsed_ms() / 1000.0;
   return stats;
+}
+
+namespace {
+
+// "42s", "3m05s", "2h07m".
+std::string duration_text(double s) {
+  char buf[32];
+  if (s < 60)
+    std::snprintf(buf, sizeof buf, "%.0fs", s);
+  else if (s < 3600)
+    std::snprintf(buf, sizeof buf, "%dm%02ds", static_cast<int>(s) / 60, static_cast<int>(s) % 60);
+  else
+    std::snprintf(buf, sizeof buf, "%dh%02dm", static_cast<int>(s) / 3600, static_cast<int>(s) / 60 % 60);
+  return buf;
+}
+
+}  // namespace
+
+void CityProgressPrinter::operator()(const CityProgress& p) {
+  if (finished_ || (!terminal_ && p.done != p.total && p.elapsed_s - last_line_s_ < 10.0)) return;
+  last_line_s_ = p.elapsed_s;
+  finished_ = p.done == p.total;
+  const double rate = p.elapsed_s > 0 ? p.done / p.elapsed_s : 0.0;
+  const double eta = rate > 0 ? (p.total - p.done) / rate : 0.0;
+  std::ostringstream line;
+  line << (terminal_ ? "\r" : "") << "images " << p.done << "/" << p.total << ", " << std::fixed << std::setprecision(2)
+       << rate << " img/s, elapsed " << duration_text(p.elapsed_s) << ", ETA " << duration_text(eta) << "   "
+       << (terminal_ && p.done != p.total ? "" : "\n");
+  out_ << line.str() << std::flush;
+}
+
+std::string city_summary(const CityOptions& o, const CityStats& s, const std::string& out_dir) {
+  std::ostringstream text;
+  text << std::fixed << std::setprecision(0) << "synthetic city in " << out_dir << ": " << to_string(o.layout.layout)
+       << " layout, " << s.road_length_m << " m of road, " << s.buildings << " buildings, " << s.placemarks
+       << " placemarks\n";
+  text << std::setprecision(1) << "images: " << s.database_images << " database (" << o.views.width << "x"
+       << o.views.height << "), " << s.query_images << " queries; rendered " << s.rendered << ", kept " << s.kept
+       << "; " << s.seconds << " s\n";
+  text << "median render time per image: database " << s.median_database_render_ms << " ms (with encoding and writing "
+       << s.median_database_total_ms << " ms), queries " << s.median_query_render_ms << " ms\n";
+  text << "bytes: database images " << s.database_bytes << ", query images " << s.query_bytes << ", metadata "
+       << s.metadata_bytes << ", total " << s.database_bytes + s.query_bytes + s.metadata_bytes << "\n";
+  return text.str();
 }
 
 }  // namespace visloc::synth

@@ -34,6 +34,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <functional>
+#include <iosfwd>
 #include <string>
 #include <vector>
 
@@ -43,6 +44,10 @@
 #include "visloc/synth/city_scene.h"
 #include "visloc/synth/photo_crops.h"
 #include "visloc/synth/ray_renderer.h"
+
+namespace visloc {
+class OptionTable;
+}
 
 namespace visloc::synth {
 
@@ -106,6 +111,19 @@ struct CityOptions {
   void validate() const;
 };
 
+// The options as command-line options (`synth city`): --layout ... --seed (the layout), --headings,
+// --elevations, --fov, --size (database views), --queries ... --query-gps-noise, --supersampling,
+// --max-distance, --haze-distance, --origin, --format, --jpeg-quality, --photos, --photo-fraction,
+// --photo-crops, --jobs, --resume. Not --marker, which is repeatable: see parse_marker_position.
+void add_options(OptionTable& table, CityOptions& options);
+// Single entries for commands that bind a few city options with help of their own (`bench city`):
+// --layout line|grid|random, --elevations "5,15,30" (degrees), --size WIDTHxHEIGHT (database views).
+void add_layout_option(OptionTable& table, CityLayoutOptions& layout, std::string help);
+void add_elevations_option(OptionTable& table, ViewSetOptions& views, std::string help);
+void add_size_option(OptionTable& table, ViewSetOptions& views, std::string help);
+// "x,y,z" (ENU metres) → a marker position (CityOptions::markers); throws Error(kInvalidArgument) naming `option`.
+Eigen::Vector3d parse_marker_position(const std::string& text, const std::string& option);
+
 // One database view of a placemark.
 CameraPose street_view_pose(const Eigen::Vector3d& center, double heading_deg, double pitch_deg,
                             double roll_deg = 0.0);
@@ -163,5 +181,23 @@ CityStats write_city(const CityOptions& options, const std::filesystem::path& ou
 
 // The JSON of every option (city.json's "options").
 std::string city_options_json(const CityOptions& options);
+
+// `synth city`'s progress line on `out`, "images 120/400, 3.20 img/s, elapsed 37s, ETA 1m27s": on a
+// terminal one line redrawn in place; in a log a line every 10 s, and the last one.
+class CityProgressPrinter {
+ public:
+  CityProgressPrinter(std::ostream& out, bool terminal) : out_(out), terminal_(terminal) {}
+  void operator()(const CityProgress& progress);
+
+ private:
+  std::ostream& out_;
+  bool terminal_;
+  double last_line_s_ = -10.0;  // elapsed time at the last line written
+  bool finished_ = false;       // the last line is written
+};
+
+// What `synth city` prints when the city is written to out_dir: the city (layout, road length,
+// buildings, placemarks), the image counts, median render times and the bytes written (four lines).
+std::string city_summary(const CityOptions& options, const CityStats& stats, const std::string& out_dir);
 
 }  // namespace visloc::synth

@@ -1,6 +1,8 @@
 #include "visloc/synth/view_pair_check.h"
 
 #include <cmath>
+#include <iomanip>
+#include <sstream>
 
 #include "visloc/matching/exact_matcher.h"
 #include "visloc/util/error.h"
@@ -144,6 +146,32 @@ AdjacentPairReport measure_adjacent_placemarks(const CityOptions& options, const
     }
   }
   return report;
+}
+
+namespace {
+
+// Two lines: the counts, then the fractions; `label` left-aligned in 6 columns.
+void write_check(std::ostream& out, const char* label, const ViewPairCheck& c) {
+  out << "  " << std::left << std::setw(6) << label << std::right << " features A " << c.features_a << ", B "
+      << c.features_b << "; A on a surface " << c.with_surface_a << ", covisible in B " << c.covisible_a
+      << "; ratio matches " << c.ratio_matches << "; true (reprojection) " << c.true_matches << "; epipolar inliers "
+      << c.epipolar_inliers << "\n";
+  out << std::fixed << std::setprecision(3) << "         true / features A = " << c.true_fraction_of_features()
+      << ", true / covisible A = " << c.true_fraction_of_covisible() << ", precision = " << c.precision()
+      << ", epipolar precision = " << c.epipolar_precision() << "\n";
+}
+
+}  // namespace
+
+std::string adjacent_pair_summary(const AdjacentPairReport& r) {
+  std::ostringstream text;
+  text << "adjacent placemarks: " << r.pairs << " pairs, " << r.view_pairs
+       << " image pairs (same heading and elevation), SIFT " << std::fixed << std::setprecision(0) << r.sift_ms
+       << " ms in total\n";
+  write_check(text, "side", r.side);
+  write_check(text, "along", r.along);
+  write_check(text, "all", r.all());
+  return text.str();
 }
 
 }  // namespace visloc::synth

@@ -10,6 +10,7 @@
 
 #include <cstddef>
 #include <filesystem>
+#include <string>
 
 #include "visloc/features/feature_set.h"
 #include "visloc/features/sift_extractor.h"
@@ -75,5 +76,9 @@ struct AdjacentPairReport {
 AdjacentPairReport measure_adjacent_placemarks(const CityOptions& options, const std::filesystem::path& city_dir,
                                                int pairs, const SiftOptions& sift,
                                                const ViewPairCheckOptions& check = {});
+
+// What `synth city --measure-pairs` prints: the pair counts and SIFT time, then the checks of side,
+// along-street and all view pairs (two lines each: counts, then fractions).
+std::string adjacent_pair_summary(const AdjacentPairReport& report);
 
 }  // namespace visloc::synth

@@ -4,7 +4,9 @@
 
 #include <chrono>
 #include <cmath>
+#include <sstream>
 
+#include "visloc/geometry/pose_list.h"
 #include "visloc/image/image_io.h"
 #include "visloc/matching/exact_matcher.h"
 #include "visloc/util/error.h"
@@ -179,6 +181,94 @@ void draw_pair_inliers(const std::filesystem::path& image1, const std::filesyste
   cv::Mat rgb;
   cv::cvtColor(canvas, rgb, cv::COLOR_BGR2RGB);
   write_image(out, rgb.cols, rgb.rows, 3, rgb.data);
+}
+
+namespace {
+
+// The camera of `image` in an intrinsics list: its own line, else the '*' line; checked against the image.
+PinholeCamera listed_camera(const std::vector<NamedCamera>& list, const std::filesystem::path& list_file,
+                            const std::filesystem::path& image) {
+  const std::string name = image.filename().string();
+  std::optional<PinholeCamera> camera;
+  for (const auto& c : list)
+    if (c.name == name) camera = c.camera;
+  if (!camera)
+    for (const auto& c : list)
+      if (c.name == "*") camera = c.camera;
+  if (!camera) throw_error(ErrorCode::kInvalidArgument, list_file.string(), ": no line for ", name, " (nor '*')");
+  const ImageMetadata m = read_image_metadata(image);
+  if (camera->width != m.width || camera->height != m.height)
+    throw_error(ErrorCode::kInvalidArgument, list_file.string(), ": the line for ", name, " is for ", camera->width,
+                "x", camera->height, " pixels, the image has ", m.width, "x", m.height);
+  if (!camera->has_focal)
+    throw_error(ErrorCode::kInvalidArgument, list_file.string(), ": the line for ", name, " has no focal length");
+  return *camera;
+}
+
+// RANSAC variants as --ransac names them.
+const char* ransac_option_name(RansacVariant variant) {
+  switch (variant) {
+    case RansacVariant::kClassic11:
+      return "classic";
+    case RansacVariant::kOneManyFixed:
+      return "1m";
+    case RansacVariant::kOneManySprt:
+      return "1m-sprt";
+  }
+  return "?";
+}
+
+}  // namespace
+
+ImagePairOptions resolve_image_pair_options(const ImagePairTask& task) {
+  ImagePairOptions o = task.options;
+  if (task.focal > 0 && !task.intrinsics.empty())
+    throw_error(ErrorCode::kInvalidArgument, "match: give --focal or --intrinsics, not both");
+  const std::filesystem::path images[2] = {task.image1, task.image2};
+  std::optional<PinholeCamera> cameras[2];
+  if (!task.intrinsics.empty()) {
+    const auto list = read_intrinsics_list(task.intrinsics);
+    for (int k = 0; k < 2; ++k) cameras[k] = listed_camera(list, task.intrinsics, images[k]);
+  } else if (task.focal > 0) {
+    for (int k = 0; k < 2; ++k) {
+      const ImageMetadata m = read_image_metadata(images[k]);
+      cameras[k] = PinholeCamera::centered(m.width, m.height, task.focal);
+    }
+  }
+  const bool calibrated = cameras[0].has_value();
+  o.estimation.model = task.model.value_or(calibrated ? TwoViewModel::kEssential : TwoViewModel::kFundamental);
+  if (o.estimation.model != TwoViewModel::kEssential) return o;
+  if (!calibrated) throw_error(ErrorCode::kInvalidArgument, "match: --model E needs --focal or --intrinsics");
+  for (int k = 0; k < 2; ++k) {
+    if (cameras[k]->k1 != 0)  // the solver and the errors use K⁻¹ x on the keypoints as they are
+      throw_error(ErrorCode::kInvalidArgument, task.intrinsics.string(),
+                  ": --model E needs undistorted cameras (k1 = 0); ", "use --model F for ", images[k].string());
+    Eigen::Matrix3d K;
+    K << cameras[k]->focal, 0, cameras[k]->cx, 0, cameras[k]->focal, cameras[k]->cy, 0, 0, 1;
+    (k == 0 ? o.estimation.calibration1 : o.estimation.calibration2) = K;
+  }
+  return o;
+}
+
+std::string image_pair_summary(const ImagePairResult& r, const TwoViewOptions& estimation,
+                               const std::filesystem::path& drawing) {
+  std::ostringstream s;
+  const std::string_view model = to_string(estimation.model);
+  s << r.features1.size() << " and " << r.features2.size() << " features; " << r.one_to_one_matches()
+    << " 1-1 matches, " << r.matches.size() << " features with 1-M candidates\n";
+  if (!r.estimate.found) {
+    s << "no " << model << " found\n";
+    return s.str();
+  }
+  s << model << " (" << ransac_option_name(estimation.variant) << "): " << r.estimate.inliers << " inliers ("
+    << r.estimate.one_to_one_inliers << " 1-1, " << r.estimate.extra_inliers << " more through 1-M); "
+    << r.estimate.stats.iterations << " samples, " << r.estimate.stats.models_rejected_sprt
+    << " models rejected by SPRT\n";
+  s << r.estimate.matrix << "\n";
+  s << "times (ms): features " << r.ms_features << ", matching " << r.ms_matching << ", RANSAC " << r.estimate.total_ms
+    << "\n";
+  if (!drawing.empty()) s << "wrote " << drawing.string() << "\n";
+  return s.str();
 }
 
 }  // namespace visloc

@@ -9,6 +9,7 @@
 
 #include <filesystem>
 #include <optional>
+#include <string>
 
 #include <nlohmann/json.hpp>
 
@@ -58,5 +59,36 @@ ImagePairResult match_image_pair(const std::filesystem::path& image1, const std:
 // 120 of each kind. Atomic write; the format follows the extension.
 void draw_pair_inliers(const std::filesystem::path& image1, const std::filesystem::path& image2,
                        const ImagePairResult& result, const std::filesystem::path& out, int max_height = 900);
+
+// What `visloc match` is given: the pair; the model (none: E when the
+// cameras are known, else F); the cameras: one focal length for both images
+// (principal point at the centre) or an intrinsics file ('name MODEL width
+// height params...' per image file name, '*' for all), neither: uncalibrated;
+// where to draw the inliers (empty: nowhere).
+struct ImagePairTask {
+  std::filesystem::path image1, image2;
+  std::optional<TwoViewModel> model;
+  double focal = 0;
+  std::filesystem::path intrinsics;
+  std::filesystem::path drawing;
+  ImagePairOptions options;
+};
+
+class OptionTable;
+// `visloc match`'s options: image1, image2, --model, --ransac, --focal,
+// --intrinsics, --out, --threshold, --iterations, --max-candidates, --rule,
+// --max-features, --max-side, --seed.
+void add_options(OptionTable& table, ImagePairTask& task);
+
+// The task's options with its model (none: E or F) and, for E, both cameras'
+// calibrations. Throws Error(kInvalidArgument) naming the option or the
+// intrinsics file when the cameras are missing, given twice or do not fit.
+ImagePairOptions resolve_image_pair_options(const ImagePairTask& task);
+
+// The result as `visloc match` prints it: feature and match counts, the
+// model's inliers and RANSAC counts, its matrix, times and, when `drawing` is
+// not empty, "wrote DRAWING"; only the counts and "no F found" without a model.
+std::string image_pair_summary(const ImagePairResult& result, const TwoViewOptions& estimation,
+                               const std::filesystem::path& drawing);
 
 }  // namespace visloc

@@ -61,6 +61,11 @@ struct PairBenchmarkOptions {
   void validate() const;
 };
 
+class OptionTable;
+// `visloc bench pairs`' options: --data, --scenes, --max-pairs, --threshold,
+// --iterations, --max-features, --no-opencv, --seed.
+void add_options(OptionTable& table, PairBenchmarkOptions& options);
+
 struct PairBenchmarkRow {
   std::string scene, pair, method;
   bool found = false, success = false;

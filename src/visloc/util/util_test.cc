@@ -13,6 +13,7 @@
 #include "visloc/util/error.h"
 #include "visloc/util/file_io.h"
 #include "visloc/util/mapped_file.h"
+#include "visloc/util/option_table.h"
 #include "visloc/util/parallel_for.h"
 #include "visloc/util/section_file.h"
 #include "visloc/util/test_support.h"
@@ -196,4 +197,69 @@ TEST(ParallelFor, FirstExceptionStopsTheHandOutAndIsRethrown) {
   } catch (const visloc::Error& e) {
     EXPECT_EQ(e.code(), visloc::ErrorCode::kIo);
   }
+}
+
+namespace {
+enum class Colour { kRed, kGreen };
+}
+
+TEST(OptionTable, EntriesCarryNamesFieldsDefaultsAndChoices) {
+  int count = 7;
+  double ratio = 0.25;
+  bool fallback = true;
+  Colour colour = Colour::kGreen;
+  std::vector<double> list;
+  OptionTable t;
+  t.add("--count", count, "how many").non_negative();
+  t.add("--ratio", ratio, "a ratio").range(0, 1);
+  t.flag("!--no-fallback", fallback, "no fallback");
+  t.choice("--colour", colour, {{"red", Colour::kRed}, {"green", Colour::kGreen}}, "a colour");
+  t.text("--list", "1,2", [&list](const std::string& v) { list = parse_number_list(v, "--list"); }, "numbers");
+  ASSERT_EQ(t.entries().size(), 5u);
+  const auto& e = t.entries();
+  EXPECT_EQ(e[0].default_text, "7");
+  EXPECT_TRUE(std::holds_alternative<int*>(e[0].field));
+  EXPECT_EQ(std::get<int*>(e[0].field), &count);
+  EXPECT_EQ(e[0].min, 0.0);
+  EXPECT_EQ(e[1].default_text, "0.25");
+  EXPECT_EQ(e[1].max, 1.0);
+  EXPECT_TRUE(e[2].flag);
+  EXPECT_FALSE(e[2].show_default);
+  EXPECT_EQ(e[3].default_text, "green");
+  EXPECT_EQ(e[3].choices, (std::vector<std::string>{"red", "green"}));
+  e[3].parse("red");
+  EXPECT_EQ(colour, Colour::kRed);
+  EXPECT_THROW(e[3].parse("blue"), Error);
+  e[4].parse("3,4.5");
+  EXPECT_EQ(list, (std::vector<double>{3, 4.5}));
+  // Negated flags are found by either spelling; a second declaration is a bug.
+  EXPECT_EQ(t.find("--no-fallback"), &e[2]);
+  EXPECT_EQ(t.find("!--no-fallback"), &e[2]);
+  EXPECT_EQ(t.find("--missing"), nullptr);
+  EXPECT_THROW(t.add("--count", count, "again"), Error);
+  OptionTable other;
+  other.add("--ratio", ratio, "clash");
+  EXPECT_THROW(t.append(other), Error);
+}
+
+TEST(OptionTable, NumberListsAndSizesRefuseWhatIsNotThere) {
+  EXPECT_EQ(parse_number_list("5,15,30", "--e"), (std::vector<double>{5, 15, 30}));
+  EXPECT_EQ(parse_number_list("-1.5", "--e"), (std::vector<double>{-1.5}));
+  for (const char* bad : {"", "1,", ",1", "1,,2", "nan", "1,inf", "1x", "one"}) {
+    try {
+      parse_number_list(bad, "--elevations");
+      ADD_FAILURE() << "accepted '" << bad << "'";
+    } catch (const Error& e) {
+      EXPECT_EQ(e.code(), ErrorCode::kInvalidArgument);
+      EXPECT_NE(std::string(e.what()).find("--elevations"), std::string::npos) << e.what();
+    }
+  }
+  EXPECT_EQ(parse_finite_number("2.5", "--x", 0, 3), 2.5);
+  for (const char* bad : {"", "nan", "inf", "2.5x", "4"}) EXPECT_THROW(parse_finite_number(bad, "--x", 0, 3), Error) << bad;
+  EXPECT_EQ(parse_whole_number("-12", "--n"), -12);
+  for (const char* bad : {"", "1.5", "99999999999999999999", "0x10", "0"})
+    EXPECT_THROW(parse_whole_number(bad, "--n", 1, 100), Error) << bad;
+  EXPECT_EQ(parse_image_size("640x480", "--size"), std::make_pair(640, 480));
+  for (const char* bad : {"640", "640x", "x480", "0x480", "-640x480", "640x480x2", "640.5x480", "axb"})
+    EXPECT_THROW(parse_image_size(bad, "--size"), Error) << bad;
 }

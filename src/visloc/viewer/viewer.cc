@@ -26,6 +26,14 @@ nlohmann::json ViewerSummary::to_json() const {
           {"frame", frame},               {"three_version", three_version}};
 }
 
+std::string ViewerSummary::to_text(const fs::path& out, bool with_report) const {
+  std::string text = "wrote " + out.string() + ": " + std::to_string(points_drawn) + " of " +
+                     std::to_string(points_in_map) + " points, " + std::to_string(cameras) + " cameras, " +
+                     std::to_string(segments) + " segments";
+  if (with_report) text += ", " + std::to_string(queries) + " queries";
+  return text + " (" + frame + " frame; " + std::to_string(file_bytes / 1024) + " KiB, three.js " + three_version + ")";
+}
+
 namespace {
 
 struct ReportQueries {

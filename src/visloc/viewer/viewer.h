@@ -31,6 +31,10 @@ struct ViewerOptions {
   void validate() const;
 };
 
+class OptionTable;
+// `visloc view`'s options: --max-points, --frame, --title.
+void add_options(OptionTable& table, ViewerOptions& options);
+
 struct ViewerSummary {
   size_t points_drawn = 0, points_in_map = 0, cameras = 0, segments = 0, queries = 0;
   size_t points_far = 0;  // kept but beyond the drawn box (stray points far from the map): not drawn
@@ -38,6 +42,8 @@ struct ViewerSummary {
   std::string frame;  // "enu" or "segment"
   std::string three_version;
   nlohmann::json to_json() const;
+  // "wrote OUT: N of M points, C cameras, S segments[, Q queries] (FRAME frame; K KiB, three.js V)".
+  std::string to_text(const std::filesystem::path& out, bool with_report) const;
 };
 
 // Writes `out` (atomically). `report_dir` may be empty (no report). Throws

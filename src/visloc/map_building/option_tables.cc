@@ -1,0 +1,109 @@
+// The map building options as command-line options (util/option_table.h):
+// `visloc map build` (MapBuildOptions) and `visloc map import` (its sources
+// and ColmapImportOptions).
+#include "visloc/map_building/colmap_import.h"
+#include "visloc/map_building/map_builder.h"
+#include "visloc/util/option_table.h"
+
+namespace visloc {
+namespace {
+
+void add_hash_rotation(OptionTable& t, HashRotationScope& scope, std::string help) {
+  t.choice("--hash-rotation", scope, {{"segment", HashRotationScope::kSegment}, {"map", HashRotationScope::kMap}},
+           std::move(help));
+}
+
+}  // namespace
+
+void add_options(OptionTable& t, MapBuildOptions& o) {
+  t.add("--images", o.images_dir, "Directory of the map's images").require();
+  // 'exif' (no CSV): GPS from each image's EXIF.
+  t.text("--gps", o.gps_csv.empty() ? "exif" : o.gps_csv.string(),
+         [&o](const std::string& text) {
+           o.gps_csv = text == "exif" ? std::filesystem::path() : std::filesystem::path(text);
+         },
+         "GPS CSV (image,lat,lon,alt[,placemark]) or 'exif'");
+  t.flag("--gps-subset", o.gps_lists_subset,
+         "The GPS CSV lists a subset of --images: build from those only (default: every image in the folder "
+         "must have a line)");
+  t.choice("--poses", o.poses, {{"sfm", PoseSource::kSfm}, {"known", PoseSource::kKnown}},
+           "Where poses come from: 'sfm' (COLMAP mapper) or 'known' (triangulate)");
+  t.add("--known-poses", o.known_poses,
+        "With --poses known: a COLMAP model directory (text or binary) with the images' exact poses, "
+        "or a pose list 'name qw qx qy qz tx ty tz' (world-to-camera; needs --known-intrinsics)");
+  t.add("--known-intrinsics", o.known_intrinsics,
+        "With a pose list: intrinsics 'name MODEL width height params...' per line ('*' for every image)");
+  t.choice("--matcher", o.matcher,
+           {{"auto", PairMatcher::kDefault}, {"guided", PairMatcher::kGuided}, {"colmap", PairMatcher::kColmap}},
+           "Pair matching: 'guided' (known poses: features near the epipolar line, RootSIFT ratio test; "
+           "fast), 'colmap' (COLMAP's matcher and verification), 'auto' (guided with known poses)");
+  t.add("--sampson", o.guided.max_sampson_px, "Guided matching: epipolar band, Sampson distance (px)");
+  t.choice("--executor", o.executor, {{"local", BuildExecutor::kLocal}, {"slurm", BuildExecutor::kSlurm}},
+           "Where segments are built: 'local' (threads, see --jobs) or 'slurm' (one job array; every task "
+           "runs 'visloc map build-segment MAP N' on a node that sees the map directory)");
+  t.add("--slurm-partition", o.slurm.partition, "Slurm partition (default: the cluster's)");
+  t.add("--slurm-cpus", o.slurm.cpus_per_task,
+        "CPUs per Slurm task (give --colmap-threads the same to use them in COLMAP)");
+  t.add("--slurm-args", o.slurm.extra_args, "More sbatch options for the array, e.g. \"--mem=8G --time=2:00:00\"");
+  t.add("--jobs", o.jobs, "Local executor: segments built in parallel (0: number of cores)");
+  t.add("--colmap", o.colmap.binary, "COLMAP executable");
+  t.add("--colmap-threads", o.colmap.threads, "Threads per COLMAP call");
+  t.add("--exhaustive-max", o.exhaustive_max_images,
+        "COLMAP exhaustive matching for segments up to this many images, spatial matching above");
+  t.add("--spatial-neighbors", o.colmap.spatial_max_neighbors,
+        "Spatial matching: nearest images matched to each image");
+  t.add("--min-placemarks", o.plan.min_placemarks, "Placemarks per segment, at least");
+  t.add("--max-placemarks", o.plan.max_placemarks, "Placemarks per segment, at most");
+  t.add("--overlap", o.plan.overlap, "Placemarks shared by consecutive segments");
+  t.add("--placemark-radius", o.plan.placemark_radius,
+        "Metres: consecutive images this close form a placemark (without a placemark column)");
+  t.action("--chain-order", [&o] { o.plan.order = PlacemarkOrder::kChain; },
+           "Order placemarks by nearest-neighbour chaining (unordered collections) instead of capture order");
+  t.add("--registration-threshold", o.registration.inlier_threshold,
+        "Metres: GPS inlier threshold of the geo-registration");
+  t.add("--retrieval-dims", o.embedding.output_dims,
+        "Retrieval embedding dimensions after PCA-whitening (0: full 4096)");
+  t.flag("!--no-retrieval", o.build_retrieval, "Do not build the retrieval index");
+  t.add("--pq-training-images", o.pq_training_images,
+        "The PQ codebook trains on at most this many images, spread over the map (with --executor slurm "
+        "only their features are extracted before the array; each task extracts its segment's)");
+  add_hash_rotation(t, o.hash_rotation,
+                    "ITQ hash rotation: 'segment' (one per segment, in its file) or 'map' (one for the map, "
+                    "MAP/hash_rotation.vlitq: 64 KiB less per segment, a query hashed once)");
+  add_options(t, o.sift);
+}
+
+void add_options(OptionTable& t, MapImportSources& s) {
+  t.add("--colmap", s.colmap_model, "COLMAP model directory (cameras/images/points3D, .bin or .txt)");
+  t.add("--database", s.database, "COLMAP database.db holding the model's keypoints and descriptors");
+  t.add("--bundler", s.bundle_file, "Bundler v0.3 bundle.out (plain or gzip)");
+  t.add("--list", s.bundler_list, "Bundler image list (\"name [0 focal]\" per camera of bundle.out)");
+  t.add("--keys", s.bundler.keys_dir,
+        "Folder of the Lowe key files (NAME.key or NAME.key.gz, NAME the listed image name or its\n"
+        "file name, extension replaced); default: next to the listed images, relative to the list");
+  t.add("--images", s.bundler.images_dir,
+        "Bundler: image folder; the principal point is the image centre read from each image's size\n"
+        "(default: derived from the key files and the views' centred coordinates; unused by --colmap)");
+  t.action("--raw-sift", [&s] { s.bundler.root_sift = false; },
+           "Bundler: keep Lowe's L2 SIFT integers instead of converting them to RootSIFT\n"
+           "(our queries and COLMAP's features are RootSIFT: keep the default unless the queries are raw too)");
+  t.add("--holdout", s.holdout_list,
+        "File listing images to remove from the model (Dubrovnik protocol) and keep as queries\n"
+        "(Bundler: names as written in the list)");
+  t.add("--pq-train-images", s.pq_training_list, "File listing the images of --pq-train-database to use");
+}
+
+void add_options(OptionTable& t, ColmapImportOptions& o) {
+  t.add("--pq-train-database", o.pq_training_database,
+        "Train the PQ codebook on the image descriptors of this COLMAP database (an independent set)\n"
+        "instead of a sample of the map's own point descriptors");
+  t.add("--itq-iterations", o.itq.iterations, "ITQ iterations");
+  add_hash_rotation(t, o.hash_rotation,
+                    "ITQ hash rotation stored in the segment ('segment') or in MAP/hash_rotation.vlitq ('map')");
+  t.add("--seed", o.itq.seed, "Seed of ITQ's initial rotation and of PQ training");
+  t.action("--no-descriptors", [&o] { o.keep_descriptors = false; },
+           "Do not keep the mean descriptors (descriptors/*.vldesc; needed by the raw-SIFT baselines)");
+  t.flag("--overwrite", o.overwrite, "Replace an existing map in --out");
+}
+
+}  // namespace visloc

@@ -1,0 +1,35 @@
+// The localizer's options as command-line options (util/option_table.h).
+#include "visloc/pipeline/localizer.h"
+#include "visloc/util/option_table.h"
+
+namespace visloc {
+
+void add_options(OptionTable& t, LocalizerOptions& o) {
+  t.choice("--setting", o.setting,
+           {{"1", PaperSetting::k1}, {"2", PaperSetting::k2}, {"3", PaperSetting::k3}, {"3+", PaperSetting::k3Plus}},
+           "The paper's ablation setting: 1, 2, 3 or 3+");
+  t.add("--top-images", o.top_images, "Retrieval: images N_t");
+  t.add("--max-segments", o.max_segments, "Candidate segments searched");
+  t.add("--accept-inliers", o.accept_inliers,
+        "Stop searching further candidate segments once a pose has this many inliers (0: search all)");
+  t.add("--early-stop", o.search.early_stop,
+        "Settings 3, 3+: the prioritized search stops at this many 1-1 matches (N_early)");
+  t.flag("!--no-fallback", o.full_search_fallback,
+         "Settings 3, 3+: do not search all features again when the prioritized search fails");
+  t.add("--threshold", o.ransac.threshold_px, "RANSAC reprojection threshold (px)");
+  t.add("--min-inliers", o.ransac.min_inliers, "Registered at this many inliers");
+  t.add("--min-confidence", o.min_confidence,
+        "... and at this confidence in [0, 1] (the builtin model's probability that the pose is right; "
+        "the default is chosen for a precision of 99.5%; 0: inliers only, the paper's rule)")
+      .range(0.0, 1.0);
+  t.flag("!--no-exif-focal", o.use_exif_focal, "Ignore EXIF focal lengths");
+  add_options(t, o.sift);
+  t.text("--cache-mib", std::to_string(o.cache_bytes >> 20),
+         [&o](const std::string& text) {
+           const double mib = parse_finite_number(text, "--cache-mib", 1.0 / 1024, 1 << 30);
+           o.cache_bytes = static_cast<uint64_t>(mib * 1024 * 1024);
+         },
+         "Segment cache budget (MiB)");
+}
+
+}  // namespace visloc
