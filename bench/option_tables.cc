@@ -90,8 +90,7 @@ void add_options(OptionTable& t, EndToEndBenchmarkOptions& o) {
   t.choice("--query-features", o.query_features,
            {{"images", QueryFeatureSource::kImages}, {"database", QueryFeatureSource::kDatabase}},
            "'images' (our SIFT) or 'database' (the model's own)");
-  // The CLI splits the values at commas too ("--settings 1,3+").
-  t.add("--settings", o.settings, "Settings to run, in order");
+  t.add("--settings", o.settings, "Settings to run, in order (space- or comma-separated)").split_at(',');
   t.add("--repeat", o.repeat, "Localize each query this many times per setting (times: median)");
   add_options(t, o.localizer);  // its --setting is replaced by each of --settings
 }
@@ -122,8 +121,8 @@ void add_options(OptionTable& t, MatchingBenchmarkOptions& o) {
 
 void add_options(OptionTable& t, PoseBenchmarkOptions& o) {
   t.add("--family", o.families, "Families: calibrated, uncalibrated, facade");
-  // --features (std::vector<size_t>, not an OptionTable field type) is bound by the CLI.
   t.add("--inlier-ratio", o.inlier_ratios, "Inlier ratios of the 1-1 set");
+  t.add("--features", o.features, "Numbers of query features");
   t.add("--trials", o.trials, "Trials per (family, features, inlier ratio)");
   t.add("--noise", o.noise_px, "Pixel noise (standard deviation)");
   t.add("--max-candidates", o.max_candidates, "Candidate list length M");

@@ -23,7 +23,6 @@ void add_bench_end_to_end(CLI::App& bench) {
   add_options(t, *options);
   t.add("--json", *json, "Also write the table as JSON to this file");
   bind_options(cmd, t);
-  cmd->get_option("--settings")->delimiter(',');
   cmd->callback([options, json] {
     if (options->repeat < 1) throw_error(ErrorCode::kInvalidArgument, "--repeat must be >= 1");
     if (options->settings.empty()) throw_error(ErrorCode::kInvalidArgument, "--settings lists no setting");

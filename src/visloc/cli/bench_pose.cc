@@ -21,7 +21,6 @@ void add_bench_pose(CLI::App& bench) {
   add_options(t, *options);
   t.flag("--json", *json, "Print JSON");
   bind_options(cmd, t);
-  cmd->add_option("--features", options->features, "Numbers of query features")->capture_default_str();
   cmd->callback([options, json] {
     if (options->trials <= 0) throw_error(ErrorCode::kInvalidArgument, "--trials must be positive");
     const PoseBenchmarkResult r = run_pose_benchmark(*options);

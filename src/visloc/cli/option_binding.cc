@@ -26,27 +26,27 @@ CLI::Validator range_check(double lo, double hi) {
       bound);
 }
 
+// The entry's parse function, its Error reported as a usage error (exit 2).
+std::function<void(const std::string&)> parse_as_usage(const OptionTable::Entry& e) {
+  return [parse = e.parse](const std::string& text) {
+    try {
+      parse(text);
+    } catch (const Error& error) {
+      throw CLI::ValidationError(error.what());
+    }
+  };
+}
+
 void bind_entry(CLI::App* cmd, const OptionTable::Entry& e) {
   CLI::Option* o = nullptr;
   if (e.flag) {
     if (bool* const* field = std::get_if<bool*>(&e.field)) {
       o = cmd->add_flag(e.name, **field, e.help);
     } else {
-      const auto parse = e.parse;
-      o = cmd->add_flag_callback(e.name, [parse] { parse(""); }, e.help);
+      o = cmd->add_flag_callback(e.name, [parse = parse_as_usage(e)] { parse(""); }, e.help);
     }
   } else if (e.parse) {
-    const auto parse = e.parse;
-    o = cmd->add_option_function<std::string>(
-        e.name,
-        [parse](const std::string& text) {
-          try {
-            parse(text);
-          } catch (const Error& error) {
-            throw CLI::ValidationError(error.what());
-          }
-        },
-        e.help);
+    o = cmd->add_option_function<std::string>(e.name, parse_as_usage(e), e.help);
   } else {
     std::visit(
         [&](auto field) {

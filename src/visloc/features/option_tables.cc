@@ -1,4 +1,6 @@
 // The SIFT options as command-line options (util/option_table.h).
+#include <limits>
+
 #include "visloc/features/sift_extractor.h"
 #include "visloc/util/option_table.h"
 
@@ -14,7 +16,7 @@ void add_options(OptionTable& t, SiftOptions& o, bool with_max_side) {
   // OpenCV's pool is process-wide: set when the option is parsed (the CLI sets 1 first).
   t.text("--threads", "1",
          [](const std::string& text) {
-           set_opencv_threads(static_cast<int>(parse_whole_number(text, "--threads", 1, 1024)));
+           set_opencv_threads(static_cast<int>(parse_whole_number(text, "--threads", 1, std::numeric_limits<int>::max())));
          },
          "OpenCV threads for SIFT");
   t.add("--max-pixels", o.image.max_pixels, "Refuse images with more pixels than this");

@@ -380,17 +380,7 @@ TEST(CascadeSearch, OneToManyRulesAndCorrespondenceSet) {
     EXPECT_THROW(make_correspondence_set(broken, kp, xyz), Error);
   }
   EXPECT_THROW(make_correspondence_set(best, std::span<const Keypoint>(kp).first(1), xyz), Error);
-  // A query_feature of the wrong length is named by validate().
-  CorrespondenceSet bad = c;
-  bad.query_feature.pop_back();
-  try {
-    bad.validate();
-    FAIL() << "expected an error";
-  } catch (const Error& e) {
-    EXPECT_NE(std::string(e.what()).find("query_feature"), std::string::npos) << e.what();
-  }
-  bad.query_feature.clear();  // optional
-  bad.validate();
+  c.validate();  // what it fills is a valid set (geometry_test.cc tests validate() itself)
 }
 
 // The search gives the same matches, distances and statistics with every

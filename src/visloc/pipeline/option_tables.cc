@@ -26,7 +26,7 @@ void add_options(OptionTable& t, LocalizerOptions& o) {
   add_options(t, o.sift);
   t.text("--cache-mib", std::to_string(o.cache_bytes >> 20),
          [&o](const std::string& text) {
-           const double mib = parse_finite_number(text, "--cache-mib", 1.0 / 1024, 1 << 30);
+           const double mib = parse_finite_number(text, "--cache-mib", 1, 1 << 30);
            o.cache_bytes = static_cast<uint64_t>(mib * 1024 * 1024);
          },
          "Segment cache budget (MiB)");
