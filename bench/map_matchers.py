@@ -1,17 +1,22 @@
 #!/usr/bin/python3
-"""Guided matching against COLMAP's matcher on the same segments, in one run
-(issue #12). For every dataset it builds the map twice with known poses,
-`--matcher guided` and `--matcher colmap` (same features, plan, options),
-then localizes the same queries on both maps, and writes a per-segment table
-(seconds per stage, points, points with track >= 3, mean track length, mean
-reprojection error) and the localization summary to OUT/report.md and
+"""Pair matchers of map building on the same segments, in one run (issues
+#12 and #18). For every dataset it builds the map once per matcher (same
+features, plan, options): `guided` and `colmap` (#12), and `twoview-VARIANT`,
+i.e. `--matcher twoview --pair-ransac VARIANT` (our exact matching verified
+by two-view RANSAC: classic, 1m or 1m-sprt, #18). Then it localizes the same
+queries on every map, and writes a per-segment table (seconds per stage,
+points, points with track >= 3, mean track length, mean reprojection error),
+the points per matcher and the localization summary to OUT/report.md and
 OUT/report.json.
 
     bench/map_matchers.py --out DIR --dataset NAME:IMAGES:GPS:POSES[:INTRINSICS] \\
-        [--queries LIST:IMAGES:TRUTH:INTRINSICS] [--dataset ... --queries ...] [--jobs N]
+        [--queries LIST:IMAGES:TRUTH:INTRINSICS] [--dataset ... --queries ...] [--jobs N] \\
+        [--matchers guided,colmap,twoview-1m-sprt,twoview-classic] [--poses known|sfm]
 
-Each --queries belongs to the --dataset before it. Finished builds are
-reused (map build resumes), so an interrupted run continues.
+Each --queries belongs to the --dataset before it. With --poses sfm, POSES is
+not used and TRUTH should be a GPS CSV (eval compares ENU centres; an SfM
+map's segment frames are COLMAP's). Finished builds are reused (map build
+resumes), so an interrupted run continues.
 """
 import argparse
 import json
@@ -21,7 +26,8 @@ import sys
 import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-VISLOC = os.path.join(ROOT, "build", "src", "visloc", "cli", "visloc")
+# VISLOC in the environment: another binary (e.g. a copy, while build/ is rebuilt).
+VISLOC = os.environ.get("VISLOC") or os.path.join(ROOT, "build", "src", "visloc", "cli", "visloc")
 
 
 def run(cmd, log):
@@ -42,7 +48,9 @@ def main():
     ap.add_argument("--dataset", action="append", default=[], help="NAME:IMAGES:GPS:POSES[:INTRINSICS]")
     ap.add_argument("--queries", action="append", default=[], help="LIST:IMAGES:TRUTH:INTRINSICS (one per dataset)")
     ap.add_argument("--jobs", type=int, default=2)
-    ap.add_argument("--matchers", default="guided,colmap")
+    ap.add_argument("--matchers", default="guided,colmap",
+                    help="comma-separated: guided, colmap, auto, twoview-classic, twoview-1m, twoview-1m-sprt")
+    ap.add_argument("--poses", choices=["known", "sfm"], default="known")
     a = ap.parse_args()
     if not a.dataset:
         ap.error("give at least one --dataset")
@@ -53,7 +61,7 @@ def main():
     os.makedirs(a.out, exist_ok=True)
     log = os.path.join(a.out, "log.txt")
     report = {"datasets": []}
-    lines = ["# Guided matching vs COLMAP's matcher (same segments, one run)", ""]
+    lines = [f"# Pair matchers of map building (same segments, one run; poses: {a.poses})", ""]
     for k, spec in enumerate(a.dataset):
         parts = spec.split(":")
         if len(parts) not in (4, 5):
@@ -62,10 +70,16 @@ def main():
         ds = {"name": name, "maps": {}}
         for matcher in a.matchers.split(","):
             mdir = os.path.join(a.out, f"{name}-{matcher}")
-            cmd = [VISLOC, "map", "build", "--images", images, "--gps", gps, "--poses", "known", "--known-poses", poses,
-                   "--out", mdir, "--jobs", str(a.jobs), "--matcher", matcher]
-            if len(parts) == 5:
-                cmd += ["--known-intrinsics", parts[4]]
+            cmd = [VISLOC, "map", "build", "--images", images, "--gps", gps, "--poses", a.poses,
+                   "--out", mdir, "--jobs", str(a.jobs)]
+            if matcher.startswith("twoview-"):
+                cmd += ["--matcher", "twoview", "--pair-ransac", matcher[len("twoview-"):]]
+            else:
+                cmd += ["--matcher", matcher]
+            if a.poses == "known":
+                cmd += ["--known-poses", poses]
+                if len(parts) == 5:
+                    cmd += ["--known-intrinsics", parts[4]]
             wall = run(cmd, log)
             segs = []
             for d in sorted(os.listdir(os.path.join(mdir, "work"))):
@@ -80,6 +94,7 @@ def main():
                      "--intrinsics", intr, "--out", rdir], log)
                 r = json.load(open(os.path.join(rdir, "report.json")))
                 entry["localization"] = {"queries": r["queries"], "registered": r["registered"],
+                                         "wrong_poses": r.get("wrong_poses"),
                                          "median_position_error_m": r["position_error_m"]["median"],
                                          "median_rotation_error_deg": r["rotation_error_deg"]["median"]}
             ds["maps"][matcher] = entry
@@ -107,6 +122,14 @@ def main():
                       f"whole segment {ratio('seconds'):.1f}×; points with track ≥ 3: "
                       f"{sum(s['points_track3'] for s in g)} vs {sum(s['points_track3'] for s in c)} "
                       f"({100 * sum(s['points_track3'] for s in g) / max(1, sum(s['points_track3'] for s in c)):.0f}%)"]
+        lines += ["", "| matcher | points (all segments) | track >= 3 | pairs verified / given | matches written |",
+                  "|---|---|---|---|---|"]
+        for matcher, e in ds["maps"].items():
+            ok = [s for s in e["segments"] if s.get("ok")]
+            verified = f"{sum(s.get('matched_pairs', 0) for s in ok)} / {sum(s.get('pairs', 0) for s in ok)}"
+            lines.append(f"| {matcher} | {sum(s['points'] for s in ok)} | {sum(s['points_track3'] for s in ok)} | "
+                         f"{verified if matcher != 'colmap' else '(COLMAP)'} | "
+                         f"{sum(s.get('matches', 0) for s in ok) if matcher != 'colmap' else '(COLMAP)'} |")
         if a.queries:
             lines += ["", "| matcher | registered | median position error m | median rotation error deg |", "|---|---|---|---|"]
             for matcher, e in ds["maps"].items():

@@ -70,6 +70,7 @@ void MapBuildOptions::validate() const {
   sift.validate();
   colmap.validate();
   guided.validate();
+  pair_verification.validate();
   slurm.validate();
   itq.validate();
   pq.validate();
@@ -78,9 +79,19 @@ void MapBuildOptions::validate() const {
   image_index.validate();
 }
 
-bool MapBuildOptions::guided_matching() const {
-  if (matcher == PairMatcher::kDefault) return poses == PoseSource::kKnown;
-  return matcher == PairMatcher::kGuided;
+PairMatcher MapBuildOptions::effective_matcher() const {
+  if (matcher != PairMatcher::kDefault) return matcher;
+  return poses == PoseSource::kKnown ? PairMatcher::kGuided : PairMatcher::kColmap;
+}
+
+std::string_view to_string(PairMatcher matcher) {
+  switch (matcher) {
+    case PairMatcher::kDefault: return "auto";
+    case PairMatcher::kGuided: return "guided";
+    case PairMatcher::kColmap: return "colmap";
+    case PairMatcher::kTwoView: return "twoview";
+  }
+  return "auto";
 }
 
 size_t MapBuildResult::failed() const {
@@ -476,7 +487,7 @@ class ColmapStageWatcher {
 class SegmentBuilder {
  public:
   SegmentBuilder(const BuildContext& ctx, int id, const SegmentProgressFn& report)
-      : ctx_(ctx), opt_(*ctx.options), id_(id), report_(report), guided_(opt_.guided_matching()) {}
+      : ctx_(ctx), opt_(*ctx.options), id_(id), report_(report), matcher_(opt_.effective_matcher()) {}
   SegmentBuildResult run() {
     prepare_work_dir();
     extract_missing_features();
@@ -499,7 +510,9 @@ class SegmentBuilder {
   void extract_missing_features();
   void fill_database();
   void add_images(ColmapDatabaseWriter& db);
+  std::vector<std::pair<size_t, size_t>> candidate_pairs() const;
   void match_guided(ColmapDatabaseWriter& db);
+  void match_twoview(ColmapDatabaseWriter& db);
   void match_with_colmap();
   void reconstruct();
   void read_model();
@@ -515,15 +528,16 @@ class SegmentBuilder {
   const MapBuildOptions& opt_;
   const int id_;
   const SegmentProgressFn& report_;
-  const bool guided_;
+  const PairMatcher matcher_;  // kGuided, kColmap or kTwoView
   Timer timer_, t_stage_;
   SegmentBuildResult res_;
   fs::path work_, log_, db_path_, model_dir_;
   std::vector<size_t> images_;  // records of the segment's placemarks, in route order
   std::vector<ColmapTextCamera> text_cameras_;  // known poses: COLMAP's text model
   std::vector<ColmapTextImage> text_images_;
-  std::vector<FeatureSet> features_;  // guided matching: per image
+  std::vector<FeatureSet> features_;  // guided or twoview matching: per image
   std::vector<PinholeCamera> cameras_;
+  std::vector<int64_t> db_image_ids_;  // per image: its id in the database
   std::optional<ColmapRunner> colmap_;
   ColmapModel model_;
   Similarity3d enu_from_segment_;
@@ -532,7 +546,7 @@ class SegmentBuilder {
 
 void SegmentBuilder::prepare_work_dir() {
   res_.id = id_;
-  res_.matcher = guided_ ? "guided" : "colmap";
+  res_.matcher = to_string(matcher_);
   work_ = segment_work_dir(ctx_.map_dir, id_);
   fs::remove_all(work_);
   fs::create_directories(work_);
@@ -557,18 +571,20 @@ void SegmentBuilder::extract_missing_features() {
   res_.seconds_features = t_features.elapsed_ms() / 1000;
 }
 
-// Our features into a fresh COLMAP database; with guided matching, the
-// matches and their two-view geometries too, in the same transaction.
+// Our features into a fresh COLMAP database; with guided or twoview
+// matching, the matches and their two-view geometries too, in the same
+// transaction.
 void SegmentBuilder::fill_database() {
   stage("database");
   t_stage_ = Timer();
   ColmapDatabaseWriter db(db_path_);
   add_images(db);
   res_.seconds_database = t_stage_.elapsed_ms() / 1000;
-  if (guided_) match_guided(db);
+  if (matcher_ == PairMatcher::kGuided) match_guided(db);
+  if (matcher_ == PairMatcher::kTwoView) match_twoview(db);
   db.commit();
-  if (guided_) res_.seconds_matching = t_stage_.elapsed_ms() / 1000;
-  // The features were only for guided matching: free them before COLMAP
+  if (matcher_ != PairMatcher::kColmap) res_.seconds_matching = t_stage_.elapsed_ms() / 1000;
+  // The features were only for our matching: free them before COLMAP
   // reconstructs (segments build concurrently, each would hold its images').
   std::vector<FeatureSet>().swap(features_);
   std::vector<PinholeCamera>().swap(cameras_);
@@ -596,29 +612,47 @@ void SegmentBuilder::add_images(ColmapDatabaseWriter& db) {
       if (ctx_.known) text_cameras_.push_back({cid, cam});
     }
     const int64_t iid = db.add_image(name, it->second, ctx_.enu[i]);
+    db_image_ids_.push_back(iid);
     db.add_features(iid, f);
     if (ctx_.known) {
       const auto& im = ctx_.known->images[ctx_.known->image_index_by_name(name)];
       text_images_.push_back({iid, it->second, name, colmap_image_pose(im)});
     }
-    if (guided_) {
+    if (matcher_ != PairMatcher::kColmap) {
       features_.push_back(std::move(f));
       cameras_.push_back(cam);
     }
   }
 }
 
+// The pairs our matchers match. Small segments: every pair (as COLMAP's
+// exhaustive matching). Else, known poses: pairs that can overlap (near and
+// looking alike; distances in metres, the known frame's scale); SfM: pairs
+// whose GPS positions are at most pair_max_distance apart.
+std::vector<std::pair<size_t, size_t>> SegmentBuilder::candidate_pairs() const {
+  std::vector<std::pair<size_t, size_t>> pairs;
+  const size_t n = images_.size();
+  if (ctx_.known) {
+    pairs = n <= opt_.exhaustive_max_images
+                ? overlapping_pairs(known_poses(), std::numeric_limits<double>::infinity(), 180)
+                : overlapping_pairs(known_poses(), opt_.pair_max_distance / ctx_.enu_from_known.scale,
+                                    opt_.pair_max_angle_deg);
+  } else {
+    for (size_t a = 0; a < n; ++a)
+      for (size_t b = a + 1; b < n; ++b)
+        if (n <= opt_.exhaustive_max_images ||
+            (ctx_.enu[images_[a]] - ctx_.enu[images_[b]]).norm() <= opt_.pair_max_distance)
+          pairs.emplace_back(a, b);
+  }
+  if (pairs.empty()) throw_error(ErrorCode::kInvalidArgument, "segment ", id_, ": no overlapping image pairs");
+  return pairs;
+}
+
 // Known poses: epipolar-guided matching of the pairs that can overlap.
 void SegmentBuilder::match_guided(ColmapDatabaseWriter& db) {
   t_stage_ = Timer();
   const std::vector<CameraPose> poses = known_poses();
-  // Small segments: every pair (as COLMAP's exhaustive matching); else
-  // pairs that can overlap, distances in metres (the known frame's scale).
-  const auto pairs = images_.size() <= opt_.exhaustive_max_images
-                         ? overlapping_pairs(poses, std::numeric_limits<double>::infinity(), 180)
-                         : overlapping_pairs(poses, opt_.pair_max_distance / ctx_.enu_from_known.scale,
-                                             opt_.pair_max_angle_deg);
-  if (pairs.empty()) throw_error(ErrorCode::kInvalidArgument, "segment ", id_, ": no overlapping image pairs");
+  const auto pairs = candidate_pairs();
   res_.pairs = pairs.size();
   std::vector<CenteredKeypoints> centered(features_.size());
   for (size_t k = 0; k < features_.size(); ++k) centered[k].assign(features_[k], cameras_[k]);
@@ -643,10 +677,50 @@ void SegmentBuilder::match_guided(ColmapDatabaseWriter& db) {
   std::ofstream(log_, std::ios::app) << summary.str();
 }
 
-// COLMAP's matching and verification (unless guided matching did it).
+// Our exact matching (1-1 and 1-M sets) verified by two-view RANSAC,
+// 1m-sprt by default: the paper's one-many RANSAC on a segment's pairs. E
+// when both cameras are known and undistorted (known poses), else F.
+void SegmentBuilder::match_twoview(ColmapDatabaseWriter& db) {
+  t_stage_ = Timer();
+  const auto pairs = candidate_pairs();
+  res_.pairs = pairs.size();
+  auto calibration = [](const PinholeCamera& c) -> std::optional<Eigen::Matrix3d> {
+    if (!c.has_focal || c.k1 != 0) return std::nullopt;
+    Eigen::Matrix3d K;
+    K << c.focal, 0, c.cx, 0, c.focal, c.cy, 0, 0, 1;
+    return K;
+  };
+  size_t extra_inliers = 0;
+  const size_t report_every = std::max<size_t>(1, pairs.size() / 100);
+  for (size_t p = 0; p < pairs.size(); ++p) {
+    const auto [a, b] = pairs[p];
+    PairVerificationOptions o = opt_.pair_verification;
+    o.estimation.calibration1 = ctx_.known ? calibration(cameras_[a]) : std::nullopt;
+    o.estimation.calibration2 = ctx_.known ? calibration(cameras_[b]) : std::nullopt;
+    const bool essential = o.estimation.calibration1 && o.estimation.calibration2;
+    o.estimation.model = essential ? TwoViewModel::kEssential : TwoViewModel::kFundamental;
+    const VerifiedPair v = verify_image_pair(features_[a], features_[b], o);
+    if (v.verified) {
+      db.add_verified_pair(db_image_ids_[a], db_image_ids_[b], v.matches, v.inliers, v.estimate.fundamental,
+                           essential ? std::optional<Eigen::Matrix3d>(v.estimate.matrix) : std::nullopt);
+      ++res_.matched_pairs;
+      res_.matches += v.inliers.size();
+      extra_inliers += v.estimate.extra_inliers;
+    }
+    if (p % report_every == 0) stage("matching", p, pairs.size());
+  }
+  stage("matching", pairs.size(), pairs.size());
+  std::ostringstream summary;
+  summary << "twoview matching (" << to_string(opt_.pair_verification.estimation.variant) << "): " << pairs.size()
+          << " pairs, " << res_.matched_pairs << " verified (>= " << opt_.pair_verification.min_inliers
+          << " inliers, 1-1 inlier ratio >= " << opt_.pair_verification.min_inlier_ratio << "), " << res_.matches << " inliers written (" << extra_inliers << " of them from the 1-M set)\n";
+  std::ofstream(log_, std::ios::app) << summary.str();
+}
+
+// COLMAP's matching and verification (unless our matching did it).
 void SegmentBuilder::match_with_colmap() {
   colmap_.emplace(opt_.colmap);
-  if (guided_) return;
+  if (matcher_ != PairMatcher::kColmap) return;
   t_stage_ = Timer();
   stage("matching");
   if (ctx_.known && images_.size() > opt_.exhaustive_max_images) {
@@ -1158,7 +1232,7 @@ void MapBuilder::write_current_manifest() {
                     {"segments", {{"min_placemarks", opt.plan.min_placemarks},
                                   {"max_placemarks", opt.plan.max_placemarks},
                                   {"overlap", opt.plan.overlap}}},
-                    {"matcher", opt.guided_matching() ? "guided" : "colmap"}};
+                    {"matcher", std::string(to_string(opt.effective_matcher()))}};
   man.source = {{"type", "build"},
                 {"images", fs::absolute(opt.images_dir).string()},
                 {"gps", opt.gps_csv.empty() ? std::string("exif") : fs::absolute(opt.gps_csv).string()},

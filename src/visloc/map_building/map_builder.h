@@ -25,6 +25,7 @@
 #include <optional>
 #include <ostream>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "visloc/features/sift_extractor.h"
@@ -37,6 +38,7 @@
 #include "visloc/sfm/guided_matcher.h"
 #include "visloc/sfm/segment_plan.h"
 #include "visloc/sfm/slurm.h"
+#include "visloc/twoview/image_pair.h"
 #include "visloc/util/timer.h"
 
 namespace visloc {
@@ -46,7 +48,13 @@ enum class PairMatcher {
   kDefault,  // guided with known poses, COLMAP's with SfM
   kGuided,   // known poses only: epipolar-guided RootSIFT matching (sfm/guided_matcher.h)
   kColmap,   // COLMAP's matcher (matches_importer / exhaustive / spatial) and its geometric verification
+  // Our exact matching with a 1-1 and a 1-M set, verified by two-view RANSAC
+  // (twoview/image_pair.h: 1m-sprt by default, the paper's one-many RANSAC
+  // on image pairs): E with known, undistorted cameras, else F.
+  kTwoView,
 };
+// "auto", "guided", "colmap", "twoview" (the option's choices).
+std::string_view to_string(PairMatcher matcher);
 
 // Where segments are built: threads of this process, or one Slurm job array
 // whose tasks run `visloc map build-segment MAP N` on a shared map directory.
@@ -77,6 +85,7 @@ struct MapBuildOptions {
   ColmapRunnerOptions colmap;
   PairMatcher matcher = PairMatcher::kDefault;
   GuidedMatchOptions guided;
+  PairVerificationOptions pair_verification;  // --matcher twoview
   BuildExecutor executor = BuildExecutor::kLocal;
   SlurmOptions slurm;
   // kSlurm: the command each task runs, without the segment index that Slurm
@@ -115,7 +124,7 @@ struct MapBuildOptions {
   ImageIndexOptions image_index;            // retrieval: IVF-PQ index
   bool keep_work = true;                    // keep MAP/work (databases, logs) after success
   void validate() const;
-  bool guided_matching() const;  // the matcher in effect
+  PairMatcher effective_matcher() const;  // kDefault resolved: guided with known poses, else COLMAP's
 };
 
 class OptionTable;
@@ -144,10 +153,10 @@ struct SegmentBuildResult {
   // (COLMAP), compression + geo-registration + files.
   double seconds_features = 0;  // features this segment had to extract (a Slurm task; 0 when all were there)
   double seconds_database = 0, seconds_matching = 0, seconds_triangulation = 0, seconds_compression = 0;
-  std::string matcher;              // "guided" or "colmap"
+  std::string matcher;              // "guided", "colmap" or "twoview"
   size_t pairs = 0;                 // candidate pairs given to the matcher (0: COLMAP chose)
-  size_t matched_pairs = 0;         // guided: pairs with at least min_matches matches
-  size_t matches = 0;               // guided: matches written
+  size_t matched_pairs = 0;         // guided: pairs with at least min_matches matches; twoview: verified pairs
+  size_t matches = 0;               // guided: matches written; twoview: inliers written
   size_t points_track3 = 0;         // points seen in at least 3 images
   double mean_track_length = 0;
   double mean_reprojection_error = 0;  // pixels, COLMAP's per-point error averaged

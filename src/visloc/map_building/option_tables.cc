@@ -34,10 +34,24 @@ void add_options(OptionTable& t, MapBuildOptions& o) {
   t.add("--known-intrinsics", o.known_intrinsics,
         "With a pose list: intrinsics 'name MODEL width height params...' per line ('*' for every image)");
   t.choice("--matcher", o.matcher,
-           {{"auto", PairMatcher::kDefault}, {"guided", PairMatcher::kGuided}, {"colmap", PairMatcher::kColmap}},
+           {{"auto", PairMatcher::kDefault},
+            {"guided", PairMatcher::kGuided},
+            {"colmap", PairMatcher::kColmap},
+            {"twoview", PairMatcher::kTwoView}},
            "Pair matching: 'guided' (known poses: features near the epipolar line, RootSIFT ratio test; "
-           "fast), 'colmap' (COLMAP's matcher and verification), 'auto' (guided with known poses)");
+           "fast), 'colmap' (COLMAP's matcher and verification), 'twoview' (exact matching with 1-1 and 1-M "
+           "sets, verified by two-view RANSAC, see --pair-ransac; E with known poses, else F), 'auto' (guided "
+           "with known poses, else colmap)");
   t.add("--sampson", o.guided.max_sampson_px, "Guided matching: epipolar band, Sampson distance (px)");
+  t.choice("--pair-ransac", o.pair_verification.estimation.variant,
+           {{"classic", RansacVariant::kClassic11},
+            {"1m", RansacVariant::kOneManyFixed},
+            {"1m-sprt", RansacVariant::kOneManySprt}},
+           "--matcher twoview: classic (1-1 hypotheses and verification), 1m (1-M verification, fixed "
+           "iterations), 1m-sprt (1-M with SPRT: the paper's one-many RANSAC)");
+  t.add("--pair-threshold", o.pair_verification.estimation.threshold_px,
+        "--matcher twoview: inlier threshold, Sampson distance (px; COLMAP's verification uses 4)")
+      .positive();
   t.choice("--executor", o.executor, {{"local", BuildExecutor::kLocal}, {"slurm", BuildExecutor::kSlurm}},
            "Where segments are built: 'local' (threads, see --jobs) or 'slurm' (one job array; every task "
            "runs 'visloc map build-segment MAP N' on a node that sees the map directory)");

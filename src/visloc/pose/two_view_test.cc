@@ -126,6 +126,30 @@ TEST(TwoViewSolvers, FivePointEssentialFindsTheTrueOne) {
   EXPECT_GE(found, trials - 2);  // numerically hard draws may miss, rarely
 }
 
+// Street-view pairs: two placemarks' views with the same heading differ by
+// a translation only (R = I exactly in a synthetic city), often along a
+// camera axis (every other trial here).
+TEST(TwoViewSolvers, FivePointEssentialOfAPureTranslation) {
+  RandomGenerator rng(25);
+  int found = 0, trials = 50;
+  for (int trial = 0; trial < trials; ++trial) {
+    TwoViews v = random_views(rng, 5, false);
+    v.R.setIdentity();
+    if (trial % 2 == 0) v.t = Eigen::Vector3d(-1, 0, 0);
+    std::array<Eigen::Vector2d, 5> q1, q2;
+    for (int i = 0; i < 5; ++i) {
+      q1[i] = v.points[i].hnormalized();
+      q2[i] = (v.points[i] + v.t).hnormalized();
+    }
+    std::array<Eigen::Matrix3d, 10> E;
+    const int n = solve_essential_5pt(q1.data(), q2.data(), &E);
+    double best = 1e9;
+    for (int k = 0; k < n; ++k) best = std::min(best, projective_distance(E[k], v.essential()));
+    found += best < 1e-6;
+  }
+  EXPECT_EQ(found, trials);
+}
+
 TEST(TwoViewSolvers, EpipolarDistancesOfTheTrueFundamentalAreZero) {
   RandomGenerator rng(24);
   const TwoViews v = random_views(rng, 30, false);

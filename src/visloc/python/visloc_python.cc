@@ -485,8 +485,13 @@ nlohmann::json build_record(const MapBuildOptions& o, const fs::path& map_dir) {
   add("--poses", o.poses == PoseSource::kKnown ? "known" : "sfm");
   if (!o.known_poses.empty()) add("--known-poses", abs(o.known_poses));
   if (!o.known_intrinsics.empty()) add("--known-intrinsics", abs(o.known_intrinsics));
-  add("--matcher", o.matcher == PairMatcher::kGuided ? "guided" : o.matcher == PairMatcher::kColmap ? "colmap" : "auto");
+  add("--matcher", std::string(to_string(o.matcher)));
   add("--sampson", number_text(o.guided.max_sampson_px));
+  const RansacVariant pair_ransac = o.pair_verification.estimation.variant;  // --pair-ransac's choice names
+  add("--pair-ransac", pair_ransac == RansacVariant::kClassic11      ? "classic"
+                       : pair_ransac == RansacVariant::kOneManyFixed ? "1m"
+                                                                     : "1m-sprt");
+  add("--pair-threshold", number_text(o.pair_verification.estimation.threshold_px));
   add("--jobs", std::to_string(o.jobs));
   add("--colmap", o.colmap.binary);
   add("--colmap-threads", std::to_string(o.colmap.threads));
@@ -834,11 +839,18 @@ void bind_build_map(py::module_& m) {
           o.poses = poses == "known" ? PoseSource::kKnown : PoseSource::kSfm;
         k.take("known_poses", o.known_poses);
         k.take("known_intrinsics", o.known_intrinsics);
-        if (k.take_choice("matcher", matcher, {"auto", "guided", "colmap"}))
-          o.matcher = matcher == "guided" ? PairMatcher::kGuided
-                      : matcher == "colmap" ? PairMatcher::kColmap
-                                            : PairMatcher::kDefault;
+        if (k.take_choice("matcher", matcher, {"auto", "guided", "colmap", "twoview"}))
+          o.matcher = matcher == "guided"    ? PairMatcher::kGuided
+                      : matcher == "colmap"  ? PairMatcher::kColmap
+                      : matcher == "twoview" ? PairMatcher::kTwoView
+                                             : PairMatcher::kDefault;
         k.take("sampson", o.guided.max_sampson_px);
+        std::string pair_ransac = "1m-sprt";
+        if (k.take_choice("pair_ransac", pair_ransac, {"classic", "1m", "1m-sprt"}))
+          o.pair_verification.estimation.variant = pair_ransac == "classic" ? RansacVariant::kClassic11
+                                                   : pair_ransac == "1m"    ? RansacVariant::kOneManyFixed
+                                                                            : RansacVariant::kOneManySprt;
+        k.take("pair_threshold", o.pair_verification.estimation.threshold_px);
         k.take("jobs", o.jobs);
         k.take("colmap", o.colmap.binary);
         k.take("colmap_threads", o.colmap.threads);
@@ -900,8 +912,8 @@ void bind_build_map(py::module_& m) {
       R"doc(Builds a map from geotagged images, as `visloc map build` (resumable).
 
 Keywords as the CLI's flags: gps ('exif' or a CSV), gps_subset, poses ('sfm' or
-'known'), known_poses, known_intrinsics, matcher ('auto', 'guided', 'colmap'),
-sampson, jobs, colmap, colmap_threads, exhaustive_max, spatial_neighbors,
+'known'), known_poses, known_intrinsics, matcher ('auto', 'guided', 'colmap',
+'twoview'), sampson, pair_ransac ('classic', '1m', '1m-sprt'), pair_threshold, jobs, colmap, colmap_threads, exhaustive_max, spatial_neighbors,
 min_placemarks, max_placemarks, overlap, placemark_radius, chain_order,
 registration_threshold, retrieval, retrieval_dims, pq_training_images,
 hash_rotation, keep_work and the SIFT options. progress(dict) is called as the

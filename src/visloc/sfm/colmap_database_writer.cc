@@ -139,18 +139,43 @@ void ColmapDatabaseWriter::add_features(int64_t image_id, const FeatureSet& f) {
 
 void ColmapDatabaseWriter::add_calibrated_pair(int64_t id1, int64_t id2,
                                                const std::vector<std::pair<uint32_t, uint32_t>>& matches,
-                                               const Eigen::Matrix3d& F_in, const Eigen::Matrix3d& E_in,
-                                               const Eigen::Quaterniond& rotation_in, const Eigen::Vector3d& direction_in) {
-  if (id1 == id2) throw_error(ErrorCode::kInvalidArgument, "COLMAP pair of image ", id1, " with itself");
-  Eigen::Matrix3d F = F_in, E = E_in;
-  Eigen::Quaterniond q = rotation_in;
-  Eigen::Vector3d t = direction_in;
+                                               const Eigen::Matrix3d& F, const Eigen::Matrix3d& E,
+                                               const Eigen::Quaterniond& rotation, const Eigen::Vector3d& direction) {
+  add_pair(id1, id2, matches, matches, kColmapCalibratedPair, F, E, rotation, direction);
+}
+
+void ColmapDatabaseWriter::add_verified_pair(int64_t id1, int64_t id2,
+                                             const std::vector<std::pair<uint32_t, uint32_t>>& matches,
+                                             const std::vector<std::pair<uint32_t, uint32_t>>& inliers,
+                                             const Eigen::Matrix3d& F, const std::optional<Eigen::Matrix3d>& E) {
+  add_pair(id1, id2, matches, inliers, E ? kColmapCalibratedPair : kColmapUncalibratedPair, F,
+           E.value_or(Eigen::Matrix3d::Zero()), Eigen::Quaterniond::Identity(), Eigen::Vector3d::Zero());
+}
+
+namespace {
+
+// Index pairs as COLMAP's N × 2 uint32 blob, columns swapped when the pair
+// is stored the other way round.
+std::vector<uint32_t> match_blob(const std::vector<std::pair<uint32_t, uint32_t>>& matches, bool swap) {
   std::vector<uint32_t> data(matches.size() * 2);
-  const bool swap = id1 > id2;
   for (size_t i = 0; i < matches.size(); ++i) {
     data[2 * i] = swap ? matches[i].second : matches[i].first;
     data[2 * i + 1] = swap ? matches[i].first : matches[i].second;
   }
+  return data;
+}
+
+}  // namespace
+
+void ColmapDatabaseWriter::add_pair(int64_t id1, int64_t id2, const std::vector<std::pair<uint32_t, uint32_t>>& matches,
+                                    const std::vector<std::pair<uint32_t, uint32_t>>& inliers, int config,
+                                    const Eigen::Matrix3d& F_in, const Eigen::Matrix3d& E_in,
+                                    const Eigen::Quaterniond& rotation_in, const Eigen::Vector3d& direction_in) {
+  if (id1 == id2) throw_error(ErrorCode::kInvalidArgument, "COLMAP pair of image ", id1, " with itself");
+  Eigen::Matrix3d F = F_in, E = E_in;
+  Eigen::Quaterniond q = rotation_in;
+  Eigen::Vector3d t = direction_in;
+  const bool swap = id1 > id2;
   if (swap) {
     std::swap(id1, id2);
     F.transposeInPlace();
@@ -158,14 +183,14 @@ void ColmapDatabaseWriter::add_calibrated_pair(int64_t id1, int64_t id2,
     q = q.conjugate();
     t = -(q * t);
   }
+  const std::vector<uint32_t> raw = match_blob(matches, swap), fitting = match_blob(inliers, swap);
   constexpr int64_t kMax = 2147483647;
   const int64_t pair_id = id1 * kMax + id2;
-  const int bytes = static_cast<int>(data.size() * sizeof(uint32_t));
   {
     Stmt s(db_, path_, "INSERT OR REPLACE INTO matches(pair_id, rows, cols, data) VALUES(?,?,2,?)");
     sqlite3_bind_int64(s.get(), 1, pair_id);
     sqlite3_bind_int64(s.get(), 2, static_cast<int64_t>(matches.size()));
-    sqlite3_bind_blob(s.get(), 3, data.data(), bytes, SQLITE_TRANSIENT);
+    sqlite3_bind_blob(s.get(), 3, raw.data(), static_cast<int>(raw.size() * sizeof(uint32_t)), SQLITE_TRANSIENT);
     s.run();
   }
   // Row-major 3x3 blobs.
@@ -179,15 +204,16 @@ void ColmapDatabaseWriter::add_calibrated_pair(int64_t id1, int64_t id2,
   const double tvec[3] = {t.x(), t.y(), t.z()};
   Stmt s(db_, path_,
          "INSERT OR REPLACE INTO two_view_geometries(pair_id, rows, cols, data, config, F, E, H, qvec, tvec) "
-         "VALUES(?,?,2,?,2,?,?,?,?,?)");
+         "VALUES(?,?,2,?,?,?,?,?,?,?)");
   sqlite3_bind_int64(s.get(), 1, pair_id);
-  sqlite3_bind_int64(s.get(), 2, static_cast<int64_t>(matches.size()));
-  sqlite3_bind_blob(s.get(), 3, data.data(), bytes, SQLITE_TRANSIENT);
-  sqlite3_bind_blob(s.get(), 4, f, sizeof f, SQLITE_TRANSIENT);
-  sqlite3_bind_blob(s.get(), 5, e, sizeof e, SQLITE_TRANSIENT);
-  sqlite3_bind_blob(s.get(), 6, h, sizeof h, SQLITE_TRANSIENT);
-  sqlite3_bind_blob(s.get(), 7, qvec, sizeof qvec, SQLITE_TRANSIENT);
-  sqlite3_bind_blob(s.get(), 8, tvec, sizeof tvec, SQLITE_TRANSIENT);
+  sqlite3_bind_int64(s.get(), 2, static_cast<int64_t>(inliers.size()));
+  sqlite3_bind_blob(s.get(), 3, fitting.data(), static_cast<int>(fitting.size() * sizeof(uint32_t)), SQLITE_TRANSIENT);
+  sqlite3_bind_int(s.get(), 4, config);
+  sqlite3_bind_blob(s.get(), 5, f, sizeof f, SQLITE_TRANSIENT);
+  sqlite3_bind_blob(s.get(), 6, e, sizeof e, SQLITE_TRANSIENT);
+  sqlite3_bind_blob(s.get(), 7, h, sizeof h, SQLITE_TRANSIENT);
+  sqlite3_bind_blob(s.get(), 8, qvec, sizeof qvec, SQLITE_TRANSIENT);
+  sqlite3_bind_blob(s.get(), 9, tvec, sizeof tvec, SQLITE_TRANSIENT);
   s.run();
 }
 

@@ -29,6 +29,9 @@ namespace visloc {
 inline constexpr int kColmapSimplePinhole = 0;  // f, cx, cy
 inline constexpr int kColmapPinhole = 1;        // fx, fy, cx, cy
 inline constexpr int kColmapSimpleRadial = 2;   // f, cx, cy, k
+// COLMAP two-view geometry configurations used here.
+inline constexpr int kColmapCalibratedPair = 2;    // E (and F) hold
+inline constexpr int kColmapUncalibratedPair = 3;  // F holds
 
 class ColmapDatabaseWriter {
  public:
@@ -58,6 +61,14 @@ class ColmapDatabaseWriter {
   void add_calibrated_pair(int64_t image_id1, int64_t image_id2, const std::vector<std::pair<uint32_t, uint32_t>>& matches,
                            const Eigen::Matrix3d& F, const Eigen::Matrix3d& E, const Eigen::Quaterniond& rotation_2_from_1,
                            const Eigen::Vector3d& direction_2_from_1);
+  // A pair verified by our matching and RANSAC (twoview/image_pair.h):
+  // `matches` into `matches`, `inliers` as the two-view geometry's, config 2
+  // (calibrated) with E when given, else config 3 (uncalibrated) with F.
+  // The relative pose is left as COLMAP 3.8's verification leaves it by
+  // default (identity, zero translation).
+  void add_verified_pair(int64_t image_id1, int64_t image_id2, const std::vector<std::pair<uint32_t, uint32_t>>& matches,
+                         const std::vector<std::pair<uint32_t, uint32_t>>& inliers, const Eigen::Matrix3d& F,
+                         const std::optional<Eigen::Matrix3d>& E);
   // Removes an image with its features, matches and two-view geometries;
   // false when there is no image of that name.
   bool remove_image(const std::string& name);
@@ -65,6 +76,10 @@ class ColmapDatabaseWriter {
   void commit();
 
  private:
+  void add_pair(int64_t image_id1, int64_t image_id2, const std::vector<std::pair<uint32_t, uint32_t>>& matches,
+                const std::vector<std::pair<uint32_t, uint32_t>>& inliers, int config, const Eigen::Matrix3d& F,
+                const Eigen::Matrix3d& E, const Eigen::Quaterniond& rotation_2_from_1,
+                const Eigen::Vector3d& direction_2_from_1);
   std::filesystem::path path_;
   sqlite3* db_ = nullptr;
   bool committed_ = false;

@@ -1,4 +1,5 @@
 #include <gtest/gtest.h>
+#include <sqlite3.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -44,7 +45,9 @@ TEST(PartitionSegments, WindowsOverlapAndRespectSizes) {
       for (size_t j = 1; j < segs[i].size(); ++j) EXPECT_EQ(segs[i][j], segs[i][j - 1] + 1);
       if (i + 1 < segs.size()) {
         EXPECT_GE(segs[i].back() - segs[i + 1].front() + 1, o.overlap) << "n=" << n;
-        if (n >= 2 * o.max_placemarks) EXPECT_EQ(segs[i].back() - segs[i + 1].front() + 1, o.overlap) << "n=" << n;
+        if (n >= 2 * o.max_placemarks) {
+          EXPECT_EQ(segs[i].back() - segs[i + 1].front() + 1, o.overlap) << "n=" << n;
+        }
       }
     }
   }
@@ -276,6 +279,55 @@ TEST(ColmapDatabaseWriter, CalibratedPairsAreStoredUnderColmapsPairId) {
   ASSERT_EQ(m.size(), 2u);
   EXPECT_EQ(m[0], std::make_pair(uint32_t{1}, uint32_t{7}));
   EXPECT_EQ(m[1], std::make_pair(uint32_t{2}, uint32_t{9}));
+}
+
+TEST(ColmapDatabaseWriter, VerifiedPairsKeepRawMatchesAndInliersApart) {
+  fs::path dir = temp_dir("dbverified");
+  int64_t a = 0, b = 0, c = 0;
+  {
+    ColmapDatabaseWriter w(dir / "database.db");
+    const int64_t cid = w.add_camera(PinholeCamera::centered(640, 480, 500.0));
+    a = w.add_image("a.jpg", cid);
+    b = w.add_image("b.jpg", cid);
+    c = w.add_image("c.jpg", cid);
+    Eigen::Matrix3d F;
+    F << 0, -1, 2, 1, 0, -3, -2, 3, 0;
+    // (b, a): stored as (a, b), columns swapped; uncalibrated (F only).
+    w.add_verified_pair(b, a, {{7, 1}, {9, 2}, {4, 4}}, {{7, 1}, {9, 2}}, F, std::nullopt);
+    w.add_verified_pair(a, c, {{1, 5}, {3, 6}}, {{3, 6}}, F, Eigen::Matrix3d::Identity());  // calibrated
+    w.commit();
+  }
+  ColmapDatabase db(dir / "database.db");
+  const auto m = db.verified_matches(a, b);
+  ASSERT_EQ(m.size(), 2u);
+  EXPECT_EQ(m[0], std::make_pair(uint32_t{1}, uint32_t{7}));
+  EXPECT_EQ(m[1], std::make_pair(uint32_t{2}, uint32_t{9}));
+  ASSERT_EQ(db.verified_matches(a, c).size(), 1u);
+  // The raw matches, the configurations and F as COLMAP reads them.
+  sqlite3* raw = nullptr;
+  ASSERT_EQ(sqlite3_open_v2((dir / "database.db").c_str(), &raw, SQLITE_OPEN_READONLY, nullptr), SQLITE_OK);
+  auto query = [&](const std::string& sql, auto&& row) {
+    sqlite3_stmt* s = nullptr;
+    ASSERT_EQ(sqlite3_prepare_v2(raw, sql.c_str(), -1, &s, nullptr), SQLITE_OK) << sql;
+    while (sqlite3_step(s) == SQLITE_ROW) row(s);
+    sqlite3_finalize(s);
+  };
+  std::vector<std::pair<int64_t, int64_t>> match_rows, configs;
+  query("SELECT rows FROM matches ORDER BY pair_id",
+        [&](sqlite3_stmt* s) { match_rows.emplace_back(sqlite3_column_int64(s, 0), 0); });
+  query("SELECT config, F FROM two_view_geometries ORDER BY pair_id", [&](sqlite3_stmt* s) {
+    configs.emplace_back(sqlite3_column_int64(s, 0), 0);
+    const double* f = static_cast<const double*>(sqlite3_column_blob(s, 1));
+    ASSERT_EQ(sqlite3_column_bytes(s, 1), 72);
+    EXPECT_EQ(f[1], configs.size() == 1 ? 1.0 : -1.0) << "F transposed for the swapped pair";
+  });
+  sqlite3_close(raw);
+  ASSERT_EQ(match_rows.size(), 2u);
+  EXPECT_EQ(match_rows[0].first, 3);  // (a, b): every raw match
+  EXPECT_EQ(match_rows[1].first, 2);
+  ASSERT_EQ(configs.size(), 2u);
+  EXPECT_EQ(configs[0].first, kColmapUncalibratedPair);
+  EXPECT_EQ(configs[1].first, kColmapCalibratedPair);
 }
 
 #include "visloc/sfm/slurm.h"

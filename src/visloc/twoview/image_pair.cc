@@ -2,6 +2,7 @@
 
 #include <opencv2/imgproc.hpp>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <sstream>
@@ -111,6 +112,38 @@ nlohmann::json ImagePairResult::to_json() const {
     if (estimate.model != TwoViewModel::kHomography) j["fundamental"] = matrix(estimate.fundamental);
   }
   return j;
+}
+
+void PairVerificationOptions::validate() const {
+  matching.validate();
+  estimation.validate();
+  if (min_inliers < 8)  // below the 7-point sample, a model fits any pair
+    throw_error(ErrorCode::kInvalidArgument, "pair verification: min_inliers must be at least 8, got ", min_inliers);
+  if (!(min_inlier_ratio >= 0 && min_inlier_ratio <= 1))
+    throw_error(ErrorCode::kInvalidArgument, "pair verification: min_inlier_ratio must be in [0, 1], got ",
+                min_inlier_ratio);
+}
+
+VerifiedPair verify_image_pair(const FeatureSet& a, const FeatureSet& b, const PairVerificationOptions& options) {
+  options.validate();
+  VerifiedPair v;
+  const TwoViewCorrespondences m = match_feature_sets(a, b, options.matching);
+  v.matches.reserve(m.size());
+  for (size_t i = 0; i < m.size(); ++i) v.matches.emplace_back(m.feature1[i], m.candidate_feature2[m.candidate_offsets[i]]);
+  v.estimate = estimate_two_view(m, options.estimation);
+  const size_t one_to_one_matches = static_cast<size_t>(
+      std::count(m.in_hypothesis_set.begin(), m.in_hypothesis_set.end(), uint8_t{1}));
+  if (!v.estimate.found || v.estimate.inliers < options.min_inliers ||
+      static_cast<double>(v.estimate.one_to_one_inliers) <
+          options.min_inlier_ratio * static_cast<double>(one_to_one_matches))
+    return v;
+  v.inliers.reserve(v.estimate.inliers);
+  for (size_t i = 0; i < m.size(); ++i) {
+    const int32_t chosen = v.estimate.chosen_candidate[i];
+    if (chosen >= 0) v.inliers.emplace_back(m.feature1[i], m.candidate_feature2[m.candidate_offsets[i] + chosen]);
+  }
+  v.verified = true;
+  return v;
 }
 
 ImagePairResult match_image_pair(const std::filesystem::path& image1, const std::filesystem::path& image2,

@@ -10,6 +10,8 @@
 #include <filesystem>
 #include <optional>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include <nlohmann/json.hpp>
 
@@ -33,6 +35,39 @@ struct PairMatchingOptions {
 
 // Matches from a to b. Features with no acceptable candidate are left out.
 TwoViewCorrespondences match_feature_sets(const FeatureSet& a, const FeatureSet& b, const PairMatchingOptions& options);
+
+// Verifying one image pair of a map (map building's `--matcher twoview`):
+// match_feature_sets, then estimate_two_view with the options' model (E
+// needs both calibrations; the caller sets them), and the inliers as
+// feature index pairs, as a COLMAP database's two-view geometry holds them.
+struct PairVerificationOptions {
+  PairMatchingOptions matching;
+  // 1m-sprt; Sampson threshold 4 px, COLMAP's verification (max_error) and
+  // the guided matcher's epipolar band, so that the matchers compare on
+  // matching and RANSAC rather than on a tighter or looser band.
+  TwoViewOptions estimation = [] {
+    TwoViewOptions o;
+    o.threshold_px = 4.0;
+    return o;
+  }();
+  size_t min_inliers = 15;  // fewer: the pair is not verified (COLMAP's min_num_inliers)
+  // The model's 1-1 inliers as a fraction of the 1-1 matches: lower, the pair
+  // is not verified (COLMAP's min_inlier_ratio on its 1-1 matches). Measured
+  // on the 1-1 set for every variant, since the 1-M set's extra candidates
+  // let a wrong model gather inliers between views that do not overlap.
+  double min_inlier_ratio = 0.25;
+  void validate() const;
+};
+
+struct VerifiedPair {
+  bool verified = false;  // a model with at least min_inliers inliers
+  // Each matched feature of image 1 with its best candidate (COLMAP's raw
+  // `matches`), and each inlier feature with the candidate that fits.
+  std::vector<std::pair<uint32_t, uint32_t>> matches, inliers;
+  TwoViewEstimate estimate;
+};
+
+VerifiedPair verify_image_pair(const FeatureSet& a, const FeatureSet& b, const PairVerificationOptions& options);
 
 struct ImagePairOptions {
   SiftOptions sift;

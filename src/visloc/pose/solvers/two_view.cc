@@ -174,7 +174,17 @@ int solve_essential_5pt(const Eigen::Vector2d* q1, const Eigen::Vector2d* q2, st
   }
   const Eigen::JacobiSVD<Eigen::MatrixXd> svd(A, Eigen::ComputeFullV);
   if (!(svd.singularValues()(4) > 1e-10 * svd.singularValues()(0))) return 0;
-  const Eigen::Matrix<double, 9, 4> N = svd.matrixV().rightCols(4);  // X, Y, Z, W
+  // X, Y, Z, W: the null space in a fixed, generic basis. E = xX + yY + zZ + W
+  // misses an E with no W component, and the SVD's own basis can put one
+  // there: two views that differ by a translation along a camera axis (R = I,
+  // as same-heading street views of a synthetic city) give constraints with
+  // structural zeros, and the cubic block below is then singular.
+  const Eigen::Matrix4d generic_rotation =
+      (Eigen::Matrix4d() << 0.8, -0.3, 0.2, 0.4, 0.1, 0.7, -0.5, 0.3, -0.4, 0.2, 0.6, 0.5, 0.3, 0.5, 0.2, -0.7)
+          .finished()
+          .householderQr()
+          .householderQ();
+  const Eigen::Matrix<double, 9, 4> N = svd.matrixV().rightCols(4) * generic_rotation;
   // E(x, y, z) entry by entry, linear: x X + y Y + z Z + W.
   Poly E[3][3];
   for (int r = 0; r < 3; ++r)
