@@ -59,7 +59,7 @@ quietly "$VISLOC" synth city --out "$WORK/city" --road-length 40 --headings 4 --
 note "building a 2-segment map (COLMAP triangulation, PQ and ITQ training)"
 quietly "$VISLOC" map build --images "$WORK/city/images" --gps "$WORK/city/gps.csv" --poses known \
   --known-poses "$WORK/city/sparse" --out "$WORK/map" --jobs 1 --min-placemarks 2 --max-placemarks 3 \
-  --overlap 1 --hash-rotation map --no-retrieval
+  --overlap 1 --hash-rotation map --no-retrieval --point-coordinates int16  # version-3 segments (the import: 2)
 MAP="$WORK/map"
 SEG_MODEL="$MAP/work/seg0001/sparse/0"  # the smaller segment: 8 images
 SEG_DB="$MAP/work/seg0001/database.db"

@@ -164,7 +164,9 @@ MapInfo map_info(const fs::path& dir) {
   }
   for (size_t i = 0; i < map.manifest().segments.size(); ++i) {
     auto s = map.open_segment(i);
-    MapSegmentInfo si{s->id(), s->num_points(), s->images().size(), s->format_version(), s->bytes()};
+    MapSegmentInfo si{s->id(), s->num_points(), s->images().size(), s->format_version(), s->bytes(),
+                      s->xyz_quantization(), std::nullopt};
+    if (s->enu_from_segment()) si.metres_per_unit = s->enu_from_segment()->scale;
     info.total_points += si.points;
     info.total_per_point_bytes += si.bytes.per_point;
     info.total_bytes += si.bytes.file;
@@ -175,7 +177,9 @@ MapInfo map_info(const fs::path& dir) {
 
 nlohmann::json MapInfo::to_json() const {
   nlohmann::json segs = nlohmann::json::array();
-  for (const auto& s : segments)
+  for (const auto& s : segments) {
+    nlohmann::json error_m = nullptr;
+    if (s.metres_per_unit) error_m = *s.metres_per_unit * s.xyz_rounding_error();
     segs.push_back({{"id", s.id},
                     {"points", s.points},
                     {"images", s.images},
@@ -184,10 +188,15 @@ nlohmann::json MapInfo::to_json() const {
                     {"format_version", s.format_version},
                     {"lookup_table_file_bytes", s.bytes.lookup_tables},
                     {"lookup_table_memory_bytes", s.bytes.lookup_memory},
+                    {"xyz_coordinates", s.xyz_quantization ? "int16" : "float32"},
+                    {"xyz_rounding_error", s.xyz_rounding_error()},     // segment units, per axis
+                    {"xyz_rounding_error_m", error_m},                  // null without a metric scale
+                    {"xyz_decoded_memory_bytes", s.bytes.xyz_memory},
                     {"hasher_bytes", s.bytes.hasher},
                     {"other_bytes", s.bytes.other},
                     {"bytes_per_point", s.bytes.per_point_bytes_per_point(s.points)},
                     {"file_bytes_per_point", s.bytes.file_bytes_per_point(s.points)}});
+  }
   const double n = total_points ? double(total_points) : 1.0;
   return {{"segments", segs},
           {"total",
@@ -202,19 +211,36 @@ nlohmann::json MapInfo::to_json() const {
           {"holdout_images", manifest.holdout_images}};
 }
 
+namespace {
+
+std::string xyz_summary(const MapSegmentInfo& s) {
+  if (!s.xyz_quantization) return "float32";
+  std::ostringstream out;
+  out << "int16 (" << std::setprecision(3);
+  if (s.metres_per_unit)
+    out << 1000 * *s.metres_per_unit * s.xyz_rounding_error() << " mm)";
+  else
+    out << s.xyz_rounding_error() << " units)";
+  return out.str();
+}
+
+}  // namespace
+
 std::string MapInfo::summary(const std::string& map_name) const {
   std::ostringstream out;
   out << "map " << map_name << ": " << segments.size() << " segment(s), " << total_points << " points\n"
       << std::setw(8) << "segment" << std::setw(10) << "points" << std::setw(8) << "images" << std::setw(12)
-      << "file bytes" << std::setw(14) << "B/pt (points)" << std::setw(12) << "B/pt (file)" << "\n";
+      << "file bytes" << std::setw(14) << "B/pt (points)" << std::setw(12) << "B/pt (file)"
+      << "  xyz (worst rounding error)\n";
   for (const auto& s : segments)
     out << std::setw(8) << s.id << std::setw(10) << s.points << std::setw(8) << s.images << std::setw(12)
         << s.bytes.file << std::fixed << std::setprecision(1) << std::setw(14)
         << s.bytes.per_point_bytes_per_point(s.points) << std::setw(12) << s.bytes.file_bytes_per_point(s.points)
-        << "\n";
+        << "  " << xyz_summary(s) << "\n";
   const double n = total_points ? double(total_points) : 1.0;
   out << std::fixed << std::setprecision(1) << "total: " << double(total_per_point_bytes) / n
-      << " bytes/point in per-point sections (xyz 12 + hash 16 + PQ 16); " << double(total_bytes) / n
+      << " bytes/point in per-point sections (xyz 12, or 6 quantized, + hash 16 + PQ 16); "
+      << double(total_bytes) / n
       << " bytes/point in all files: segments (images, metadata"
       << (hash_rotation_bytes ? "" : ", a hash rotation each") << "), the shared PQ codebook (" << codebook_bytes
       << " bytes)"

@@ -92,6 +92,11 @@ struct MapSegmentInfo {
   size_t points = 0, images = 0;
   uint32_t format_version = 0;
   SegmentBytes bytes;
+  std::optional<XyzQuantization> xyz_quantization;  // version 3: coordinates in uint16
+  std::optional<double> metres_per_unit;            // enu_from_segment's scale, when georegistered
+  // The worst per-axis rounding error of the coordinates (0 for float32), in
+  // segment units and, with a known scale, in metres.
+  double xyz_rounding_error() const { return xyz_quantization ? xyz_quantization->max_rounding_error() : 0.0; }
 };
 struct MapInfo {
   MapManifest manifest;

@@ -1,5 +1,6 @@
 #include "visloc/map/segment_file.h"
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 
@@ -63,7 +64,101 @@ std::optional<Similarity3d> similarity_from_json(const JsonField& j) {
   return s;
 }
 
-void write_segment_file(const std::filesystem::path& path, const SegmentData& s) {
+XyzQuantization XyzQuantization::fit(std::span<const float> xyz) {
+  XyzQuantization q;
+  for (int axis = 0; axis < 3; ++axis) {
+    double lo = std::numeric_limits<double>::infinity(), hi = -lo;
+    for (size_t i = axis; i < xyz.size(); i += 3) lo = std::min(lo, double(xyz[i])), hi = std::max(hi, double(xyz[i]));
+    if (!(lo <= hi)) lo = hi = 0;  // no points
+    q.origin[axis] = lo;
+    q.step[axis] = (hi > lo ? hi - lo : 1.0) / kMaxLevel;
+  }
+  return q;
+}
+
+double XyzQuantization::max_rounding_error() const { return 0.5 * std::max({step[0], step[1], step[2]}); }
+
+std::vector<uint16_t> XyzQuantization::encode(std::span<const float> xyz) const {
+  std::vector<uint16_t> q(xyz.size());
+  for (size_t i = 0; i < xyz.size(); ++i) {
+    const double level = std::round((double(xyz[i]) - origin[i % 3]) / step[i % 3]);
+    q[i] = static_cast<uint16_t>(std::clamp(level, 0.0, kMaxLevel));
+  }
+  return q;
+}
+
+std::vector<float> XyzQuantization::decode(std::span<const uint16_t> q) const {
+  std::vector<float> xyz(q.size());
+  for (size_t i = 0; i < q.size(); ++i) xyz[i] = static_cast<float>(origin[i % 3] + step[i % 3] * double(q[i]));
+  return xyz;
+}
+
+void XyzQuantization::validate(const std::string& what, ErrorCode code) const {
+  const double float_max = std::numeric_limits<float>::max();
+  for (int axis = 0; axis < 3; ++axis) {
+    if (!std::isfinite(origin[axis]) || !(std::isfinite(step[axis]) && step[axis] > 0))
+      throw_error(code, what, ": xyz_quantization axis ", axis, " has origin ", origin[axis], " and step ", step[axis],
+                  " (finite values and a step > 0 expected)");
+    // Decoding is monotonic in q: both ends within float's range bound every position.
+    const double end = origin[axis] + step[axis] * kMaxLevel;
+    if (!(std::abs(origin[axis]) <= float_max && std::abs(end) <= float_max))
+      throw_error(code, what, ": xyz_quantization axis ", axis, " decodes to [", origin[axis], ", ", end,
+                  "], outside float32's range");
+  }
+}
+
+nlohmann::json XyzQuantization::to_json() const { return {{"origin", origin}, {"step", step}}; }
+
+XyzQuantization XyzQuantization::from_json(const JsonField& j) {
+  XyzQuantization q;
+  const auto origin = j.at("origin").numbers(3);
+  const auto step = j.at("step").numbers(3);
+  std::copy(origin.begin(), origin.end(), q.origin.begin());
+  std::copy(step.begin(), step.end(), q.step.begin());
+  q.validate(j.file(), ErrorCode::kFormat);
+  return q;
+}
+
+void SegmentWriteOptions::validate() const {
+  if (!(std::isfinite(max_quantization_error_m) && max_quantization_error_m > 0))
+    throw_error(ErrorCode::kInvalidArgument, "SegmentWriteOptions.max_quantization_error_m must be a positive number "
+                "of metres, found ", max_quantization_error_m);
+}
+
+namespace {
+
+// enu_from_segment's scale (metres per segment unit) when extra_meta holds a
+// usable one; the reader validates the similarity itself.
+std::optional<double> metres_per_segment_unit(const nlohmann::json& extra_meta) {
+  if (!extra_meta.is_object() || !extra_meta.contains("enu_from_segment")) return std::nullopt;
+  const nlohmann::json& e = extra_meta["enu_from_segment"];
+  if (!e.is_object() || !e.contains("scale") || !e["scale"].is_number()) return std::nullopt;
+  const double scale = e["scale"].get<double>();
+  if (!(std::isfinite(scale) && scale > 0)) return std::nullopt;
+  return scale;
+}
+
+}  // namespace
+
+std::optional<XyzQuantization> choose_xyz_quantization(const SegmentData& s, const SegmentWriteOptions& options) {
+  options.validate();
+  if (options.coordinates == PointCoordinates::kFloat32) return std::nullopt;
+  const bool finite = std::all_of(s.xyz.begin(), s.xyz.end(), [](float v) { return std::isfinite(v); });
+  if (!finite) {
+    // Float32 keeps the bad value for the reader to reject; quantizing would hide it.
+    if (options.coordinates == PointCoordinates::kAuto) return std::nullopt;
+    throw_error(ErrorCode::kInvalidArgument, "segment ", s.segment_id,
+                ": int16 point coordinates need finite coordinates");
+  }
+  const XyzQuantization q = XyzQuantization::fit(s.xyz);
+  q.validate("segment " + std::to_string(s.segment_id), ErrorCode::kInvalidArgument);
+  if (options.coordinates == PointCoordinates::kInt16) return q;
+  const std::optional<double> scale = metres_per_segment_unit(s.extra_meta);
+  if (!scale || !(*scale * q.max_rounding_error() <= options.max_quantization_error_m)) return std::nullopt;
+  return q;
+}
+
+void write_segment_file(const std::filesystem::path& path, const SegmentData& s, const SegmentWriteOptions& options) {
   const size_t n = s.num_points();
   VISLOC_CHECK(s.xyz.size() == 3 * n);
   VISLOC_CHECK(s.codes.size() == n, "codes");
@@ -78,11 +173,17 @@ void write_segment_file(const std::filesystem::path& path, const SegmentData& s)
   meta["hash"] = {{"bits", kHashBits}, {"tables", kHashTables}, {"table_bits", kHashTableBits}, {"method", "itq"}};
   meta["hash_rotation"] = own_hasher ? "segment" : "map";
   meta["pq"] = {{"subvectors", kPqSubvectors}, {"bits", 8}};
+  const std::optional<XyzQuantization> quantization = choose_xyz_quantization(s, options);
+  meta.erase("xyz_quantization");
+  if (quantization) meta["xyz_quantization"] = quantization->to_json();
   nlohmann::json images = nlohmann::json::array();
   for (const auto& im : s.images) images.push_back(to_json(im));
-  SectionFileWriter w(path, "SEGM", kSegmentFileVersion);
+  SectionFileWriter w(path, "SEGM", quantization ? kSegmentFileVersion : kFloatXyzSegmentFileVersion);
   w.add_text("META", meta.dump());
-  w.add_array<float>("XYZ", s.xyz);
+  if (quantization)
+    w.add_array<uint16_t>("XYZ16", quantization->encode(s.xyz));
+  else
+    w.add_array<float>("XYZ", s.xyz);
   w.add_array<HashCode>("CODE", s.codes);
   w.add_array<uint8_t>("PQ", s.pq_codes);
   if (own_hasher) {
@@ -122,14 +223,28 @@ std::unique_ptr<Segment> Segment::open(const std::filesystem::path& path,
     if (has_crc)
       expected_crc = static_cast<uint32_t>(meta.at("hash_rotation_crc32c").unsigned_integer(std::numeric_limits<uint32_t>::max()));
     if (meta.has("enu_from_segment")) s->enu_from_segment_ = similarity_from_json(meta.at("enu_from_segment"));
+    if (meta.has("xyz_quantization") != (r.kind_version() >= 3))
+      throw_error(ErrorCode::kFormat, name, ": META ", r.kind_version() >= 3 ? "lacks" : "has",
+                  " xyz_quantization in a version ", r.kind_version(), " segment file");
+    if (meta.has("xyz_quantization")) s->xyz_quantization_ = XyzQuantization::from_json(meta.at("xyz_quantization"));
   }
   if (s->num_points_ > CascadeLookup::kMaxPoints)
     throw_error(ErrorCode::kFormat, name, ": ", s->num_points_, " points, at most ", CascadeLookup::kMaxPoints);
   const int64_t n = static_cast<int64_t>(s->num_points_);
-  s->xyz_ = r.array<float>("XYZ", 3 * n);
+  const char* const xyz_tag = s->xyz_quantization_ ? "XYZ16" : "XYZ";
+  const char* const other_xyz_tag = s->xyz_quantization_ ? "XYZ" : "XYZ16";
+  if (r.has(other_xyz_tag))
+    throw_error(ErrorCode::kFormat, name, ": a version ", r.kind_version(), " segment file has no section '",
+                other_xyz_tag, "' (its coordinates are in '", xyz_tag, "')");
+  if (s->xyz_quantization_) {
+    s->decoded_xyz_ = s->xyz_quantization_->decode(r.array<uint16_t>("XYZ16", 3 * n));
+    s->xyz_ = s->decoded_xyz_;
+  } else {
+    s->xyz_ = r.array<float>("XYZ", 3 * n);
+  }
   for (size_t i = 0; i < s->xyz_.size(); ++i)
     if (!std::isfinite(s->xyz_[i]))
-      throw_error(ErrorCode::kFormat, name, ": section 'XYZ': point ", i / 3, " has a non-finite coordinate");
+      throw_error(ErrorCode::kFormat, name, ": section '", xyz_tag, "': point ", i / 3, " has a non-finite coordinate");
   CascadeIndexView& v = s->index_;
   v.num_points = s->num_points_;
   auto codes = r.array<HashCode>("CODE", n);
@@ -161,7 +276,8 @@ std::unique_ptr<Segment> Segment::open(const std::filesystem::path& path,
   v.lookup = &s->lookup_;
   v.validate(name);
   b.file = r.file_size();
-  for (const char* t : {"XYZ", "CODE", "PQ"}) b.per_point += r.bytes(t).size();
+  b.per_point = r.bytes(xyz_tag).size() + r.bytes("CODE").size() + r.bytes("PQ").size();
+  b.xyz_memory = s->decoded_xyz_.capacity() * sizeof(float);
   for (const char* t : {"LUTOFF", "LUTIDS"})
     if (r.has(t)) b.lookup_tables += r.bytes(t).size();
   b.other = b.file - b.per_point - b.lookup_tables - b.hasher;

@@ -2,12 +2,18 @@
 // the unit the localizer maps into memory (DESIGN.md "map/"; Tran et al.
 // section III-B). A SectionFile of kind "SEGM", kind version 2 (version 1 is
 // still read); every section 64-byte aligned and CRC32C-checked
-// (util/section_file.h):
+// (util/section_file.h). Version 3 differs from 2 only in the points'
+// coordinates: XYZ16 instead of XYZ (the writer writes version 3 only then,
+// so files with float32 coordinates stay readable by version-2 readers):
 //
 //   META    JSON: segment id, point and image counts, hash/PQ parameters,
 //           "hash_rotation": "segment" (ITQ sections present) or "map" (the
-//           map's hash_rotation.vlitq), optional enu_from_segment similarity
-//   XYZ     N × 3 float32 point positions (segment frame)
+//           map's hash_rotation.vlitq), optional enu_from_segment similarity;
+//           version 3: "xyz_quantization": {"origin": [3], "step": [3]}
+//   XYZ     versions 1-2: N × 3 float32 point positions (segment frame)
+//   XYZ16   version 3: N × 3 uint16 q, position = float(origin + step × q)
+//           per axis, computed in double (the segment's bounding box in
+//           65,536 steps: rounding error ≤ step / 2 per axis)
 //   CODE    N × 16 bytes ITQ hash codes (HashCode: 2 × uint64 little-endian)
 //   PQ      N × 16 bytes PQ codes (codebook shared by the map: pq_codebook.vlpq)
 //   ITQMEAN 128 float32 mean subtracted before hashing   } only with a
@@ -15,13 +21,15 @@
 //   IMAGES  JSON array of the segment's images: name, camera {model, width,
 //           height, params}, cam_from_world {q_wxyz, t}
 //
-// Bytes per point on disk: XYZ 12 + CODE 16 + PQ 16 = 44, plus META and
+// Bytes per point on disk: XYZ 12 (XYZ16 6) + CODE 16 + PQ 16 = 44 (38), plus META and
 // IMAGES (and 64.5 KiB of ITQ with a segment rotation). The lookup tables of
 // the cascade are a function of the codes: Segment::open builds them in
 // memory (CascadeLookup: ~8 × (2 B id + bucket) per point + 96 KiB).
 // Version 1 also stored them (LUTOFF 8 × 65537 uint32, LUTIDS 8 × N uint32)
 // and always an ITQ rotation; its tables are ignored and rebuilt.
-// Segment::open maps the file and points into it (no copy of the arrays).
+// Segment::open maps the file and points into it (no copy of the arrays),
+// except for XYZ16, decoded into floats the segment owns (12 B per point,
+// counted in SegmentBytes::xyz_memory).
 #pragma once
 
 #include <array>
@@ -42,7 +50,8 @@
 
 namespace visloc {
 
-inline constexpr uint32_t kSegmentFileVersion = 2;
+inline constexpr uint32_t kSegmentFileVersion = 3;          // newest version read and written
+inline constexpr uint32_t kFloatXyzSegmentFileVersion = 2;  // written when coordinates are float32
 inline constexpr uint32_t kOldestSegmentFileVersion = 1;
 
 struct SegmentImage {
@@ -75,7 +84,55 @@ struct SegmentData {
   size_t num_points() const { return xyz.size() / 3; }
 };
 
-void write_segment_file(const std::filesystem::path& path, const SegmentData& segment);
+// Point coordinates in 3 × uint16 over the segment's bounding box (META
+// "xyz_quantization", section XYZ16).
+struct XyzQuantization {
+  static constexpr double kMaxLevel = 65535;
+  std::array<double, 3> origin{0, 0, 0};  // per axis, the box's minimum
+  std::array<double, 3> step{1, 1, 1};    // per axis, > 0
+  // The bounding box of N × 3 finite coordinates in 65,535 steps per axis
+  // (an axis without extent gets step 1 / 65535: every point decodes exactly).
+  static XyzQuantization fit(std::span<const float> xyz);
+  // The worst per-axis rounding error, max(step) / 2, in segment units.
+  double max_rounding_error() const;
+  std::vector<uint16_t> encode(std::span<const float> xyz) const;
+  std::vector<float> decode(std::span<const uint16_t> q) const;
+  // Steps finite and > 0, every decodable position a finite float; else
+  // Error(code) naming `what`.
+  void validate(const std::string& what, ErrorCode code) const;
+  nlohmann::json to_json() const;
+  static XyzQuantization from_json(const JsonField& j);  // and validate(kFormat)
+};
+
+enum class PointCoordinates {
+  kAuto,     // int16 when the worst rounding error is within max_quantization_error_m, else float32
+  kFloat32,  // always float32 (version 2 file)
+  kInt16,    // always quantized (version 3 file)
+};
+
+struct SegmentWriteOptions {
+  PointCoordinates coordinates = PointCoordinates::kAuto;
+  // kAuto's bound on the worst per-axis rounding error, in metres (the
+  // segment frame's unit times enu_from_segment's scale; a segment without
+  // that scale keeps float32). Why 2 mm: a point then moves by at most
+  // 3.5 mm (RMS about 1 mm); seen from 3 m with a 1000 px focal that is at
+  // most 1.2 px (typically 0.3 px), well inside RANSAC's 4 px threshold and
+  // below SIFT's keypoint noise, and it is independent from point to point,
+  // so over the hundreds of inliers of a pose it stays far below the
+  // localizer's ~1 cm median error. Points triangulated from real photos
+  // are rarely known better than a few millimetres anyway.
+  double max_quantization_error_m = 0.002;
+  void validate() const;
+};
+
+// The coordinates' quantization the writer uses for `segment` under
+// `options`, or nullopt for float32. kInt16 with coordinates that cannot be
+// quantized (not finite) throws Error(kInvalidArgument).
+std::optional<XyzQuantization> choose_xyz_quantization(const SegmentData& segment,
+                                                       const SegmentWriteOptions& options);
+
+void write_segment_file(const std::filesystem::path& path, const SegmentData& segment,
+                        const SegmentWriteOptions& options = {});
 
 // Measured sizes of one segment file.
 struct SegmentBytes {
@@ -85,6 +142,7 @@ struct SegmentBytes {
   uint64_t hasher = 0;      // ITQMEAN + ITQW (0 with the map's rotation)
   uint64_t other = 0;       // META, IMAGES, header, table, padding
   uint64_t lookup_memory = 0;  // resident bytes of the lookup tables built at open
+  uint64_t xyz_memory = 0;     // resident bytes of coordinates decoded at open (version 3; else 0)
   double per_point_bytes_per_point(size_t n) const { return n ? double(per_point) / double(n) : 0; }
   double file_bytes_per_point(size_t n) const { return n ? double(file) / double(n) : 0; }
 };
@@ -106,6 +164,8 @@ class Segment {
   uint32_t id() const { return id_; }
   size_t num_points() const { return num_points_; }
   std::span<const float> xyz() const { return xyz_; }
+  // Present when the file stores quantized coordinates (version 3).
+  const std::optional<XyzQuantization>& xyz_quantization() const { return xyz_quantization_; }
   const CascadeIndexView& index() const { return index_; }
   const std::vector<SegmentImage>& images() const { return images_; }
   const nlohmann::json& meta() const { return meta_; }
@@ -119,7 +179,9 @@ class Segment {
   SectionFileReader reader_;
   uint32_t id_ = 0;
   size_t num_points_ = 0;
-  std::span<const float> xyz_;
+  std::span<const float> xyz_;             // into the file, or into decoded_xyz_
+  std::vector<float> decoded_xyz_;         // version 3: XYZ16 decoded
+  std::optional<XyzQuantization> xyz_quantization_;
   CascadeIndexView index_;
   CascadeLookup lookup_;
   std::shared_ptr<const BinaryHasher> map_hasher_;

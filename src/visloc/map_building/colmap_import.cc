@@ -29,6 +29,7 @@ namespace fs = std::filesystem;
 
 void ColmapImportOptions::validate() const {
   itq.validate();
+  segment_file.validate();
   pq.validate();
   if (pq_training_database.empty() && !pq_training_images.empty())
     throw_error(ErrorCode::kInvalidArgument, "ColmapImportOptions.pq_training_images needs pq_training_database");
@@ -190,7 +191,7 @@ void import_model_map(ColmapModel model, const ModelSource& source, const fs::pa
   fs::create_directories(out_dir / "segments");
   MapManifest man;
   const std::string seg_file = "segments/" + segment_name(0, ".vlseg");
-  write_segment_file(out_dir / seg_file, seg);
+  write_segment_file(out_dir / seg_file, seg, options.segment_file);
   std::string desc_file;
   if (options.keep_descriptors) {
     fs::create_directories(out_dir / "descriptors");

@@ -24,6 +24,7 @@
 #include "visloc/colmap/bundler.h"
 #include "visloc/colmap/colmap_model.h"
 #include "visloc/geometry/pose_list.h"  // read_name_list
+#include "visloc/map/segment_file.h"
 #include "visloc/matching/binary_hasher.h"
 #include "visloc/matching/pq_codebook.h"
 
@@ -35,6 +36,7 @@ struct ColmapImportOptions {
   std::vector<std::string> pq_training_images;  // names in that database; empty: all its images
   ItqOptions itq;
   HashRotationScope hash_rotation = HashRotationScope::kSegment;  // kMap: MAP/hash_rotation.vlitq
+  SegmentWriteOptions segment_file;  // point coordinates (auto: float32 here, an import has no metric scale)
   PqTrainingOptions pq;
   bool keep_descriptors = true;  // write descriptors/NNNN.vldesc
   bool overwrite = false;        // replace an existing map in the output directory
@@ -43,7 +45,8 @@ struct ColmapImportOptions {
 
 class OptionTable;
 // The options as `visloc map import`'s command-line options: --pq-train-database, --itq-iterations,
-// --hash-rotation, --seed (ITQ's; the CLI seeds PQ training with it too), --no-descriptors, --overwrite.
+// --hash-rotation, --point-coordinates, --seed (ITQ's; the CLI seeds PQ training with it too), --no-descriptors,
+// --overwrite.
 void add_options(OptionTable& table, ColmapImportOptions& options);
 
 struct ColmapImportResult {

@@ -54,6 +54,7 @@ void MapBuildOptions::validate() const {
   if (poses == PoseSource::kKnown && known_poses.empty())
     throw_error(ErrorCode::kInvalidArgument, "map build: --poses known needs --known-poses MODEL_DIR");
   if (jobs < 0) throw_error(ErrorCode::kInvalidArgument, "map build: jobs must be >= 0, got ", jobs);
+  segment_file.validate();
   if (!(fallback_focal_factor > 0))
     throw_error(ErrorCode::kInvalidArgument, "map build: fallback_focal_factor must be positive");
   if (!(pair_max_distance > 0) || !(pair_max_angle_deg > 0 && pair_max_angle_deg <= 180))
@@ -835,7 +836,7 @@ void SegmentBuilder::compress_and_write() {
   fs::create_directories(ctx_.map_dir / "segments");
   fs::create_directories(ctx_.map_dir / "descriptors");
   const fs::path seg_path = segment_file(ctx_.map_dir, id_);
-  write_segment_file(seg_path, data);
+  write_segment_file(seg_path, data, opt_.segment_file);
   write_point_descriptor_file(ctx_.map_dir / "descriptors" / (segment_stem(id_) + ".vldesc"),
                               round_descriptors(desc.mean), desc.track_size);
   res_.points = data.num_points();

@@ -30,6 +30,7 @@
 
 #include "visloc/features/sift_extractor.h"
 #include "visloc/geo/similarity_transform.h"
+#include "visloc/map/segment_file.h"
 #include "visloc/retrieval/image_index.h"
 #include "visloc/retrieval/triangulation_embedding.h"
 #include "visloc/matching/binary_hasher.h"
@@ -103,6 +104,7 @@ struct MapBuildOptions {
   // the PQ codebook's training sample; kSegment: one per segment, learned on
   // its points' descriptors.
   HashRotationScope hash_rotation = HashRotationScope::kSegment;
+  SegmentWriteOptions segment_file;         // point coordinates: float32, int16 or auto
   PqTrainingOptions pq;
   size_t pq_training_descriptors = 100000;  // sampled across the training images:
   size_t pq_training_images = 1000;         // at most this many images, spread evenly over the map
@@ -131,7 +133,8 @@ class OptionTable;
 // The options as `visloc map build`'s command-line options: --images, --gps, --gps-subset, --poses,
 // --known-poses, --known-intrinsics, --matcher, --sampson, --executor, --slurm-*, --jobs, --colmap,
 // --colmap-threads, --exhaustive-max, --spatial-neighbors, the placemark plan's, --chain-order,
-// --registration-threshold, --retrieval-dims, --no-retrieval, --pq-training-images, --hash-rotation, SIFT's.
+// --registration-threshold, --retrieval-dims, --no-retrieval, --pq-training-images, --hash-rotation,
+// --point-coordinates, SIFT's.
 void add_options(OptionTable& table, MapBuildOptions& options);
 
 struct SegmentBuildResult {

@@ -50,7 +50,7 @@ SegmentData random_segment(size_t n, uint64_t seed) {
 TEST(SegmentFile, RoundTripIsMappedAndMeasured) {
   auto dir = temp_dir("roundtrip");
   SegmentData s = random_segment(3000, 1);
-  write_segment_file(dir / "s.vlseg", s);
+  write_segment_file(dir / "s.vlseg", s, {.coordinates = PointCoordinates::kFloat32});  // int16: segment_file_test
   auto seg = Segment::open(dir / "s.vlseg");
   ASSERT_EQ(seg->num_points(), 3000u);
   EXPECT_EQ(seg->id(), 7u);
@@ -70,7 +70,7 @@ TEST(SegmentFile, RoundTripIsMappedAndMeasured) {
     for (uint32_t b = 0; b < kHashBuckets; ++b) total += v.lookup->bucket_size(k, b);
     EXPECT_EQ(total, 3000u);
   }
-  EXPECT_EQ(seg->format_version(), kSegmentFileVersion);
+  EXPECT_EQ(seg->format_version(), kFloatXyzSegmentFileVersion);
   EXPECT_EQ(v.hasher.projection[129], 1.0f);
   // Arrays are views into the mapping, 64-byte aligned.
   EXPECT_EQ(reinterpret_cast<uintptr_t>(v.codes) % 64, 0u);
@@ -141,7 +141,7 @@ TEST(SegmentFile, RejectsTruncatedCorruptedAndWrongVersion) {
   // Sections of the wrong size (valid CRCs) are caught.
   {
     SegmentData bad = random_segment(500, 3);
-    SectionFileWriter w(p, "SEGM", kSegmentFileVersion);
+    SectionFileWriter w(p, "SEGM", kFloatXyzSegmentFileVersion);
     w.add_text("META", R"({"segment_id": 1, "points": 501})");
     w.add_array<float>("XYZ", bad.xyz);
     w.add_array<HashCode>("CODE", bad.codes);

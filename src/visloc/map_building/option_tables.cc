@@ -13,6 +13,15 @@ void add_hash_rotation(OptionTable& t, HashRotationScope& scope, std::string hel
            std::move(help));
 }
 
+void add_point_coordinates(OptionTable& t, SegmentWriteOptions& o) {
+  t.choice("--point-coordinates", o.coordinates,
+           {{"auto", PointCoordinates::kAuto}, {"float32", PointCoordinates::kFloat32},
+            {"int16", PointCoordinates::kInt16}},
+           "Segment files' point coordinates: 'int16' (6 instead of 12 bytes per point, the segment's box in "
+           "65,536 steps), 'float32', or 'auto' (int16 when the worst rounding error is at most 2 mm; segments "
+           "without a metric scale keep float32)");
+}
+
 }  // namespace
 
 void add_options(OptionTable& t, MapBuildOptions& o) {
@@ -84,6 +93,7 @@ void add_options(OptionTable& t, MapBuildOptions& o) {
   add_hash_rotation(t, o.hash_rotation,
                     "ITQ hash rotation: 'segment' (one per segment, in its file) or 'map' (one for the map, "
                     "MAP/hash_rotation.vlitq: 64 KiB less per segment, a query hashed once)");
+  add_point_coordinates(t, o.segment_file);
   add_options(t, o.sift);
 }
 
@@ -114,6 +124,7 @@ void add_options(OptionTable& t, ColmapImportOptions& o) {
   t.add("--itq-iterations", o.itq.iterations, "ITQ iterations");
   add_hash_rotation(t, o.hash_rotation,
                     "ITQ hash rotation stored in the segment ('segment') or in MAP/hash_rotation.vlitq ('map')");
+  add_point_coordinates(t, o.segment_file);
   t.add("--seed", o.itq.seed, "Seed of ITQ's initial rotation and of PQ training");
   t.action("--no-descriptors", [&o] { o.keep_descriptors = false; },
            "Do not keep the mean descriptors (descriptors/*.vldesc; needed by the raw-SIFT baselines)");

@@ -79,7 +79,8 @@ PlantedMap::PlantedMap(const std::string& name, const std::vector<PlantedSegment
                                            {"rotation_row_major", r},
                                            {"translation", {e.translation.x(), e.translation.y(), e.translation.z()}}};
     const std::string file = "segments/" + std::to_string(k) + ".vlseg";
-    write_segment_file(dir_ / file, data);
+    // float32: the tests compare what they read with the planted points exactly.
+    write_segment_file(dir_ / file, data, {.coordinates = PointCoordinates::kFloat32});
     const MappedFile mapped(dir_ / file);
     man.segments.push_back({static_cast<uint32_t>(k), file, "", s.xyz.size(), model.images.size(),
                             static_cast<uint64_t>(mapped.size()), crc32c(mapped.data(), mapped.size())});

@@ -17,8 +17,8 @@ std::shared_ptr<const Segment> SegmentCache::get(size_t index) {
   }
   // Open outside the lock (mapping + checksum verification take time).
   std::shared_ptr<const Segment> seg = map_.open_segment(index);
-  // The mapped file and the lookup tables built at load.
-  const uint64_t bytes = seg->bytes().file + seg->bytes().lookup_memory;
+  // The mapped file, the lookup tables built at load and decoded coordinates (quantized files).
+  const uint64_t bytes = seg->bytes().file + seg->bytes().lookup_memory + seg->bytes().xyz_memory;
   std::lock_guard lock(mutex_);
   auto it = entries_.find(index);
   if (it != entries_.end()) return it->second.segment;  // another thread was quicker

@@ -1,5 +1,6 @@
 // SegmentCache: segments of an opened map, memory-mapped on demand and kept
-// in least-recently-used order under a byte budget (the mapped file sizes).
+// in least-recently-used order under a byte budget (the mapped file sizes,
+// the lookup tables and the coordinates decoded from quantized files).
 // Thread-safe; a segment in use stays mapped (shared_ptr) even if evicted.
 #pragma once
 
