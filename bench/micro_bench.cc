@@ -325,8 +325,8 @@ void BM_SegmentFile100KPoints(benchmark::State& state) {
   data.codes = s.codes;
   data.pq_codes = s.pq;
   for (int i = 0; i < 100; ++i)
-    data.images.push_back({"img" + std::to_string(i) + ".jpg", 1, 1600, 1200, {1900, 1900, 800, 600},
-                           {1, 0, 0, 0}, {float(i), 0, 0}});
+    data.images.push_back(
+        {"img" + std::to_string(i) + ".jpg", 1, 1600, 1200, {1900, 1900, 800, 600}, {1, 0, 0, 0}, {float(i), 0, 0}});
   data.extra_meta["enu_from_segment"] = {
       {"scale", 1.0}, {"rotation_row_major", {1, 0, 0, 0, 1, 0, 0, 0, 1}}, {"translation", {0, 0, 0}}};
   visloc::SegmentWriteOptions options;
@@ -341,7 +341,8 @@ void BM_SegmentFile100KPoints(benchmark::State& state) {
   }
   const double n = double(segment->num_points());
   state.counters["file_bytes_per_point"] = segment->bytes().file_bytes_per_point(segment->num_points());
-  state.counters["per_point_section_bytes_per_point"] = segment->bytes().per_point_bytes_per_point(segment->num_points());
+  state.counters["per_point_section_bytes_per_point"] =
+      segment->bytes().per_point_bytes_per_point(segment->num_points());
   state.counters["decoded_xyz_bytes_per_point"] = double(segment->bytes().xyz_memory) / n;
   state.counters["format_version"] = segment->format_version();
   state.counters["worst_rounding_error_mm"] =

@@ -164,8 +164,8 @@ MapInfo map_info(const fs::path& dir) {
   }
   for (size_t i = 0; i < map.manifest().segments.size(); ++i) {
     auto s = map.open_segment(i);
-    MapSegmentInfo si{s->id(), s->num_points(), s->images().size(), s->format_version(), s->bytes(),
-                      s->xyz_quantization(), std::nullopt};
+    MapSegmentInfo si{s->id(),    s->num_points(),       s->images().size(), s->format_version(),
+                      s->bytes(), s->xyz_quantization(), std::nullopt};
     if (s->enu_from_segment()) si.metres_per_unit = s->enu_from_segment()->scale;
     info.total_points += si.points;
     info.total_per_point_bytes += si.bytes.per_point;
@@ -189,8 +189,8 @@ nlohmann::json MapInfo::to_json() const {
                     {"lookup_table_file_bytes", s.bytes.lookup_tables},
                     {"lookup_table_memory_bytes", s.bytes.lookup_memory},
                     {"xyz_coordinates", s.xyz_quantization ? "int16" : "float32"},
-                    {"xyz_rounding_error", s.xyz_rounding_error()},     // segment units, per axis
-                    {"xyz_rounding_error_m", error_m},                  // null without a metric scale
+                    {"xyz_rounding_error", s.xyz_rounding_error()},  // segment units, per axis
+                    {"xyz_rounding_error_m", error_m},               // null without a metric scale
                     {"xyz_decoded_memory_bytes", s.bytes.xyz_memory},
                     {"hasher_bytes", s.bytes.hasher},
                     {"other_bytes", s.bytes.other},
@@ -239,8 +239,7 @@ std::string MapInfo::summary(const std::string& map_name) const {
         << "  " << xyz_summary(s) << "\n";
   const double n = total_points ? double(total_points) : 1.0;
   out << std::fixed << std::setprecision(1) << "total: " << double(total_per_point_bytes) / n
-      << " bytes/point in per-point sections (xyz 12, or 6 quantized, + hash 16 + PQ 16); "
-      << double(total_bytes) / n
+      << " bytes/point in per-point sections (xyz 12, or 6 quantized, + hash 16 + PQ 16); " << double(total_bytes) / n
       << " bytes/point in all files: segments (images, metadata"
       << (hash_rotation_bytes ? "" : ", a hash rotation each") << "), the shared PQ codebook (" << codebook_bytes
       << " bytes)"

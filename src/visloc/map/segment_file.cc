@@ -121,8 +121,10 @@ XyzQuantization XyzQuantization::from_json(const JsonField& j) {
 
 void SegmentWriteOptions::validate() const {
   if (!(std::isfinite(max_quantization_error_m) && max_quantization_error_m > 0))
-    throw_error(ErrorCode::kInvalidArgument, "SegmentWriteOptions.max_quantization_error_m must be a positive number "
-                "of metres, found ", max_quantization_error_m);
+    throw_error(ErrorCode::kInvalidArgument,
+                "SegmentWriteOptions.max_quantization_error_m must be a positive number "
+                "of metres, found ",
+                max_quantization_error_m);
 }
 
 namespace {

@@ -1,7 +1,7 @@
 // Segment files (.vlseg): one 3D sub-model with compressed descriptors only,
 // the unit the localizer maps into memory (DESIGN.md "map/"; Tran et al.
-// section III-B). A SectionFile of kind "SEGM", kind version 2 (version 1 is
-// still read); every section 64-byte aligned and CRC32C-checked
+// section III-B). A SectionFile of kind "SEGM", kind version 3 or 2
+// (version 1 is still read); every section 64-byte aligned and CRC32C-checked
 // (util/section_file.h). Version 3 differs from 2 only in the points'
 // coordinates: XYZ16 instead of XYZ (the writer writes version 3 only then,
 // so files with float32 coordinates stay readable by version-2 readers):
@@ -128,8 +128,7 @@ struct SegmentWriteOptions {
 // The coordinates' quantization the writer uses for `segment` under
 // `options`, or nullopt for float32. kInt16 with coordinates that cannot be
 // quantized (not finite) throws Error(kInvalidArgument).
-std::optional<XyzQuantization> choose_xyz_quantization(const SegmentData& segment,
-                                                       const SegmentWriteOptions& options);
+std::optional<XyzQuantization> choose_xyz_quantization(const SegmentData& segment, const SegmentWriteOptions& options);
 
 void write_segment_file(const std::filesystem::path& path, const SegmentData& segment,
                         const SegmentWriteOptions& options = {});
@@ -179,8 +178,8 @@ class Segment {
   SectionFileReader reader_;
   uint32_t id_ = 0;
   size_t num_points_ = 0;
-  std::span<const float> xyz_;             // into the file, or into decoded_xyz_
-  std::vector<float> decoded_xyz_;         // version 3: XYZ16 decoded
+  std::span<const float> xyz_;      // into the file, or into decoded_xyz_
+  std::vector<float> decoded_xyz_;  // version 3: XYZ16 decoded
   std::optional<XyzQuantization> xyz_quantization_;
   CascadeIndexView index_;
   CascadeLookup lookup_;

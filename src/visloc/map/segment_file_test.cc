@@ -131,7 +131,7 @@ TEST(SegmentCoordinates, Int16IsVersion3WithinHalfAStep) {
   }
   for (int a = 0; a < 3; ++a) {
     EXPECT_NEAR(q.step[a], 37.5 / 65535, 37.5 / 65535 * 0.01) << a;  // the points' box, 65,535 steps
-    EXPECT_GT(worst[a], q.step[a] / 4) << a;                          // the data are really rounded
+    EXPECT_GT(worst[a], q.step[a] / 4) << a;                         // the data are really rounded
   }
   EXPECT_DOUBLE_EQ(q.max_rounding_error(), 0.5 * std::max({q.step[0], q.step[1], q.step[2]}));
   EXPECT_EQ(seg->bytes().per_point, 38u * n);
@@ -154,11 +154,11 @@ TEST(SegmentCoordinates, AutoQuantizesWithinTheBoundInMetres) {
   const SegmentWriteOptions automatic;  // the default
   EXPECT_EQ(automatic.coordinates, PointCoordinates::kAuto);
   // A 200-unit box: worst rounding error 200 / 65535 / 2 = 1.53 units × 10⁻³.
-  EXPECT_EQ(written_version(segment(300, 200, 1.0), automatic, dir), 3u);   // 1.53 mm
-  EXPECT_EQ(written_version(segment(300, 200, 1.5), automatic, dir), 2u);   // 2.29 mm: float32
-  EXPECT_EQ(written_version(segment(300, 200, 0.5), automatic, dir), 3u);   // 0.76 mm
-  EXPECT_EQ(written_version(segment(300, 300, 1.0), automatic, dir), 2u);   // 2.29 mm: float32
-  EXPECT_EQ(written_version(segment(300, 10, 0), automatic, dir), 2u);      // no metric scale: float32
+  EXPECT_EQ(written_version(segment(300, 200, 1.0), automatic, dir), 3u);  // 1.53 mm
+  EXPECT_EQ(written_version(segment(300, 200, 1.5), automatic, dir), 2u);  // 2.29 mm: float32
+  EXPECT_EQ(written_version(segment(300, 200, 0.5), automatic, dir), 3u);  // 0.76 mm
+  EXPECT_EQ(written_version(segment(300, 300, 1.0), automatic, dir), 2u);  // 2.29 mm: float32
+  EXPECT_EQ(written_version(segment(300, 10, 0), automatic, dir), 2u);     // no metric scale: float32
   EXPECT_EQ(written_version(segment(300, 200, 1.0), coordinates(PointCoordinates::kAuto, 0.001), dir), 2u);
   EXPECT_EQ(written_version(segment(300, 200, 1.5), coordinates(PointCoordinates::kInt16), dir), 3u);
   EXPECT_EQ(written_version(segment(300, 10, 1.0), coordinates(PointCoordinates::kFloat32), dir), 2u);

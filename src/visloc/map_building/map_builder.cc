@@ -87,10 +87,14 @@ PairMatcher MapBuildOptions::effective_matcher() const {
 
 std::string_view to_string(PairMatcher matcher) {
   switch (matcher) {
-    case PairMatcher::kDefault: return "auto";
-    case PairMatcher::kGuided: return "guided";
-    case PairMatcher::kColmap: return "colmap";
-    case PairMatcher::kTwoView: return "twoview";
+    case PairMatcher::kDefault:
+      return "auto";
+    case PairMatcher::kGuided:
+      return "guided";
+    case PairMatcher::kColmap:
+      return "colmap";
+    case PairMatcher::kTwoView:
+      return "twoview";
   }
   return "auto";
 }
@@ -714,7 +718,9 @@ void SegmentBuilder::match_twoview(ColmapDatabaseWriter& db) {
   std::ostringstream summary;
   summary << "twoview matching (" << to_string(opt_.pair_verification.estimation.variant) << "): " << pairs.size()
           << " pairs, " << res_.matched_pairs << " verified (>= " << opt_.pair_verification.min_inliers
-          << " inliers, 1-1 inlier ratio >= " << opt_.pair_verification.min_inlier_ratio << "), " << res_.matches << " inliers written (" << extra_inliers << " of them from the 1-M set)\n";
+          << " inliers, 1-1 inlier ratio >= " << opt_.pair_verification.min_inlier_ratio << "), " << res_.matches
+          << " inliers written, one per feature of each image (1-M verification found " << extra_inliers
+          << " inliers beyond the 1-1 ones)\n";
   std::ofstream(log_, std::ios::app) << summary.str();
 }
 
@@ -1224,16 +1230,28 @@ void MapBuilder::write_current_manifest() {
     if (!r.ok && !r.error.empty() && r.error != "not built") failed.push_back({{"id", r.id}, {"error", r.error}});
   // Listed whenever present: a segment of an earlier run may need it.
   if (fs::exists(s.rotation_path)) man.hash_rotation_file = kHashRotationFileName;
-  man.parameters = {{"hash", {{"method", "itq"}, {"bits", kHashBits}, {"tables", kHashTables},
-                              {"table_bits", kHashTableBits}, {"itq_iterations", opt.itq.iterations},
-                              {"seed", opt.itq.seed}, {"rotation", to_string(opt.hash_rotation)}}},
+  man.parameters = {{"hash",
+                     {{"method", "itq"},
+                      {"bits", kHashBits},
+                      {"tables", kHashTables},
+                      {"table_bits", kHashTableBits},
+                      {"itq_iterations", opt.itq.iterations},
+                      {"seed", opt.itq.seed},
+                      {"rotation", to_string(opt.hash_rotation)}}},
                     {"pq", {{"subvectors", kPqSubvectors}, {"bits", 8}, {"seed", opt.pq.seed}}},
                     {"point_descriptor", "mean of track"},
                     {"sift", nlohmann::json::parse(opt.sift.to_json())},
-                    {"segments", {{"min_placemarks", opt.plan.min_placemarks},
-                                  {"max_placemarks", opt.plan.max_placemarks},
-                                  {"overlap", opt.plan.overlap}}},
+                    {"segments",
+                     {{"min_placemarks", opt.plan.min_placemarks},
+                      {"max_placemarks", opt.plan.max_placemarks},
+                      {"overlap", opt.plan.overlap}}},
                     {"matcher", std::string(to_string(opt.effective_matcher()))}};
+  if (opt.effective_matcher() == PairMatcher::kTwoView)
+    man.parameters["pair_verification"] = {
+        {"ransac", std::string(to_string(opt.pair_verification.estimation.variant))},
+        {"threshold_px", opt.pair_verification.estimation.threshold_px},
+        {"min_inliers", opt.pair_verification.min_inliers},
+        {"min_inlier_ratio", opt.pair_verification.min_inlier_ratio}};
   man.source = {{"type", "build"},
                 {"images", fs::absolute(opt.images_dir).string()},
                 {"gps", opt.gps_csv.empty() ? std::string("exif") : fs::absolute(opt.gps_csv).string()},

@@ -31,10 +31,10 @@
 #include "visloc/features/sift_extractor.h"
 #include "visloc/geo/similarity_transform.h"
 #include "visloc/map/segment_file.h"
-#include "visloc/retrieval/image_index.h"
-#include "visloc/retrieval/triangulation_embedding.h"
 #include "visloc/matching/binary_hasher.h"
 #include "visloc/matching/pq_codebook.h"
+#include "visloc/retrieval/image_index.h"
+#include "visloc/retrieval/triangulation_embedding.h"
 #include "visloc/sfm/colmap_runner.h"
 #include "visloc/sfm/guided_matcher.h"
 #include "visloc/sfm/segment_plan.h"
@@ -104,7 +104,7 @@ struct MapBuildOptions {
   // the PQ codebook's training sample; kSegment: one per segment, learned on
   // its points' descriptors.
   HashRotationScope hash_rotation = HashRotationScope::kSegment;
-  SegmentWriteOptions segment_file;         // point coordinates: float32, int16 or auto
+  SegmentWriteOptions segment_file;  // point coordinates: float32, int16 or auto
   PqTrainingOptions pq;
   size_t pq_training_descriptors = 100000;  // sampled across the training images:
   size_t pq_training_images = 1000;         // at most this many images, spread evenly over the map

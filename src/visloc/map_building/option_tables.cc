@@ -14,12 +14,12 @@ void add_hash_rotation(OptionTable& t, HashRotationScope& scope, std::string hel
 }
 
 void add_point_coordinates(OptionTable& t, SegmentWriteOptions& o) {
-  t.choice("--point-coordinates", o.coordinates,
-           {{"auto", PointCoordinates::kAuto}, {"float32", PointCoordinates::kFloat32},
-            {"int16", PointCoordinates::kInt16}},
-           "Segment files' point coordinates: 'int16' (6 instead of 12 bytes per point, the segment's box in "
-           "65,536 steps), 'float32', or 'auto' (int16 when the worst rounding error is at most 2 mm; segments "
-           "without a metric scale keep float32)");
+  t.choice(
+      "--point-coordinates", o.coordinates,
+      {{"auto", PointCoordinates::kAuto}, {"float32", PointCoordinates::kFloat32}, {"int16", PointCoordinates::kInt16}},
+      "Segment files' point coordinates: 'int16' (6 instead of 12 bytes per point, the segment's box in "
+      "65,536 steps), 'float32', or 'auto' (int16 when the worst rounding error is at most 2 mm; segments "
+      "without a metric scale keep float32)");
 }
 
 }  // namespace

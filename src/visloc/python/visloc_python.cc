@@ -469,6 +469,20 @@ std::string number_text(double v) {
   return text;
 }
 
+// `--point-coordinates`' choice names (the option table's).
+const char* point_coordinates_name(PointCoordinates c) {
+  return c == PointCoordinates::kInt16 ? "int16" : c == PointCoordinates::kFloat32 ? "float32" : "auto";
+}
+
+// The keyword `point_coordinates` ('auto', 'float32', 'int16'), if given.
+void take_point_coordinates(Kwargs& k, SegmentWriteOptions& o) {
+  std::string name;
+  if (k.take_choice("point_coordinates", name, {"auto", "float32", "int16"}))
+    o.coordinates = name == "int16"     ? PointCoordinates::kInt16
+                    : name == "float32" ? PointCoordinates::kFloat32
+                                        : PointCoordinates::kAuto;
+}
+
 // The `visloc map build` arguments that give these options, recorded in
 // MAP/work/build.json as the CLI records its own, so that `visloc map
 // build-segment` (a Slurm task, or a segment rebuilt by hand) builds a map
@@ -507,6 +521,7 @@ nlohmann::json build_record(const MapBuildOptions& o, const fs::path& map_dir) {
   add("--retrieval-dims", std::to_string(o.embedding.output_dims));
   add("--pq-training-images", std::to_string(o.pq_training_images));
   add("--hash-rotation", to_string(o.hash_rotation));
+  add("--point-coordinates", point_coordinates_name(o.segment_file.coordinates));
   add("--max-side", std::to_string(o.sift.max_image_side));
   add("--max-features", std::to_string(o.sift.max_features));
   add("--contrast-threshold", number_text(o.sift.contrast_threshold));
@@ -868,6 +883,7 @@ void bind_build_map(py::module_& m) {
         k.take("pq_training_images", o.pq_training_images);
         if (k.take_choice("hash_rotation", hash_rotation, {"segment", "map"}))
           o.hash_rotation = parse_hash_rotation_scope(hash_rotation);
+        take_point_coordinates(k, o.segment_file);
         k.take("keep_work", o.keep_work);
         take_sift_options(k, o.sift);
         k.finish();
@@ -916,7 +932,8 @@ Keywords as the CLI's flags: gps ('exif' or a CSV), gps_subset, poses ('sfm' or
 'twoview'), sampson, pair_ransac ('classic', '1m', '1m-sprt'), pair_threshold, jobs, colmap, colmap_threads, exhaustive_max, spatial_neighbors,
 min_placemarks, max_placemarks, overlap, placemark_radius, chain_order,
 registration_threshold, retrieval, retrieval_dims, pq_training_images,
-hash_rotation, keep_work and the SIFT options. progress(dict) is called as the
+hash_rotation, point_coordinates ('auto', 'float32', 'int16'), keep_work and the
+SIFT options. progress(dict) is called as the
 build advances. Local executor only (Slurm builds: the CLI). Segments are
 built `jobs` at a time (default: one per core), each SIFT on OpenCV's
 process-wide pool: call visloc.set_opencv_threads(1) first, as the CLI does,
@@ -938,6 +955,7 @@ void bind_import_colmap(py::module_& m) {
         std::string hash_rotation;
         if (k.take_choice("hash_rotation", hash_rotation, {"segment", "map"}))
           o.hash_rotation = parse_hash_rotation_scope(hash_rotation);
+        take_point_coordinates(k, o.segment_file);
         k.take("itq_iterations", o.itq.iterations);
         k.take("seed", o.itq.seed);
         k.take("keep_descriptors", o.keep_descriptors);
@@ -957,8 +975,8 @@ void bind_import_colmap(py::module_& m) {
       R"doc(Imports a COLMAP model and its database as a one-segment map, as
 `visloc map import --colmap`. Keywords: holdout (names or a file of names:
 removed from the model, kept as queries), pq_train_database,
-pq_train_images, hash_rotation ('segment' or 'map'), itq_iterations, seed,
-keep_descriptors, overwrite. Returns the import statistics as a dict.)doc");
+pq_train_images, hash_rotation ('segment' or 'map'), point_coordinates ('auto',
+'float32', 'int16'), itq_iterations, seed, keep_descriptors, overwrite. Returns the import statistics as a dict.)doc");
 }
 
 // visloc.evaluate.

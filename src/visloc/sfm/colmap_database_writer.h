@@ -66,7 +66,8 @@ class ColmapDatabaseWriter {
   // (calibrated) with E when given, else config 3 (uncalibrated) with F.
   // The relative pose is left as COLMAP 3.8's verification leaves it by
   // default (identity, zero translation).
-  void add_verified_pair(int64_t image_id1, int64_t image_id2, const std::vector<std::pair<uint32_t, uint32_t>>& matches,
+  void add_verified_pair(int64_t image_id1, int64_t image_id2,
+                         const std::vector<std::pair<uint32_t, uint32_t>>& matches,
                          const std::vector<std::pair<uint32_t, uint32_t>>& inliers, const Eigen::Matrix3d& F,
                          const std::optional<Eigen::Matrix3d>& E);
   // Removes an image with its features, matches and two-view geometries;

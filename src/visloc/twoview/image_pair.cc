@@ -10,6 +10,7 @@
 #include "visloc/geometry/pose_list.h"
 #include "visloc/image/image_io.h"
 #include "visloc/matching/exact_matcher.h"
+#include "visloc/pose/solvers/two_view.h"
 #include "visloc/util/error.h"
 
 namespace visloc {
@@ -117,6 +118,8 @@ nlohmann::json ImagePairResult::to_json() const {
 void PairVerificationOptions::validate() const {
   matching.validate();
   estimation.validate();
+  if (estimation.model == TwoViewModel::kHomography)  // a COLMAP two-view geometry of ours holds F (and E)
+    throw_error(ErrorCode::kInvalidArgument, "pair verification: the model must be F or E, not H");
   if (min_inliers < 8)  // below the 7-point sample, a model fits any pair
     throw_error(ErrorCode::kInvalidArgument, "pair verification: min_inliers must be at least 8, got ", min_inliers);
   if (!(min_inlier_ratio >= 0 && min_inlier_ratio <= 1))
@@ -124,24 +127,61 @@ void PairVerificationOptions::validate() const {
                 min_inlier_ratio);
 }
 
+namespace {
+
+// The model's inliers, one per feature of image 2 (COLMAP's matches are
+// 1-1; a track must not see one image twice): when several features of
+// image 1 chose the same feature of image 2, the 1-1 inlier wins, else the
+// lowest Sampson error.
+std::vector<std::pair<uint32_t, uint32_t>> unique_inliers(const TwoViewCorrespondences& m, const TwoViewEstimate& e) {
+  struct Claim {
+    uint32_t feature1 = 0, feature2 = 0;
+    bool one_to_one = false;
+    double error2 = 0;
+  };
+  std::vector<Claim> claims;
+  claims.reserve(e.inliers);
+  for (size_t i = 0; i < m.size(); ++i) {
+    const int32_t chosen = e.chosen_candidate[i];
+    if (chosen < 0) continue;
+    const size_t c = m.candidate_offsets[i] + static_cast<size_t>(chosen);
+    claims.push_back({m.feature1[i], m.candidate_feature2[c], e.one_to_one_inlier[i] != 0,
+                      sampson_error2(e.fundamental, m.points1[i], m.candidates[c])});
+  }
+  std::sort(claims.begin(), claims.end(), [](const Claim& x, const Claim& y) {
+    if (x.feature2 != y.feature2) return x.feature2 < y.feature2;
+    if (x.one_to_one != y.one_to_one) return x.one_to_one;
+    return x.error2 < y.error2 || (x.error2 == y.error2 && x.feature1 < y.feature1);
+  });
+  std::vector<std::pair<uint32_t, uint32_t>> inliers;
+  for (size_t k = 0; k < claims.size(); ++k)
+    if (k == 0 || claims[k].feature2 != claims[k - 1].feature2)
+      inliers.emplace_back(claims[k].feature1, claims[k].feature2);
+  std::sort(inliers.begin(), inliers.end());
+  return inliers;
+}
+
+}  // namespace
+
 VerifiedPair verify_image_pair(const FeatureSet& a, const FeatureSet& b, const PairVerificationOptions& options) {
   options.validate();
   VerifiedPair v;
   const TwoViewCorrespondences m = match_feature_sets(a, b, options.matching);
   v.matches.reserve(m.size());
-  for (size_t i = 0; i < m.size(); ++i) v.matches.emplace_back(m.feature1[i], m.candidate_feature2[m.candidate_offsets[i]]);
+  for (size_t i = 0; i < m.size(); ++i)
+    v.matches.emplace_back(m.feature1[i], m.candidate_feature2[m.candidate_offsets[i]]);
   v.estimate = estimate_two_view(m, options.estimation);
-  const size_t one_to_one_matches = static_cast<size_t>(
-      std::count(m.in_hypothesis_set.begin(), m.in_hypothesis_set.end(), uint8_t{1}));
-  if (!v.estimate.found || v.estimate.inliers < options.min_inliers ||
+  // The pair is verified by its 1-1 matches, as COLMAP's (min_num_inliers,
+  // min_inlier_ratio): with up to M candidates per feature in a 4 px band, a
+  // wrong model gathers 1-M inliers by chance, even between views that do
+  // not overlap. The 1-M set then adds inliers to a verified pair only.
+  const size_t one_to_one_matches =
+      static_cast<size_t>(std::count(m.in_hypothesis_set.begin(), m.in_hypothesis_set.end(), uint8_t{1}));
+  if (!v.estimate.found || v.estimate.one_to_one_inliers < options.min_inliers ||
       static_cast<double>(v.estimate.one_to_one_inliers) <
           options.min_inlier_ratio * static_cast<double>(one_to_one_matches))
     return v;
-  v.inliers.reserve(v.estimate.inliers);
-  for (size_t i = 0; i < m.size(); ++i) {
-    const int32_t chosen = v.estimate.chosen_candidate[i];
-    if (chosen >= 0) v.inliers.emplace_back(m.feature1[i], m.candidate_feature2[m.candidate_offsets[i] + chosen]);
-  }
+  v.inliers = unique_inliers(m, v.estimate);
   v.verified = true;
   return v;
 }

@@ -37,8 +37,8 @@ struct PairMatchingOptions {
 TwoViewCorrespondences match_feature_sets(const FeatureSet& a, const FeatureSet& b, const PairMatchingOptions& options);
 
 // Verifying one image pair of a map (map building's `--matcher twoview`):
-// match_feature_sets, then estimate_two_view with the options' model (E
-// needs both calibrations; the caller sets them), and the inliers as
+// match_feature_sets, then estimate_two_view with the options' model, F or
+// E (E needs both calibrations; the caller sets them), and the inliers as
 // feature index pairs, as a COLMAP database's two-view geometry holds them.
 struct PairVerificationOptions {
   PairMatchingOptions matching;
@@ -50,19 +50,23 @@ struct PairVerificationOptions {
     o.threshold_px = 4.0;
     return o;
   }();
-  size_t min_inliers = 15;  // fewer: the pair is not verified (COLMAP's min_num_inliers)
-  // The model's 1-1 inliers as a fraction of the 1-1 matches: lower, the pair
-  // is not verified (COLMAP's min_inlier_ratio on its 1-1 matches). Measured
-  // on the 1-1 set for every variant, since the 1-M set's extra candidates
-  // let a wrong model gather inliers between views that do not overlap.
+  // The pair is verified by the model's 1-1 inliers (hypothesis-set features
+  // whose 1-1 match fits), for every variant: at least min_inliers of them
+  // (COLMAP's min_num_inliers) and at least min_inlier_ratio of the 1-1
+  // matches (COLMAP's min_inlier_ratio). The 1-M set's extra candidates let
+  // a wrong model gather inliers by chance, even between views that do not
+  // overlap; they add inliers to a verified pair only.
+  size_t min_inliers = 15;
   double min_inlier_ratio = 0.25;
   void validate() const;
 };
 
 struct VerifiedPair {
-  bool verified = false;  // a model with at least min_inliers inliers
+  bool verified = false;  // the model passed PairVerificationOptions' rules
   // Each matched feature of image 1 with its best candidate (COLMAP's raw
-  // `matches`), and each inlier feature with the candidate that fits.
+  // `matches`); the inliers: each inlier feature with the candidate that
+  // fits, one per feature of image 2 (the 1-1 inlier, else the lowest
+  // Sampson error, wins a feature of image 2 that several chose), sorted.
   std::vector<std::pair<uint32_t, uint32_t>> matches, inliers;
   TwoViewEstimate estimate;
 };

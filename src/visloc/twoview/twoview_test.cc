@@ -4,6 +4,7 @@
 
 #include <array>
 #include <filesystem>
+#include <set>
 #include <utility>
 
 #include <Eigen/Core>
@@ -137,7 +138,10 @@ TEST(PairVerification, OneManyKeepsRepeatedWindowsWithTheirTruePartner) {
     EXPECT_EQ(true_inliers, one_many.inliers.size()) << "every inlier is its feature's true partner";
     EXPECT_GE(true_inliers, corresponding - 5);
     EXPECT_EQ(window_inliers, p.windows) << "1-M verification picks the window on the epipolar line";
-    EXPECT_EQ(one_many.estimate.extra_inliers, one_many.inliers.size() - one_many.estimate.one_to_one_inliers);
+    EXPECT_EQ(one_many.estimate.extra_inliers, one_many.estimate.inliers - one_many.estimate.one_to_one_inliers);
+    std::set<uint32_t> in_image2;
+    for (const auto& inlier : one_many.inliers)
+      EXPECT_TRUE(in_image2.insert(inlier.second).second) << "one per feature";
     EXPECT_GE(one_many.matches.size(), one_many.inliers.size());
     // Classical RANSAC sees only the 1-1 set: the windows (three equal
     // candidates each) fail its ratio test.
@@ -174,6 +178,17 @@ TEST(PairVerification, UnrelatedImagesAreNotVerified) {
   const VerifiedPair low = verify_image_pair(moved.a, moved.b, PairVerificationOptions{});
   EXPECT_FALSE(low.verified);
   EXPECT_GE(low.estimate.inliers, 15u);
+  // Repeated windows only, and no overlap: `b`'s distinct features are
+  // other ones, its windows elsewhere. Plenty of 1-M candidates, no 1-1
+  // support: not verified (the windows alone must not verify a pair).
+  PlantedPair apart = planted_pair();
+  for (size_t i = 0; i < apart.distinct + apart.windows; ++i) {
+    apart.b.keypoints[i] = {static_cast<float>(place.uniform(0, 640)), static_cast<float>(place.uniform(0, 480)), 2, 0};
+    if (i < apart.distinct)
+      for (size_t k = 0; k < kDescriptorDim; ++k)
+        apart.b.descriptors.row(i)[k] = static_cast<uint8_t>(place.below(256));
+  }
+  EXPECT_FALSE(verify_image_pair(apart.a, apart.b, PairVerificationOptions{}).verified);
   PairVerificationOptions any_ratio;
   any_ratio.min_inlier_ratio = 0;
   EXPECT_TRUE(verify_image_pair(moved.a, moved.b, any_ratio).verified);

@@ -179,7 +179,7 @@ int solve_essential_5pt(const Eigen::Vector2d* q1, const Eigen::Vector2d* q2, st
   // there: two views that differ by a translation along a camera axis (R = I,
   // as same-heading street views of a synthetic city) give constraints with
   // structural zeros, and the cubic block below is then singular.
-  const Eigen::Matrix4d generic_rotation =
+  static const Eigen::Matrix4d generic_rotation =  // immutable, computed once
       (Eigen::Matrix4d() << 0.8, -0.3, 0.2, 0.4, 0.1, 0.7, -0.5, 0.3, -0.4, 0.2, 0.6, 0.5, 0.3, 0.5, 0.2, -0.7)
           .finished()
           .householderQr()
