@@ -22,12 +22,7 @@ using namespace visloc;
 
 namespace {
 
-fs::path temp_dir(const std::string& name) {
-  fs::path p = unique_temp_path("visloc_bundler_test_" + name);
-  fs::remove_all(p);
-  fs::create_directories(p);
-  return p;
-}
+fs::path temp_dir(const std::string& name) { return unique_temp_dir("visloc_bundler_test_" + name); }
 
 std::string num(double v) {
   char b[64];

@@ -16,12 +16,7 @@ using namespace visloc;
 
 namespace {
 
-fs::path temp_dir(const std::string& name) {
-  fs::path p = unique_temp_path("visloc_colmap_model_test_" + name);
-  fs::remove_all(p);
-  fs::create_directories(p);
-  return p;
-}
+fs::path temp_dir(const std::string& name) { return unique_temp_dir("visloc_colmap_model_test_" + name); }
 
 // Three images, four points: point 10 seen by images 1,2,3; point 11 by 1,2;
 // point 12 by 2,3; point 13 by 1,2,3.

@@ -21,12 +21,7 @@ using namespace visloc;
 
 namespace {
 
-fs::path temp_dir(const std::string& name) {
-  fs::path p = unique_temp_path("visloc_map_validation_" + name);
-  fs::remove_all(p);
-  fs::create_directories(p);
-  return p;
-}
+fs::path temp_dir(const std::string& name) { return unique_temp_dir("visloc_map_validation_" + name); }
 
 SegmentData valid_segment(size_t n = 200) {
   std::mt19937_64 rng(3);

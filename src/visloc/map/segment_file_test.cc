@@ -7,11 +7,11 @@
 #include <filesystem>
 #include <functional>
 #include <map>
-#include <random>
 
 #include "visloc/map/map.h"
 #include "visloc/map/segment_file.h"
 #include "visloc/util/error.h"
+#include "visloc/util/random.h"
 #include "visloc/util/test_support.h"
 
 namespace fs = std::filesystem;
@@ -19,23 +19,17 @@ using namespace visloc;
 
 namespace {
 
-fs::path temp_dir(const std::string& name) {
-  fs::path p = unique_temp_path("visloc_segment_file_" + name);
-  fs::remove_all(p);
-  fs::create_directories(p);
-  return p;
-}
+fs::path temp_dir(const std::string& name) { return unique_temp_dir("visloc_segment_file_" + name); }
 
 // n points uniform in [0, extent)³ + offset; enu_from_segment with `scale`
 // (none when scale is 0).
 SegmentData segment(size_t n, double extent, double scale, double offset = 0) {
-  std::mt19937_64 rng(11);
-  std::uniform_real_distribution<double> u(0, extent);
+  RandomGenerator rng(11);
   SegmentData s;
   s.segment_id = 4;
-  for (size_t i = 0; i < 3 * n; ++i) s.xyz.push_back(static_cast<float>(offset + u(rng)));
-  for (size_t i = 0; i < n; ++i) s.codes.push_back({{rng(), rng()}});
-  for (size_t i = 0; i < n * 16; ++i) s.pq_codes.push_back(static_cast<uint8_t>(rng()));
+  for (size_t i = 0; i < 3 * n; ++i) s.xyz.push_back(static_cast<float>(offset + rng.uniform(0, extent)));
+  for (size_t i = 0; i < n; ++i) s.codes.push_back({{rng.next(), rng.next()}});
+  for (size_t i = 0; i < n * 16; ++i) s.pq_codes.push_back(static_cast<uint8_t>(rng.next()));
   s.hasher.mean.assign(128, 3.0f);
   s.hasher.projection.assign(128 * 128, 0.0f);
   for (int i = 0; i < 128; ++i) s.hasher.projection[i * 128 + i] = 1.0f;

@@ -22,12 +22,7 @@ namespace {
 // FAISS k-means on one thread: OpenMP threads spinning on a loaded machine are slower.
 const int kOneThread = (set_faiss_threads(1), 1);
 
-fs::path temp_dir(const std::string& name) {
-  fs::path p = unique_temp_path("visloc_map_test_" + name);
-  fs::remove_all(p);
-  fs::create_directories(p);
-  return p;
-}
+fs::path temp_dir(const std::string& name) { return unique_temp_dir("visloc_map_test_" + name); }
 
 SegmentData random_segment(size_t n, uint64_t seed) {
   std::mt19937_64 rng(seed);

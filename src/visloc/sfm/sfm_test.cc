@@ -21,12 +21,7 @@ namespace fs = std::filesystem;
 using namespace visloc;
 
 namespace {
-fs::path temp_dir(const std::string& name) {
-  fs::path d = unique_temp_path("visloc_sfm_test_" + name);
-  fs::remove_all(d);
-  fs::create_directories(d);
-  return d;
-}
+fs::path temp_dir(const std::string& name) { return unique_temp_dir("visloc_sfm_test_" + name); }
 }  // namespace
 
 TEST(PartitionSegments, WindowsOverlapAndRespectSizes) {

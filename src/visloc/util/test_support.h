@@ -38,6 +38,15 @@ inline std::filesystem::path unique_temp_path(const std::string& name) {
   return p;
 }
 
+// unique_temp_path(name) as an empty folder (emptied if a previous run of
+// the same process id left it).
+inline std::filesystem::path unique_temp_dir(const std::string& name) {
+  const std::filesystem::path p = unique_temp_path(name);
+  std::filesystem::remove_all(p);
+  std::filesystem::create_directories(p);
+  return p;
+}
+
 // The message of the visloc::Error that f throws; "" when it throws none.
 inline std::string error_of(const std::function<void()>& f) {
   try {
