@@ -21,6 +21,8 @@ for v in nan inf; do
   check --min-confidence localize --map /nonexistent --min-confidence "$v" q.jpg
 done
 check --min-confidence localize --map /nonexistent --min-confidence 1.5 q.jpg
+check --vote-points localize --map /nonexistent --vote-points -1 q.jpg
+check --segment-votes localize --map /nonexistent --segment-votes pixels q.jpg
 rm -f /tmp/visloc_options_test.$$
 [ "$status" = 0 ] && echo "all numeric options refuse NaN and bad ranges"
 exit "$status"

@@ -311,6 +311,9 @@ struct CityLocalizationTally {
   std::vector<double> true_ranks, top_vote_share, voted_segments;
   nlohmann::json per_query = nlohmann::json::array();
   uint64_t peak_city_queries = 0;  // peak memory before the foreign photos
+  bool image_votes = false;        // the candidates were ranked with image votes
+  bool point_votes = false;        // ... with point votes
+  size_t point_vote_bytes = 0;     // their index's memory
 };
 
 // What localizing a synthetic query needs to know of the city and the map.
@@ -426,6 +429,9 @@ CityLocalizationTally localize_city_queries(const fs::path& out, const fs::path&
   const size_t total = truth.size() + foreign.size();
 
   CityLocalizationTally t;
+  t.image_votes = localizer.has_retrieval();
+  t.point_votes = localizer.has_point_votes();
+  t.point_vote_bytes = localizer.point_vote_bytes();
   const CityQueryContext ctx{opt, city_dir, split, localizer, intrinsics, scene_probe, point_samples};
   size_t done = 0;
   for (const NamedPose& q : truth) {
@@ -503,6 +509,10 @@ nlohmann::json city_report_json(const fs::path& city_dir, const CityBenchmarkOpt
       {"peak_memory_bytes_of_localizing_process", peak_memory_bytes()},
       {"peak_memory_bytes_city_queries", t.peak_city_queries},
       {"localized_in_separate_process", opt.stage == CityBenchmarkStage::kLocalize},
+      {"segment_votes", {{"option", to_string(opt.localizer.segment_votes)},
+                         {"image_votes_used", t.image_votes},
+                         {"point_votes_used", t.point_votes},
+                         {"point_vote_index_bytes", t.point_vote_bytes}}},
       {"positives", pose_summary(t.positives.errors_m, t.positives.count, t.positives.registered, t.positives.wrong)},
       {"negatives_unmapped_streets",
        pose_summary(t.negatives.errors_m, t.negatives.count, t.negatives.registered, t.negatives.wrong)},
@@ -571,7 +581,13 @@ std::string city_report_markdown(const nlohmann::json& report, const CityBenchma
      << c.turned_away_right << " right ones. Uncertainty: of " << c.with_sigma << " registered positives, "
      << (c.with_sigma ? double(c.within1) / double(c.with_sigma) : 0.0) << " have their position error within 1σ and "
      << (c.with_sigma ? double(c.within2) / double(c.with_sigma) : 0.0) << " within 2σ.\n\n"
-     << "Retrieval: the true segment is among the candidates for " << t.retrieval_hits << "/" << t.positives.count
+     << "Retrieval (candidates ranked by "
+     << (t.image_votes && t.point_votes ? "image and point votes"
+         : t.point_votes               ? "point votes"
+         : t.image_votes               ? "image votes"
+                                       : "nothing: every segment is searched")
+     << (t.point_votes ? "; point-vote index " + std::to_string((t.point_vote_bytes + 512 * 1024) / (1024 * 1024)) + " MiB" : std::string())
+     << "): the true segment is among the candidates for " << t.retrieval_hits << "/" << t.positives.count
      << " positives";
   if (!t.true_ranks.empty()) md << " (median rank " << median(t.true_ranks) << ")";
   md << "; by rank:";

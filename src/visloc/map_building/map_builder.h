@@ -100,10 +100,11 @@ struct MapBuildOptions {
   double pair_max_angle_deg = 60;           //   and looking within this angle of each other;
                                             //   SfM: COLMAP's spatial matcher on the GPS priors
   ItqOptions itq;
-  // kMap: one ITQ rotation for the map (MAP/hash_rotation.vlitq), learned on
-  // the PQ codebook's training sample; kSegment: one per segment, learned on
-  // its points' descriptors.
-  HashRotationScope hash_rotation = HashRotationScope::kSegment;
+  // kMap (default): one ITQ rotation for the map (MAP/hash_rotation.vlitq),
+  // learned on the PQ codebook's training sample, so that hash codes compare
+  // across segments (the localizer's local-feature segment votes need it);
+  // kSegment: one per segment, learned on its points' descriptors.
+  HashRotationScope hash_rotation = HashRotationScope::kMap;
   SegmentWriteOptions segment_file;  // point coordinates: float32, int16 or auto
   PqTrainingOptions pq;
   size_t pq_training_descriptors = 100000;  // sampled across the training images:

@@ -91,8 +91,9 @@ void add_options(OptionTable& t, MapBuildOptions& o) {
         "The PQ codebook trains on at most this many images, spread over the map (with --executor slurm "
         "only their features are extracted before the array; each task extracts its segment's)");
   add_hash_rotation(t, o.hash_rotation,
-                    "ITQ hash rotation: 'segment' (one per segment, in its file) or 'map' (one for the map, "
-                    "MAP/hash_rotation.vlitq: 64 KiB less per segment, a query hashed once)");
+                    "ITQ hash rotation: 'map' (one for the map, MAP/hash_rotation.vlitq: 64 KiB less per "
+                    "segment, a query hashed once, and the localizer can vote for segments with the "
+                    "query's local features) or 'segment' (one per segment, in its file)");
   add_point_coordinates(t, o.segment_file);
   add_options(t, o.sift);
 }

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <map>
 #include <mutex>
+#include <unordered_map>
 
 #include "visloc/map/map.h"
 #include "visloc/matching/cascade_correspondences.h"
@@ -44,6 +45,30 @@ void LocalizerOptions::validate() const {
   if (cache_bytes < (1u << 20)) throw_error(ErrorCode::kInvalidArgument, "cache_bytes must be at least 1 MiB");
   if (!(min_confidence >= 0 && min_confidence <= 1))
     throw_error(ErrorCode::kInvalidArgument, "min_confidence must be in [0, 1], got ", min_confidence);
+  point_votes.validate();
+}
+
+SegmentVoteSource parse_segment_vote_source(const std::string& name) {
+  if (name == "auto") return SegmentVoteSource::kAuto;
+  if (name == "images") return SegmentVoteSource::kImages;
+  if (name == "points") return SegmentVoteSource::kPoints;
+  if (name == "both") return SegmentVoteSource::kBoth;
+  throw_error(ErrorCode::kInvalidArgument, "segment votes must be 'auto', 'images', 'points' or 'both', got '", name,
+              "'");
+}
+
+const char* to_string(SegmentVoteSource source) {
+  switch (source) {
+    case SegmentVoteSource::kAuto:
+      return "auto";
+    case SegmentVoteSource::kImages:
+      return "images";
+    case SegmentVoteSource::kPoints:
+      return "points";
+    case SegmentVoteSource::kBoth:
+      return "both";
+  }
+  return "?";
 }
 
 namespace {
@@ -102,6 +127,8 @@ struct QueryWorkspace {
   CascadeWorkspace cascade;
   std::vector<HashCode> map_codes;  // the query hashed once with the map's rotation
   std::vector<float> encode;
+  std::vector<float> vote_scratch;  // point votes per segment
+  SegmentPointVoteResult point_votes;
   CascadeMatches matches;             // of the segment being searched
   CorrespondenceSet correspondences;  // the same matches, as RANSAC takes them
 };
@@ -130,15 +157,20 @@ struct Localizer::Impl {
   mutable WorkspacePool workspaces;
   std::unique_ptr<SegmentCache> cache;
   std::unique_ptr<RetrievalMap> retrieval;  // null when the map has none
+  std::unique_ptr<SegmentPointVotes> point_votes;  // null without a map rotation or when not asked for
   SegmentVoterOptions voting;
+  int max_segments = 4;  // candidates searched (options' max_segments)
   std::optional<EnuFrame> frame;
   std::unique_ptr<SiftExtractor> sift;
   CascadeSearchOptions search;
   RansacOptions ransac;
 
   // Candidate segments (positions in the manifest), best-voted first; fills
-  // the retrieval's fields and time of `res`.
-  std::vector<size_t> candidate_segments(const FeatureSet& f, LocalizationResult& res) const;
+  // the retrieval's fields and time of `res`. Hashes the query with the map's
+  // rotation into ws.map_codes when it votes with points (returns whether it did).
+  std::vector<size_t> candidate_segments(const FeatureSet& f, QueryWorkspace& ws, LocalizationResult& res,
+                                         bool& map_codes_ready) const;
+  void build_point_votes(const SegmentPointVoteOptions& options);
   class Search;
 };
 
@@ -147,8 +179,8 @@ struct Localizer::Impl {
 class Localizer::Impl::Search {
  public:
   Search(Impl& impl, const LocalizerOptions& options, const FeatureSet& f, const PinholeCamera& camera,
-         QueryWorkspace& ws, LocalizationResult& res)
-      : impl_(impl), options_(options), f_(f), camera_(camera), ws_(ws), res_(res) {}
+         QueryWorkspace& ws, LocalizationResult& res, bool map_codes_ready)
+      : impl_(impl), options_(options), f_(f), camera_(camera), ws_(ws), res_(res), map_codes_ready_(map_codes_ready) {}
 
   // One pass over the candidates with the given search; the best pose wins.
   void search_candidates(const std::vector<size_t>& candidates, const CascadeSearchOptions& search);
@@ -170,7 +202,7 @@ class Localizer::Impl::Search {
   const PinholeCamera& camera_;
   QueryWorkspace& ws_;
   LocalizationResult& res_;
-  bool map_codes_ready_ = false;
+  bool map_codes_ready_;
   // The best pose so far.
   size_t best_inliers_ = 0;
   bool best_has_enough_inliers_ = false;
@@ -187,12 +219,29 @@ Localizer::Localizer(const std::filesystem::path& map_dir, const LocalizerOption
   if (man.segments.empty()) throw_error(ErrorCode::kFormat, map_dir.string(), ": the map has no segments");
   impl_->cache = std::make_unique<SegmentCache>(impl_->map, options_.cache_bytes);
   impl_->voting.top_images = options_.top_images;
-  impl_->voting.max_candidates = options_.max_segments;
-  if (std::filesystem::exists(map_dir / "retrieval"))
+  impl_->max_segments = options_.max_segments;
+  // Point votes on a map of more segments than are searched (each query
+  // feature's nearest point by the map-wide hash codes); image votes from the
+  // retrieval index otherwise, or with both.
+  const bool many_segments = static_cast<int>(man.segments.size()) > options_.max_segments;
+  const SegmentVoteSource source = options_.segment_votes;
+  if (source != SegmentVoteSource::kImages && many_segments && impl_->map.hasher())
+    impl_->build_point_votes(options_.point_votes);
+  const bool want_images = source == SegmentVoteSource::kImages || source == SegmentVoteSource::kBoth ||
+                           (source == SegmentVoteSource::kAuto && !impl_->point_votes);
+  if (want_images && std::filesystem::exists(map_dir / "retrieval"))
     impl_->retrieval = std::make_unique<RetrievalMap>(RetrievalMap::load(map_dir / "retrieval"));
-  if (!impl_->retrieval && static_cast<int>(man.segments.size()) > options_.max_segments)
+  // With both votes, every segment's image votes count in the sum.
+  impl_->voting.max_candidates =
+      impl_->retrieval && impl_->point_votes ? static_cast<int>(man.segments.size()) : options_.max_segments;
+  if (many_segments && !impl_->point_votes &&
+      (source == SegmentVoteSource::kPoints || source == SegmentVoteSource::kBoth))
+    throw_error(ErrorCode::kFormat, map_dir.string(), ": --segment-votes ", to_string(source),
+                " needs a map with one hash rotation for all its segments (map build --hash-rotation map)");
+  if (many_segments && !impl_->point_votes && !impl_->retrieval)
     throw_error(ErrorCode::kFormat, map_dir.string(), ": the map has ", man.segments.size(),
-                " segments but no retrieval index to choose among them");
+                " segments but no retrieval index to choose among them",
+                impl_->map.hasher() ? "" : ", and a hash rotation per segment (no point votes)");
   if (man.enu_origin_lat_lon_alt) {
     const auto& o = *man.enu_origin_lat_lon_alt;
     impl_->frame.emplace(GeoPosition{o[0], o[1], o[2]});
@@ -222,8 +271,22 @@ Localizer::Localizer(const std::filesystem::path& map_dir, const LocalizerOption
 
 Localizer::~Localizer() = default;
 
+void Localizer::Impl::build_point_votes(const SegmentPointVoteOptions& options) {
+  auto votes = std::make_unique<SegmentPointVotes>(options);
+  const size_t n = map.manifest().segments.size();
+  for (size_t i = 0; i < n; ++i) {
+    const std::unique_ptr<Segment> seg = map.open_segment(i);
+    if (!seg->uses_map_hasher()) return;  // a segment with its own rotation: codes do not compare
+    votes->add_segment(static_cast<uint32_t>(i), {seg->index().codes, seg->num_points()});
+  }
+  votes->finalize();
+  point_votes = std::move(votes);
+}
+
 size_t Localizer::num_segments() const { return impl_->map.manifest().segments.size(); }
 bool Localizer::has_retrieval() const { return impl_->retrieval != nullptr; }
+bool Localizer::has_point_votes() const { return impl_->point_votes != nullptr; }
+size_t Localizer::point_vote_bytes() const { return impl_->point_votes ? impl_->point_votes->memory_bytes() : 0; }
 uint64_t Localizer::cache_resident_bytes() const { return impl_->cache->resident_bytes(); }
 
 LocalizationResult Localizer::localize_file(const std::filesystem::path& image,
@@ -297,23 +360,54 @@ LocalizationResult Localizer::localize_image(const GrayImage& image,
   return res;
 }
 
-std::vector<size_t> Localizer::Impl::candidate_segments(const FeatureSet& f, LocalizationResult& res) const {
+std::vector<size_t> Localizer::Impl::candidate_segments(const FeatureSet& f, QueryWorkspace& ws,
+                                                        LocalizationResult& res, bool& map_codes_ready) const {
   Timer t;
   const auto& man = map.manifest();
   std::vector<size_t> candidates;
+  if (!retrieval && !point_votes) {
+    for (size_t i = 0; i < man.segments.size(); ++i) candidates.push_back(i);
+    res.times.retrieval = t.elapsed_ms();
+    return candidates;
+  }
+  // Each source's votes as a share of its total, per manifest position, in
+  // the order first seen (retrieval's order first: its ties are broken by
+  // the best image rank, then the segment id).
+  std::vector<std::pair<size_t, float>> ranked;
+  std::unordered_map<size_t, size_t> slot;
+  const auto add = [&](size_t index, float share) {
+    const auto [it, inserted] = slot.emplace(index, ranked.size());
+    if (inserted) ranked.emplace_back(index, 0.0f);
+    ranked[it->second].second += share;
+  };
+  float sources = 0;       // sources that voted: the shares' sum over every segment
+  size_t image_voted = 0;  // segments with an image vote (also beyond the candidates)
   if (retrieval) {
     const RetrievalQueryResult q = retrieval->query(f.descriptors, voting);
-    res.retrieval_voted_segments = q.voted_segments;
-    res.retrieval_total_votes = q.total_votes;
+    image_voted = q.voted_segments;
+    sources += q.total_votes > 0 ? 1.0f : 0.0f;
+    std::unordered_map<int32_t, size_t> position;
+    for (size_t i = 0; i < man.segments.size(); ++i) position[static_cast<int32_t>(man.segments[i].id)] = i;
     for (const SegmentCandidate& c : q.candidates) {
-      res.retrieval_segments.push_back(c.segment);
-      res.retrieval_votes.push_back(c.votes);
+      const auto it = position.find(c.segment);
+      if (it != position.end() && q.total_votes > 0) add(it->second, c.votes / q.total_votes);
     }
-    for (const SegmentCandidate& c : q.candidates)
-      for (size_t i = 0; i < man.segments.size(); ++i)
-        if (static_cast<int32_t>(man.segments[i].id) == c.segment) candidates.push_back(i);
-  } else {
-    for (size_t i = 0; i < man.segments.size(); ++i) candidates.push_back(i);
+  }
+  if (point_votes) {
+    ws.map_codes.resize(f.descriptors.rows());
+    encode_hash(map.hasher()->view(), f.descriptors.data(), f.descriptors.rows(), ws.map_codes.data(), ws.encode);
+    map_codes_ready = true;
+    point_votes->vote(ws.map_codes, ws.vote_scratch, ws.point_votes);
+    for (const SegmentPointVote& v : ws.point_votes.segments) add(v.segment, v.votes / ws.point_votes.total_votes);
+    sources += ws.point_votes.total_votes > 0 ? 1.0f : 0.0f;
+  }
+  std::stable_sort(ranked.begin(), ranked.end(), [](const auto& a, const auto& b) { return a.second > b.second; });
+  res.retrieval_voted_segments = std::max(ranked.size(), image_voted);
+  res.retrieval_total_votes = sources;
+  for (size_t k = 0; k < ranked.size() && static_cast<int>(k) < max_segments; ++k) {
+    candidates.push_back(ranked[k].first);
+    res.retrieval_segments.push_back(static_cast<int>(man.segments[ranked[k].first].id));
+    res.retrieval_votes.push_back(ranked[k].second);
   }
   res.times.retrieval = t.elapsed_ms();
   return candidates;
@@ -445,14 +539,14 @@ LocalizationResult Localizer::localize_features(const FeatureSet& f, const Pinho
   LocalizationResult res;
   res.image = f.image;
   res.features = f.size();
-  const std::vector<size_t> candidates = impl_->candidate_segments(f, res);
-
   struct Lease {
     WorkspacePool& pool;
     std::unique_ptr<QueryWorkspace> w;
     ~Lease() { pool.give_back(std::move(w)); }
   } lease{impl_->workspaces, impl_->workspaces.take()};
-  Impl::Search search(*impl_, options_, f, camera, *lease.w, res);
+  bool map_codes_ready = false;
+  const std::vector<size_t> candidates = impl_->candidate_segments(f, *lease.w, res, map_codes_ready);
+  Impl::Search search(*impl_, options_, f, camera, *lease.w, res, map_codes_ready);
   if (!candidates.empty()) {
     res.candidates.clear();
     search.search_candidates(candidates, impl_->search);

@@ -10,6 +10,18 @@ void add_options(OptionTable& t, LocalizerOptions& o) {
            "The paper's ablation setting: 1, 2, 3 or 3+");
   t.add("--top-images", o.top_images, "Retrieval: images N_t");
   t.add("--max-segments", o.max_segments, "Candidate segments searched");
+  t.choice("--segment-votes", o.segment_votes,
+           {{"auto", SegmentVoteSource::kAuto},
+            {"images", SegmentVoteSource::kImages},
+            {"points", SegmentVoteSource::kPoints},
+            {"both", SegmentVoteSource::kBoth}},
+           "What ranks the candidate segments: 'points' (each query feature votes for the segment of its "
+           "nearest map point by hash code; needs a map built with --hash-rotation map), 'images' (the "
+           "retrieved images' votes, the paper's), 'both' (the sum of the two vote shares) or 'auto' "
+           "(points when the map allows, else images)");
+  t.add("--vote-points", o.point_votes.points_per_segment,
+        "Point votes: points indexed per segment (0: all; each costs ~65 bytes of memory)")
+      .range(0, 1 << 28);
   t.add("--accept-inliers", o.accept_inliers,
         "Stop searching further candidate segments once a pose has this many inliers (0: search all)");
   t.add("--early-stop", o.search.early_stop,

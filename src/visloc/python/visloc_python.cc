@@ -230,6 +230,10 @@ void take_localizer_options(Kwargs& k, LocalizerOptions& o) {
   if (k.take_choice("setting", setting, {"1", "2", "3", "3+"})) o.setting = parse_paper_setting(setting);
   k.take("top_images", o.top_images);
   k.take("max_segments", o.max_segments);
+  std::string segment_votes;
+  if (k.take_choice("segment_votes", segment_votes, {"auto", "images", "points", "both"}))
+    o.segment_votes = parse_segment_vote_source(segment_votes);
+  k.take("vote_points", o.point_votes.points_per_segment);
   k.take("accept_inliers", o.accept_inliers);
   k.take("early_stop", o.search.early_stop);
   k.take("full_search_fallback", o.full_search_fallback);
@@ -664,7 +668,7 @@ void bind_localizer(py::module_& m) {
 
 Localizer(map_dir, **options): options are LocalizerOptions fields, named as
 the `visloc localize` flags: setting ('1', '2', '3', '3+'), top_images,
-max_segments, accept_inliers, early_stop, full_search_fallback, threshold_px,
+max_segments, segment_votes ('auto', 'points', 'images', 'both'), vote_points, accept_inliers, early_stop, full_search_fallback, threshold_px,
 min_inliers, min_confidence, use_exif_focal, seed, cache_mib, max_image_side,
 max_features, contrast_threshold, root_sift, max_pixels. OpenCV's thread count,
 which SIFT uses, is process-wide: see visloc.set_opencv_threads.
@@ -842,7 +846,7 @@ void bind_build_map(py::module_& m) {
         MapBuildOptions o;
         o.images_dir = path_from(images, "build_map: images");
         const fs::path map_dir = path_from(out, "build_map: out");
-        std::string poses = "sfm", matcher = "auto", hash_rotation = "segment";
+        std::string poses = "sfm", matcher = "auto", hash_rotation = "map";
         const py::object gps = k.take_object("gps");  // None or 'exif': each image's EXIF; else a CSV
         if (!gps.is_none() && !(py::isinstance<py::str>(gps) && gps.cast<std::string>() == "exif")) {
           if (!is_path_like(gps))

@@ -69,6 +69,8 @@ def test_not_a_map_raises_format_error(tmp_path):
         ({"cache_mib": 0.5}, ValueError, "cache_mib"),
         ({"min_inliers": -3}, ValueError, "min_inliers"),
         ({"setting": "4"}, ValueError, "setting"),
+        ({"segment_votes": "pixels"}, ValueError, "segment_votes"),
+        ({"vote_points": -1}, ValueError, "vote_points"),
         ({"top_images": "20"}, TypeError, "top_images"),
         ({"use_exif_focal": 1}, TypeError, "use_exif_focal"),
         ({"top_image": 20}, TypeError, "top_image"),

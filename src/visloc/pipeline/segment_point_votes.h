@@ -1,0 +1,84 @@
+// Candidate segments from the query's local features (issue #13): every
+// query feature looks up its nearest map point among all segments by the
+// hash codes that the map's one ITQ rotation makes comparable across
+// segments, and votes for that point's segment.
+//
+// Why: the global image descriptors (T-embedding, VLAD) top out at ~0.86 of
+// queries with a correct segment among 4 candidates on the synthetic city,
+// whatever N_t or the descriptor (session-4 measurement, `bench retrieval`);
+// searching all segments registered most of the misses. Local features keep
+// the evidence that a global descriptor averages away.
+//
+// Index: for each segment, the hash codes of up to `points_per_segment` of
+// its points (evenly strided over the segment's points; a cap so that the
+// index stays small on a city of many segments: 16 B code + 4 B segment +
+// the lookup tables, ~65 B per point in all), one CascadeLookup over all of them (the
+// 8 lookup tables of 16-bit sub-codes, as the cascade's coarse step).
+//
+// Vote of one query feature: among the points that share one of its 8
+// sub-codes (radius 0), the nearest by Hamming distance d0 on the 128 bits.
+// When d0 ≤ max_hamming it gives one vote, split equally among the distinct
+// segments that hold a point at d0. The bound comes from the null
+// distribution, not from data: two unrelated codes differ in ~Binomial(128,
+// ½) bits (mean 64, σ 5.7); a candidate already shares 16 bits, so the other
+// 112 differ by 56 ± 5.3; d0 ≤ 32 is 4.5 σ below that, while matching SIFT
+// descriptors differ by ~10-25 bits under ITQ.
+// Buckets larger than `max_bucket` points are skipped: such a sub-code is
+// shared by a large part of the map and says little, and it would dominate
+// the time.
+#pragma once
+
+#include <cstdint>
+#include <span>
+#include <vector>
+
+#include "visloc/matching/binary_hasher.h"
+#include "visloc/matching/cascade_index.h"
+
+namespace visloc {
+
+struct SegmentPointVoteOptions {
+  int points_per_segment = 8192;  // points indexed per segment (0: all)
+  int max_hamming = 32;           // a vote needs a point at most this far (bits of 128)
+  int max_bucket = 4096;          // buckets with more points are not probed
+  void validate() const;          // throws Error(kInvalidArgument) naming the field
+};
+
+struct SegmentPointVote {
+  uint32_t segment = 0;  // as given to add_segment (e.g. a manifest position)
+  float votes = 0;
+};
+
+struct SegmentPointVoteResult {
+  std::vector<SegmentPointVote> segments;  // every segment with a vote, most votes first (ties: lower id)
+  float total_votes = 0;                   // query features that voted
+  size_t candidates_compared = 0;          // Hamming distances computed
+};
+
+class SegmentPointVotes {
+ public:
+  explicit SegmentPointVotes(const SegmentPointVoteOptions& options = {});
+  // Adds a segment's point codes (subsampled to points_per_segment). Call
+  // finalize() once every segment is added; segment ids need not be dense.
+  void add_segment(uint32_t segment, std::span<const HashCode> codes);
+  void finalize();
+
+  // Votes of a query hashed with the map's rotation. `scratch` is reused
+  // across calls (one per thread); `out`'s vectors are reused too.
+  void vote(std::span<const HashCode> query, std::vector<float>& scratch, SegmentPointVoteResult& out) const;
+
+  size_t num_points() const { return codes_.size(); }
+  size_t num_segments() const { return max_segment_plus_one_; }
+  size_t memory_bytes() const;
+  const SegmentPointVoteOptions& options() const { return options_; }
+
+ private:
+  SegmentPointVoteOptions options_;
+  std::vector<HashCode> codes_;
+  std::vector<uint32_t> segment_of_;
+  uint32_t max_segment_plus_one_ = 0;
+  CascadeLookup lookup_;
+  bool finalized_ = false;
+};
+
+}  // namespace visloc

@@ -1,0 +1,158 @@
+#include "visloc/pipeline/segment_point_votes.h"
+
+#include <gtest/gtest.h>
+
+#include "visloc/util/error.h"
+#include "visloc/util/random.h"
+
+namespace visloc {
+namespace {
+
+std::vector<HashCode> random_codes(size_t n, RandomGenerator& rng) {
+  std::vector<HashCode> codes(n);
+  for (HashCode& c : codes) c = {{rng.next(), rng.next()}};
+  return codes;
+}
+
+// `code` with `bits` distinct bits flipped.
+HashCode flipped(HashCode code, int bits, RandomGenerator& rng) {
+  std::vector<uint32_t> order(kHashBits);
+  for (uint32_t i = 0; i < order.size(); ++i) order[i] = i;
+  shuffle(order.begin(), order.end(), rng);
+  for (int k = 0; k < bits; ++k) code.w[order[k] >> 6] ^= uint64_t(1) << (order[k] & 63);
+  return code;
+}
+
+float votes_of(const SegmentPointVoteResult& r, uint32_t segment) {
+  for (const SegmentPointVote& v : r.segments)
+    if (v.segment == segment) return v.votes;
+  return 0;
+}
+
+TEST(SegmentPointVotes, QueryFeaturesVoteForTheSegmentOfTheirNearestPoint) {
+  RandomGenerator rng(11);
+  const std::vector<HashCode> a = random_codes(3000, rng), b = random_codes(5000, rng);
+  SegmentPointVotes votes({.points_per_segment = 0});
+  votes.add_segment(3, a);
+  votes.add_segment(7, b);
+  votes.finalize();
+  EXPECT_EQ(votes.num_points(), 8000u);
+  EXPECT_EQ(votes.num_segments(), 8u);
+  EXPECT_GT(votes.memory_bytes(), 8000u * sizeof(HashCode));
+
+  // 300 features seen in segment 3 (≤ 7 bits off: found through some
+  // 16-bit table by the pigeonhole principle), 100 in segment 7, 200 that
+  // match nothing (random codes: ~64 bits from every point).
+  std::vector<HashCode> query;
+  for (int i = 0; i < 300; ++i) query.push_back(flipped(a[rng.below(static_cast<uint32_t>(a.size()))], i % 8, rng));
+  for (int i = 0; i < 100; ++i) query.push_back(flipped(b[rng.below(static_cast<uint32_t>(b.size()))], i % 8, rng));
+  for (const HashCode& c : random_codes(200, rng)) query.push_back(c);
+
+  std::vector<float> scratch;
+  SegmentPointVoteResult r;
+  votes.vote(query, scratch, r);
+  ASSERT_EQ(r.segments.size(), 2u);
+  EXPECT_EQ(r.segments[0].segment, 3u);
+  EXPECT_FLOAT_EQ(r.segments[0].votes, 300);
+  EXPECT_EQ(r.segments[1].segment, 7u);
+  EXPECT_FLOAT_EQ(r.segments[1].votes, 100);
+  EXPECT_FLOAT_EQ(r.total_votes, 400);
+  EXPECT_GT(r.candidates_compared, 0u);
+
+  // The same call again gives the same votes (the scratch is reset).
+  SegmentPointVoteResult again;
+  votes.vote(query, scratch, again);
+  EXPECT_FLOAT_EQ(votes_of(again, 3), 300);
+  EXPECT_FLOAT_EQ(again.total_votes, 400);
+}
+
+TEST(SegmentPointVotes, FarFeaturesDoNotVoteAndTiesAreSplit) {
+  RandomGenerator rng(12);
+  const std::vector<HashCode> a = random_codes(1000, rng);
+  std::vector<HashCode> b = random_codes(1000, rng);
+  b[17] = a[5];  // the same point in two segments (an overlap placemark)
+  SegmentPointVotes votes({.points_per_segment = 0, .max_hamming = 32});
+  votes.add_segment(0, a);
+  votes.add_segment(1, b);
+  votes.finalize();
+  std::vector<float> scratch;
+  SegmentPointVoteResult r;
+
+  const HashCode shared[] = {a[5]};
+  votes.vote(shared, scratch, r);
+  EXPECT_FLOAT_EQ(votes_of(r, 0), 0.5f);
+  EXPECT_FLOAT_EQ(votes_of(r, 1), 0.5f);
+  EXPECT_FLOAT_EQ(r.total_votes, 1);
+
+  // 40 bits off, with the flips kept out of the first 16-bit sub-code so
+  // that the point is still a candidate: beyond max_hamming, no vote.
+  HashCode far = a[9];
+  for (int bit = 16; bit < 56; ++bit) far.w[bit >> 6] ^= uint64_t(1) << (bit & 63);
+  const HashCode far_query[] = {far};
+  votes.vote(far_query, scratch, r);
+  EXPECT_GT(r.candidates_compared, 0u);
+  EXPECT_TRUE(r.segments.empty());
+  EXPECT_FLOAT_EQ(r.total_votes, 0);
+
+  SegmentPointVotes strict({.points_per_segment = 0, .max_hamming = 45});
+  strict.add_segment(0, a);
+  strict.finalize();
+  strict.vote(far_query, scratch, r);
+  EXPECT_FLOAT_EQ(votes_of(r, 0), 1);
+}
+
+TEST(SegmentPointVotes, KeepsAnEvenStrideOfEachSegmentsPoints) {
+  RandomGenerator rng(13);
+  const std::vector<HashCode> a = random_codes(100, rng);
+  SegmentPointVotes votes({.points_per_segment = 10});
+  votes.add_segment(0, a);
+  votes.finalize();
+  EXPECT_EQ(votes.num_points(), 10u);
+  std::vector<float> scratch;
+  SegmentPointVoteResult r;
+  const HashCode kept[] = {a[0], a[10], a[90]};
+  votes.vote(kept, scratch, r);
+  EXPECT_FLOAT_EQ(r.total_votes, 3);
+  const HashCode dropped[] = {a[5], a[55]};
+  votes.vote(dropped, scratch, r);
+  EXPECT_FLOAT_EQ(r.total_votes, 0);
+}
+
+TEST(SegmentPointVotes, SkipsOverfullBuckets) {
+  // 50 copies of one code fill one bucket of every table.
+  std::vector<HashCode> same(50, HashCode{{0x0123456789ABCDEFull, 0xFEDCBA9876543210ull}});
+  SegmentPointVotes capped({.points_per_segment = 0, .max_bucket = 49});
+  capped.add_segment(0, same);
+  capped.finalize();
+  std::vector<float> scratch;
+  SegmentPointVoteResult r;
+  const HashCode query[] = {same[0]};
+  capped.vote(query, scratch, r);
+  EXPECT_EQ(r.candidates_compared, 0u);
+  EXPECT_FLOAT_EQ(r.total_votes, 0);
+
+  SegmentPointVotes open({.points_per_segment = 0, .max_bucket = 50});
+  open.add_segment(0, same);
+  open.finalize();
+  open.vote(query, scratch, r);
+  EXPECT_EQ(r.candidates_compared, 8u * 50u);
+  EXPECT_FLOAT_EQ(r.total_votes, 1);
+}
+
+TEST(SegmentPointVotes, RejectsBadOptionsAndMisuse) {
+  EXPECT_THROW(SegmentPointVotes({.points_per_segment = -1}), Error);
+  EXPECT_THROW(SegmentPointVotes({.max_hamming = 129}), Error);
+  EXPECT_THROW(SegmentPointVotes({.max_hamming = -1}), Error);
+  EXPECT_THROW(SegmentPointVotes({.max_bucket = 0}), Error);
+  SegmentPointVotes votes;
+  std::vector<float> scratch;
+  SegmentPointVoteResult r;
+  EXPECT_THROW(votes.vote({}, scratch, r), Error);
+  votes.finalize();
+  EXPECT_THROW(votes.add_segment(0, {}), Error);
+  votes.vote({}, scratch, r);
+  EXPECT_TRUE(r.segments.empty());
+}
+
+}  // namespace
+}  // namespace visloc
