@@ -1,7 +1,8 @@
 // Localizer: one photo in, a pose on the map out (DESIGN.md "Localization"):
-//   SIFT → retrieval (T-embedding, IVF-PQ, top N_t images → ≤ 4 candidate
-//   segments by votes; every segment when the map has no retrieval index and
-//   at most max_segments segments) → per candidate segment: cascade
+//   SIFT → candidate segments: ≤ 4 by votes, of the query features' nearest
+//   map points (segment_point_votes.h; a map with one hash rotation) or of
+//   the retrieved images (T-embedding, IVF-PQ, top N_t images; the paper);
+//   every segment when the map has at most max_segments) → per candidate segment: cascade
 //   correspondence search + one-many RANSAC → the segment with the most
 //   inliers; registered at ≥ 12 inliers. The pose is reported in the
 //   segment's frame and, through the segment's enu_from_segment similarity,

@@ -22,6 +22,8 @@ void add_options(OptionTable& t, LocalizerOptions& o) {
   t.add("--vote-points", o.point_votes.points_per_segment,
         "Point votes: points indexed per segment (0: all; each costs ~65 bytes of memory)")
       .range(0, 1 << 28);
+  t.flag("--vote-chance-normalization", o.point_votes.normalize_by_chance,
+         "Point votes: divide each segment's votes by its rate of chance votes from unrelated segments' points");
   t.add("--accept-inliers", o.accept_inliers,
         "Stop searching further candidate segments once a pose has this many inliers (0: search all)");
   t.add("--early-stop", o.search.early_stop,

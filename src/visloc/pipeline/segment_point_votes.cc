@@ -35,8 +35,10 @@ void SegmentPointVotes::add_segment(uint32_t segment, std::span<const HashCode> 
   max_segment_plus_one_ = std::max(max_segment_plus_one_, segment + 1);
 }
 
-void SegmentPointVotes::finalize() {
+void SegmentPointVotes::finalize(const std::vector<std::vector<uint32_t>>& related) {
   lookup_ = CascadeLookup(codes_);
+  weight_.assign(max_segment_plus_one_, 1.0f);
+  if (options_.normalize_by_chance) compute_chance_weights(related);
   finalized_ = true;
 }
 
@@ -44,19 +46,20 @@ size_t SegmentPointVotes::memory_bytes() const {
   return codes_.capacity() * sizeof(HashCode) + segment_of_.capacity() * sizeof(uint32_t) + lookup_.memory_bytes();
 }
 
-namespace {
-
 // The nearest points of one query feature: their distance and the distinct
 // segments that hold one at that distance (at most kMaxTies; more are a
 // feature seen everywhere, and its vote is split among those kept).
-struct NearestSegments {
+struct SegmentPointVotes::Nearest {
   static constexpr int kMaxTies = 16;
-  uint32_t bound;
-  uint32_t distance;
+  uint32_t bound = 0;
+  uint32_t distance = 0;
   int count = 0;
   uint32_t segments[kMaxTies];
 
-  explicit NearestSegments(uint32_t max_distance) : bound(max_distance), distance(max_distance) {}
+  void reset(uint32_t max_distance) {
+    bound = distance = max_distance;
+    count = 0;
+  }
   void offer(uint32_t d, uint32_t segment) {
     if (d > distance || d > bound) return;
     if (d < distance) {
@@ -69,7 +72,64 @@ struct NearestSegments {
   }
 };
 
-}  // namespace
+bool SegmentPointVotes::nearest(const HashCode& q, const uint8_t* excluded, Nearest& out, size_t& compared) const {
+  out.reset(static_cast<uint32_t>(options_.max_hamming));
+  const uint32_t max_bucket = static_cast<uint32_t>(options_.max_bucket);
+  const bool ids16 = lookup_.uses_16bit_ids();
+  for (int t = 0; t < kHashTables; ++t) {
+    uint32_t begin, end;
+    lookup_.bucket_range(t, hash_subcode(q, t), begin, end);
+    if (end - begin > max_bucket) continue;
+    compared += end - begin;
+    for (uint32_t i = begin; i < end; ++i) {
+      const uint32_t id = ids16 ? lookup_.ids16(t)[i] : lookup_.ids32(t)[i];
+      const uint32_t segment = segment_of_[id];
+      if (excluded && excluded[segment]) continue;
+      out.offer(hamming_distance(q, codes_[id]), segment);
+    }
+  }
+  return out.count > 0;
+}
+
+void SegmentPointVotes::compute_chance_weights(const std::vector<std::vector<uint32_t>>& related) {
+  // Pseudo-queries: up to 1,024 indexed points of each segment, evenly strided.
+  constexpr size_t kProbesPerSegment = 1024;
+  const uint32_t n_segments = max_segment_plus_one_;
+  std::vector<std::vector<uint32_t>> members(n_segments);
+  for (uint32_t id = 0; id < segment_of_.size(); ++id) members[segment_of_[id]].push_back(id);
+  std::vector<double> chance(n_segments, 0.0);
+  std::vector<uint8_t> excluded(n_segments, 0);
+  Nearest best;
+  size_t compared = 0;
+  for (uint32_t u = 0; u < n_segments; ++u) {
+    const std::vector<uint32_t>& ids = members[u];
+    if (ids.empty()) continue;
+    std::fill(excluded.begin(), excluded.end(), uint8_t(0));
+    excluded[u] = 1;
+    if (u < related.size())
+      for (uint32_t r : related[u])
+        if (r < n_segments) excluded[r] = 1;
+    const size_t probes = std::min(ids.size(), kProbesPerSegment);
+    for (size_t k = 0; k < probes; ++k) {
+      const uint32_t id = ids[k * ids.size() / probes];
+      if (!nearest(codes_[id], excluded.data(), best, compared)) continue;
+      for (int i = 0; i < best.count; ++i) chance[best.segments[i]] += 1.0 / best.count;
+    }
+  }
+  double sum = 0;
+  size_t populated = 0;
+  for (uint32_t s = 0; s < n_segments; ++s)
+    if (!members[s].empty()) {
+      sum += chance[s];
+      ++populated;
+    }
+  const double mean = populated ? sum / double(populated) : 0.0;
+  for (uint32_t s = 0; s < n_segments; ++s) {
+    if (members[s].empty() || mean <= 0) continue;
+    const double rate = std::clamp(chance[s] / mean, 0.25, 4.0);
+    weight_[s] = static_cast<float>(1.0 / rate);
+  }
+}
 
 void SegmentPointVotes::vote(std::span<const HashCode> query, std::vector<float>& scratch,
                              SegmentPointVoteResult& out) const {
@@ -78,33 +138,17 @@ void SegmentPointVotes::vote(std::span<const HashCode> query, std::vector<float>
   out.total_votes = 0;
   out.candidates_compared = 0;
   scratch.assign(max_segment_plus_one_, 0.0f);
-  const uint32_t bound = static_cast<uint32_t>(options_.max_hamming);
-  const uint32_t max_bucket = static_cast<uint32_t>(options_.max_bucket);
-  const bool ids16 = lookup_.uses_16bit_ids();
   size_t compared = 0;
+  Nearest best;
   for (const HashCode& q : query) {
-    NearestSegments nearest(bound);
-    for (int t = 0; t < kHashTables; ++t) {
-      uint32_t begin, end;
-      lookup_.bucket_range(t, hash_subcode(q, t), begin, end);
-      if (end - begin > max_bucket) continue;
-      compared += end - begin;
-      if (ids16) {
-        const uint16_t* ids = lookup_.ids16(t);
-        for (uint32_t i = begin; i < end; ++i) nearest.offer(hamming_distance(q, codes_[ids[i]]), segment_of_[ids[i]]);
-      } else {
-        const uint32_t* ids = lookup_.ids32(t);
-        for (uint32_t i = begin; i < end; ++i) nearest.offer(hamming_distance(q, codes_[ids[i]]), segment_of_[ids[i]]);
-      }
-    }
-    if (nearest.count == 0) continue;
-    const float share = 1.0f / static_cast<float>(nearest.count);
-    for (int i = 0; i < nearest.count; ++i) scratch[nearest.segments[i]] += share;
+    if (!nearest(q, nullptr, best, compared)) continue;
+    const float share = 1.0f / static_cast<float>(best.count);
+    for (int i = 0; i < best.count; ++i) scratch[best.segments[i]] += share;
     out.total_votes += 1.0f;
   }
   out.candidates_compared = compared;
   for (uint32_t s = 0; s < max_segment_plus_one_; ++s)
-    if (scratch[s] > 0) out.segments.push_back({s, scratch[s]});
+    if (scratch[s] > 0) out.segments.push_back({s, scratch[s] * weight_[s]});
   std::sort(out.segments.begin(), out.segments.end(), [](const SegmentPointVote& a, const SegmentPointVote& b) {
     return a.votes != b.votes ? a.votes > b.votes : a.segment < b.segment;
   });

@@ -41,6 +41,12 @@ struct SegmentPointVoteOptions {
   int points_per_segment = 8192;  // points indexed per segment (0: all)
   int max_hamming = 32;           // a vote needs a point at most this far (bits of 128)
   int max_bucket = 4096;          // buckets with more points are not probed
+  // Divide each segment's votes by its rate of chance votes: how often the
+  // points of unrelated segments (sharing no image with it) find their
+  // nearest point in it, relative to the mean over segments, clamped to
+  // [1/4, 4]. A segment whose codes are near everything (a hub) otherwise
+  // collects votes from every query.
+  bool normalize_by_chance = false;
   void validate() const;          // throws Error(kInvalidArgument) naming the field
 };
 
@@ -61,7 +67,11 @@ class SegmentPointVotes {
   // Adds a segment's point codes (subsampled to points_per_segment). Call
   // finalize() once every segment is added; segment ids need not be dense.
   void add_segment(uint32_t segment, std::span<const HashCode> codes);
-  void finalize();
+  // `related[s]`: segments that may hold the same physical points as s (they
+  // share images), left out of s's chance votes; only with normalize_by_chance.
+  void finalize(const std::vector<std::vector<uint32_t>>& related = {});
+  // Per segment: the factor its votes are multiplied by (1 without normalization).
+  const std::vector<float>& segment_weights() const { return weight_; }
 
   // Votes of a query hashed with the map's rotation. `scratch` is reused
   // across calls (one per thread); `out`'s vectors are reused too.
@@ -78,6 +88,13 @@ class SegmentPointVotes {
   std::vector<uint32_t> segment_of_;
   uint32_t max_segment_plus_one_ = 0;
   CascadeLookup lookup_;
+  std::vector<float> weight_;
+  // The nearest indexed points' distance and segments (ties) of one code,
+  // skipping segments with excluded[s] != 0 (null: none); false when none is
+  // within max_hamming.
+  struct Nearest;
+  bool nearest(const HashCode& q, const uint8_t* excluded, Nearest& out, size_t& compared) const;
+  void compute_chance_weights(const std::vector<std::vector<uint32_t>>& related);
   bool finalized_ = false;
 };
 

@@ -139,6 +139,44 @@ TEST(SegmentPointVotes, SkipsOverfullBuckets) {
   EXPECT_FLOAT_EQ(r.total_votes, 1);
 }
 
+TEST(SegmentPointVotes, ChanceNormalizationDiscountsAHubSegment) {
+  // Segments 0-2 hold random codes; segment 3 (a hub) holds near copies of a
+  // third of each of theirs, so their points find it when they are left out.
+  RandomGenerator rng(14);
+  std::vector<std::vector<HashCode>> segments = {random_codes(900, rng), random_codes(900, rng),
+                                                 random_codes(900, rng), {}};
+  for (int s = 0; s < 3; ++s)
+    for (size_t i = 0; i < 900; i += 3) segments[3].push_back(flipped(segments[s][i], 2, rng));
+  const auto build = [&](bool normalize, const std::vector<std::vector<uint32_t>>& related) {
+    SegmentPointVotes votes({.points_per_segment = 0, .normalize_by_chance = normalize});
+    for (uint32_t s = 0; s < 4; ++s) votes.add_segment(s, segments[s]);
+    votes.finalize(related);
+    return votes;
+  };
+  const SegmentPointVotes plain = build(false, {});
+  for (float w : plain.segment_weights()) EXPECT_EQ(w, 1.0f);
+  const SegmentPointVotes normalized = build(true, {});
+  const std::vector<float>& w = normalized.segment_weights();
+  ASSERT_EQ(w.size(), 4u);
+  EXPECT_LE(w[3], 0.5f);  // the hub: 900 chance votes against 300 for each other segment
+  for (int s = 0; s < 3; ++s) EXPECT_GT(w[s], 1.0f) << s;
+  // A query that matches the hub as well as segment 0 (a feature of one of
+  // the copied points, 1 bit from both) now favours segment 0.
+  std::vector<HashCode> query;
+  for (size_t i = 0; i < 900; i += 3) query.push_back(segments[0][i]);
+  std::vector<float> scratch;
+  SegmentPointVoteResult r;
+  normalized.vote(query, scratch, r);
+  ASSERT_FALSE(r.segments.empty());
+  EXPECT_EQ(r.segments[0].segment, 0u);
+  EXPECT_FLOAT_EQ(r.total_votes, 300);
+  EXPECT_FLOAT_EQ(votes_of(r, 0), 300 * w[0]);
+  // Related segments (sharing images) are not counted as chance: with the
+  // hub related to every other segment, nothing marks it out.
+  const SegmentPointVotes related = build(true, {{3}, {3}, {3}, {0, 1, 2}});
+  EXPECT_GE(related.segment_weights()[3], 1.0f);
+}
+
 TEST(SegmentPointVotes, RejectsBadOptionsAndMisuse) {
   EXPECT_THROW(SegmentPointVotes({.points_per_segment = -1}), Error);
   EXPECT_THROW(SegmentPointVotes({.max_hamming = 129}), Error);
