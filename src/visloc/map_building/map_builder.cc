@@ -929,7 +929,16 @@ double stage_fraction(const SegmentProgress& p) {
 
 }  // namespace
 
-SegmentBuildResult build_planned_segment(const fs::path& map_dir, const MapBuildOptions& opt, int segment) {
+HashRotationScope resolve_hash_rotation(const fs::path& map_dir, const std::optional<HashRotationScope>& given) {
+  if (given) return *given;
+  if (fs::exists(map_dir / kHashRotationFileName)) return HashRotationScope::kMap;
+  if (fs::exists(map_dir / "manifest.json")) return HashRotationScope::kSegment;
+  return HashRotationScope::kMap;
+}
+
+SegmentBuildResult build_planned_segment(const fs::path& map_dir, const MapBuildOptions& options, int segment) {
+  MapBuildOptions opt = options;
+  opt.hash_rotation = resolve_hash_rotation(map_dir, options.hash_rotation);
   opt.validate();
   const fs::path codebook_path = map_dir / "pq_codebook.vlpq";
   if (!fs::exists(map_dir / "manifest.json") || !fs::exists(codebook_path))
@@ -1054,6 +1063,7 @@ MapBuildResult MapBuilder::run() {
   s.opt.validate();
   s.total = Timer();
   s.jobs = s.opt.jobs > 0 ? s.opt.jobs : std::max(1u, std::thread::hardware_concurrency());
+  s.opt.hash_rotation = resolve_hash_rotation(s.map_dir, s.opt.hash_rotation);
   fs::create_directories(s.map_dir / "work" / "features");
   const BuildLock lock(s.map_dir / "work" / "build.lock");
   check_earlier_slurm_arrays();
@@ -1204,7 +1214,7 @@ void MapBuilder::select_segments() {
       // kept (another hash rotation) would drop out of the map.
       if (!s.only.empty() && fs::exists(segment_file(s.map_dir, id)))
         throw_error(ErrorCode::kInvalidArgument, "segment ", id, " of ", s.map_dir.string(),
-                    " was built with another hash rotation than --hash-rotation ", to_string(s.opt.hash_rotation),
+                    " was built with another hash rotation than --hash-rotation ", to_string(*s.opt.hash_rotation),
                     " gives; update with the same option, or rebuild the map with 'map build'");
     }
     if (s.only.empty() || s.only.count(id)) s.to_build.push_back(id);
@@ -1237,7 +1247,7 @@ void MapBuilder::write_current_manifest() {
                       {"table_bits", kHashTableBits},
                       {"itq_iterations", opt.itq.iterations},
                       {"seed", opt.itq.seed},
-                      {"rotation", to_string(opt.hash_rotation)}}},
+                      {"rotation", to_string(opt.hash_rotation.value_or(HashRotationScope::kMap))}}},
                     {"pq", {{"subvectors", kPqSubvectors}, {"bits", 8}, {"seed", opt.pq.seed}}},
                     {"point_descriptor", "mean of track"},
                     {"sift", nlohmann::json::parse(opt.sift.to_json())},

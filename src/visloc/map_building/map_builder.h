@@ -100,11 +100,12 @@ struct MapBuildOptions {
   double pair_max_angle_deg = 60;           //   and looking within this angle of each other;
                                             //   SfM: COLMAP's spatial matcher on the GPS priors
   ItqOptions itq;
-  // kMap (default): one ITQ rotation for the map (MAP/hash_rotation.vlitq),
-  // learned on the PQ codebook's training sample, so that hash codes compare
-  // across segments (the localizer's local-feature segment votes need it);
-  // kSegment: one per segment, learned on its points' descriptors.
-  HashRotationScope hash_rotation = HashRotationScope::kMap;
+  // kMap: one ITQ rotation for the map (MAP/hash_rotation.vlitq), learned on
+  // the PQ codebook's training sample, so that hash codes compare across
+  // segments (the localizer's point votes need it); kSegment: one per
+  // segment, learned on its points' descriptors. Empty (default): the
+  // existing map's (resolve_hash_rotation), kMap for a new map.
+  std::optional<HashRotationScope> hash_rotation;
   SegmentWriteOptions segment_file;  // point coordinates: float32, int16 or auto
   PqTrainingOptions pq;
   size_t pq_training_descriptors = 100000;  // sampled across the training images:
@@ -198,6 +199,12 @@ struct MapBuildProgress {
 // the error when it failed; throws only for bad arguments or internal errors).
 SegmentBuildResult build_planned_segment(const std::filesystem::path& map_dir, const MapBuildOptions& options,
                                          int segment);
+
+// The hash rotation a build of `map_dir` uses: `given`, else the existing
+// map's (MAP/hash_rotation.vlitq present: kMap; a manifest without it: a
+// map built with a rotation per segment, kSegment), else kMap for a new map.
+HashRotationScope resolve_hash_rotation(const std::filesystem::path& map_dir,
+                                        const std::optional<HashRotationScope>& given);
 
 MapBuildResult build_map(const std::filesystem::path& map_dir, const MapBuildOptions& options,
                          const std::function<void(const MapBuildProgress&)>& progress = {});

@@ -90,10 +90,14 @@ void add_options(OptionTable& t, MapBuildOptions& o) {
   t.add("--pq-training-images", o.pq_training_images,
         "The PQ codebook trains on at most this many images, spread over the map (with --executor slurm "
         "only their features are extracted before the array; each task extracts its segment's)");
-  add_hash_rotation(t, o.hash_rotation,
-                    "ITQ hash rotation: 'map' (one for the map, MAP/hash_rotation.vlitq: 64 KiB less per "
-                    "segment, a query hashed once, and the localizer can vote for segments with the "
-                    "query's local features) or 'segment' (one per segment, in its file)");
+  t.text(
+      "--hash-rotation", "",
+      [&o](const std::string& text) {
+        if (!text.empty()) o.hash_rotation = parse_hash_rotation_scope(text);
+      },
+      "ITQ hash rotation: 'map' (one for the map, MAP/hash_rotation.vlitq: 64 KiB less per segment, a query "
+      "hashed once, and the localizer can vote for segments with the query's local features) or 'segment' "
+      "(one per segment, in its file); default: the existing map's, 'map' for a new map");
   add_point_coordinates(t, o.segment_file);
   add_options(t, o.sift);
 }

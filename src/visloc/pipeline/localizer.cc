@@ -4,6 +4,7 @@
 #include <cmath>
 #include <map>
 #include <mutex>
+#include <optional>
 #include <unordered_map>
 
 #include "visloc/map/map.h"
@@ -160,6 +161,7 @@ struct Localizer::Impl {
   std::unique_ptr<SegmentPointVotes> point_votes;  // null without a map rotation or when not asked for
   SegmentVoterOptions voting;
   int max_segments = 4;  // candidates searched (options' max_segments)
+  SegmentVoteSource segment_votes = SegmentVoteSource::kAuto;
   std::optional<EnuFrame> frame;
   std::unique_ptr<SiftExtractor> sift;
   CascadeSearchOptions search;
@@ -167,7 +169,7 @@ struct Localizer::Impl {
 
   // Candidate segments (positions in the manifest), best-voted first; fills
   // the retrieval's fields and time of `res`. Hashes the query with the map's
-  // rotation into ws.map_codes when it votes with points (returns whether it did).
+  // rotation into ws.map_codes when it votes with points (map_codes_ready).
   std::vector<size_t> candidate_segments(const FeatureSet& f, QueryWorkspace& ws, LocalizationResult& res,
                                          bool& map_codes_ready) const;
   void build_point_votes(const SegmentPointVoteOptions& options);
@@ -227,17 +229,20 @@ Localizer::Localizer(const std::filesystem::path& map_dir, const LocalizerOption
   const SegmentVoteSource source = options_.segment_votes;
   if (source != SegmentVoteSource::kImages && many_segments && impl_->map.hasher())
     impl_->build_point_votes(options_.point_votes);
-  const bool want_images = source == SegmentVoteSource::kImages || source == SegmentVoteSource::kBoth ||
-                           (source == SegmentVoteSource::kAuto && !impl_->point_votes);
-  if (want_images && std::filesystem::exists(map_dir / "retrieval"))
+  // (auto also loads the image votes: they fill the places point votes leave.)
+  if (source != SegmentVoteSource::kPoints && std::filesystem::exists(map_dir / "retrieval"))
     impl_->retrieval = std::make_unique<RetrievalMap>(RetrievalMap::load(map_dir / "retrieval"));
+  impl_->segment_votes = source;
   // With both votes, every segment's image votes count in the sum.
-  impl_->voting.max_candidates =
-      impl_->retrieval && impl_->point_votes ? static_cast<int>(man.segments.size()) : options_.max_segments;
+  impl_->voting.max_candidates = source == SegmentVoteSource::kBoth && impl_->point_votes
+                                     ? static_cast<int>(man.segments.size())
+                                     : options_.max_segments;
   if (many_segments && !impl_->point_votes &&
       (source == SegmentVoteSource::kPoints || source == SegmentVoteSource::kBoth))
-    throw_error(ErrorCode::kFormat, map_dir.string(), ": --segment-votes ", to_string(source),
-                " needs a map with one hash rotation for all its segments (map build --hash-rotation map)");
+    throw_error(ErrorCode::kFormat, map_dir.string(), ": segment votes '", to_string(source),
+                "' need a map with one hash rotation for all its segments (map build --hash-rotation map)");
+  if (many_segments && source == SegmentVoteSource::kBoth && !impl_->retrieval)
+    throw_error(ErrorCode::kFormat, map_dir.string(), ": segment votes 'both' need the map's retrieval index");
   if (many_segments && !impl_->point_votes && !impl_->retrieval)
     throw_error(ErrorCode::kFormat, map_dir.string(), ": the map has ", man.segments.size(),
                 " segments but no retrieval index to choose among them",
@@ -378,44 +383,64 @@ std::vector<size_t> Localizer::Impl::candidate_segments(const FeatureSet& f, Que
     res.times.retrieval = t.elapsed_ms();
     return candidates;
   }
-  // Each source's votes as a share of its total, per manifest position, in
-  // the order first seen (retrieval's order first: its ties are broken by
-  // the best image rank, then the segment id).
-  std::vector<std::pair<size_t, float>> ranked;
-  std::unordered_map<size_t, size_t> slot;
-  const auto add = [&](size_t index, float share) {
-    const auto [it, inserted] = slot.emplace(index, ranked.size());
-    if (inserted) ranked.emplace_back(index, 0.0f);
-    ranked[it->second].second += share;
+  const auto position_of = [&man](int32_t id) -> std::optional<size_t> {
+    for (size_t i = 0; i < man.segments.size(); ++i)
+      if (static_cast<int32_t>(man.segments[i].id) == id) return i;
+    return std::nullopt;
   };
-  float sources = 0;       // sources that voted: the shares' sum over every segment
-  size_t image_voted = 0;  // segments with an image vote (also beyond the candidates)
-  if (retrieval) {
+  const auto take = [&](size_t index, float votes) {
+    candidates.push_back(index);
+    res.retrieval_segments.push_back(static_cast<int>(man.segments[index].id));
+    res.retrieval_votes.push_back(votes);
+  };
+  if (!point_votes) {  // image votes only: the retrieval's candidates and votes as they are
     const RetrievalQueryResult q = retrieval->query(f.descriptors, voting);
-    image_voted = q.voted_segments;
-    sources += q.total_votes > 0 ? 1.0f : 0.0f;
-    std::unordered_map<int32_t, size_t> position;
-    for (size_t i = 0; i < man.segments.size(); ++i) position[static_cast<int32_t>(man.segments[i].id)] = i;
-    for (const SegmentCandidate& c : q.candidates) {
-      const auto it = position.find(c.segment);
-      if (it != position.end() && q.total_votes > 0) add(it->second, c.votes / q.total_votes);
-    }
+    res.retrieval_voted_segments = q.voted_segments;
+    res.retrieval_total_votes = q.total_votes;
+    for (const SegmentCandidate& c : q.candidates)
+      if (const auto index = position_of(c.segment)) take(*index, c.votes);
+    res.times.retrieval = t.elapsed_ms();
+    return candidates;
   }
-  if (point_votes) {
-    ws.map_codes.resize(f.descriptors.rows());
-    encode_hash(map.hasher()->view(), f.descriptors.data(), f.descriptors.rows(), ws.map_codes.data(), ws.encode);
-    map_codes_ready = true;
-    point_votes->vote(ws.map_codes, ws.vote_scratch, ws.point_votes);
-    for (const SegmentPointVote& v : ws.point_votes.segments) add(v.segment, v.votes / ws.point_votes.total_votes);
-    sources += ws.point_votes.total_votes > 0 ? 1.0f : 0.0f;
+  // Point votes as shares of their sum, per manifest position; with both
+  // sources, plus the image votes' shares.
+  ws.map_codes.resize(f.descriptors.rows());
+  encode_hash(map.hasher()->view(), f.descriptors.data(), f.descriptors.rows(), ws.map_codes.data(), ws.encode);
+  map_codes_ready = true;
+  point_votes->vote(ws.map_codes, ws.vote_scratch, ws.point_votes);
+  std::vector<std::pair<size_t, float>> ranked;
+  float point_sum = 0;
+  for (const SegmentPointVote& v : ws.point_votes.segments) point_sum += v.votes;
+  for (const SegmentPointVote& v : ws.point_votes.segments) ranked.emplace_back(v.segment, v.votes / point_sum);
+  float sources = point_sum > 0 ? 1.0f : 0.0f;  // the shares' sum over every segment
+  const bool sum_images = retrieval && segment_votes == SegmentVoteSource::kBoth;
+  if (sum_images) {
+    const RetrievalQueryResult q = retrieval->query(f.descriptors, voting);
+    for (const SegmentCandidate& c : q.candidates) {
+      const auto index = position_of(c.segment);
+      if (!index || q.total_votes <= 0) continue;
+      const auto it = std::find_if(ranked.begin(), ranked.end(), [&](const auto& r) { return r.first == *index; });
+      if (it != ranked.end())
+        it->second += c.votes / q.total_votes;
+      else
+        ranked.emplace_back(*index, c.votes / q.total_votes);
+    }
+    sources += q.total_votes > 0 ? 1.0f : 0.0f;
   }
   std::stable_sort(ranked.begin(), ranked.end(), [](const auto& a, const auto& b) { return a.second > b.second; });
-  res.retrieval_voted_segments = std::max(ranked.size(), image_voted);
+  res.retrieval_voted_segments = ranked.size();
   res.retrieval_total_votes = sources;
-  for (size_t k = 0; k < ranked.size() && static_cast<int>(k) < max_segments; ++k) {
-    candidates.push_back(ranked[k].first);
-    res.retrieval_segments.push_back(static_cast<int>(man.segments[ranked[k].first].id));
-    res.retrieval_votes.push_back(ranked[k].second);
+  for (size_t k = 0; k < ranked.size() && static_cast<int>(k) < max_segments; ++k)
+    take(ranked[k].first, ranked[k].second);
+  // auto: the retrieved images fill the places the point votes leave (a
+  // query whose features found few map points), with no point votes.
+  if (retrieval && !sum_images && static_cast<int>(candidates.size()) < max_segments) {
+    const RetrievalQueryResult q = retrieval->query(f.descriptors, voting);
+    for (const SegmentCandidate& c : q.candidates) {
+      const auto index = position_of(c.segment);
+      if (static_cast<int>(candidates.size()) == max_segments) break;
+      if (index && std::find(candidates.begin(), candidates.end(), *index) == candidates.end()) take(*index, 0.0f);
+    }
   }
   res.times.retrieval = t.elapsed_ms();
   return candidates;

@@ -1,8 +1,9 @@
 // Localizer: one photo in, a pose on the map out (DESIGN.md "Localization"):
-//   SIFT → candidate segments: ≤ 4 by votes, of the query features' nearest
-//   map points (segment_point_votes.h; a map with one hash rotation) or of
-//   the retrieved images (T-embedding, IVF-PQ, top N_t images; the paper);
-//   every segment when the map has at most max_segments) → per candidate segment: cascade
+//   SIFT → candidate segments: ≤ max_segments (4) by votes, of the query
+//   features' nearest map points (segment_point_votes.h; a map with one hash
+//   rotation and more than max_segments segments) or of the retrieved images
+//   (T-embedding, IVF-PQ, top N_t images; the paper); every segment when the
+//   map has neither) → per candidate segment: cascade
 //   correspondence search + one-many RANSAC → the segment with the most
 //   inliers; registered at ≥ 12 inliers. The pose is reported in the
 //   segment's frame and, through the segment's enu_from_segment similarity,
@@ -76,8 +77,9 @@ struct LocalizerOptions {
   int top_images = 20;              // N_t
   int max_segments = 4;             // candidate segments searched
   // Point votes need a map with one hash rotation (map build --hash-rotation
-  // map, the default); they are used only on a map of more segments than
-  // max_segments (otherwise every segment is searched).
+  // map, the default for new maps) and are used only on a map of more
+  // segments than max_segments. auto: point votes, the retrieved images
+  // filling the places they leave; image votes alone on other maps.
   SegmentVoteSource segment_votes = SegmentVoteSource::kAuto;
   SegmentPointVoteOptions point_votes;
   // Stop searching further candidate segments once a registered pose has
@@ -144,9 +146,11 @@ struct LocalizationResult {
   std::vector<int> candidates;       // segment ids searched, in order
   // Retrieval's candidate segments (ids, best first) with their votes, how
   // many segments received a vote and the votes in all: how decisive the
-  // retrieval was. A segment's votes are its share of each source's votes
-  // (images, points; summed with both), so the total is the number of
-  // sources. Empty / 0 when every segment is searched.
+  // retrieval was. Image votes alone: the retrieved images' votes and their
+  // sum, as the paper's voting gives them. With point votes: a segment's
+  // share of each source's votes (summed with both; 0 for a segment that
+  // only the images filled in), and the total is the number of sources.
+  // Empty / 0 when every segment is searched.
   std::vector<int> retrieval_segments;
   std::vector<float> retrieval_votes;
   size_t retrieval_voted_segments = 0;

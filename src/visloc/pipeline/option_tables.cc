@@ -15,10 +15,12 @@ void add_options(OptionTable& t, LocalizerOptions& o) {
             {"images", SegmentVoteSource::kImages},
             {"points", SegmentVoteSource::kPoints},
             {"both", SegmentVoteSource::kBoth}},
-           "What ranks the candidate segments: 'points' (each query feature votes for the segment of its "
-           "nearest map point by hash code; needs a map built with --hash-rotation map), 'images' (the "
-           "retrieved images' votes, the paper's), 'both' (the sum of the two vote shares) or 'auto' "
-           "(points when the map allows, else images)");
+           "What ranks the candidate segments on a map of more than --max-segments segments: 'points' "
+           "(each query feature votes for the segment of its nearest map point by hash code; needs a map "
+           "with one hash rotation, map build's default), 'images' (the retrieved images' votes, the "
+           "paper's), 'both' (the sum of the two vote shares; needs both) or 'auto' (points, the "
+           "retrieved images filling the places they leave; images alone on a map with a rotation per "
+           "segment)");
   t.add("--vote-points", o.point_votes.points_per_segment,
         "Point votes: points indexed per segment (0: all; each costs ~65 bytes of memory)")
       .range(0, 1 << 28);

@@ -140,41 +140,55 @@ TEST(SegmentPointVotes, SkipsOverfullBuckets) {
 }
 
 TEST(SegmentPointVotes, ChanceNormalizationDiscountsAHubSegment) {
-  // Segments 0-2 hold random codes; segment 3 (a hub) holds near copies of a
-  // third of each of theirs, so their points find it when they are left out.
+  // Segments 1-3 hold random codes; segment 0 (a hub) holds near copies of a
+  // third of each of theirs (bits 3 and 70 flipped), so their points find it
+  // when their own segment is left out.
   RandomGenerator rng(14);
-  std::vector<std::vector<HashCode>> segments = {random_codes(900, rng), random_codes(900, rng),
-                                                 random_codes(900, rng), {}};
-  for (int s = 0; s < 3; ++s)
-    for (size_t i = 0; i < 900; i += 3) segments[3].push_back(flipped(segments[s][i], 2, rng));
+  std::vector<std::vector<HashCode>> segments = {
+      {}, random_codes(900, rng), random_codes(900, rng), random_codes(900, rng)};
+  const auto flip = [](HashCode c, int bit) {
+    c.w[bit >> 6] ^= uint64_t(1) << (bit & 63);
+    return c;
+  };
+  for (int s = 1; s < 4; ++s)
+    for (size_t i = 0; i < 900; i += 3) segments[0].push_back(flip(flip(segments[s][i], 3), 70));
   const auto build = [&](bool normalize, const std::vector<std::vector<uint32_t>>& related) {
     SegmentPointVotes votes({.points_per_segment = 0, .normalize_by_chance = normalize});
     for (uint32_t s = 0; s < 4; ++s) votes.add_segment(s, segments[s]);
     votes.finalize(related);
     return votes;
   };
+  // Queries 1 bit from a point of segment 1 and 1 bit from its hub copy.
+  std::vector<HashCode> query;
+  for (size_t i = 0; i < 900; i += 3) query.push_back(flip(segments[1][i], 3));
+  std::vector<float> scratch;
+  SegmentPointVoteResult r;
+
   const SegmentPointVotes plain = build(false, {});
   for (float w : plain.segment_weights()) EXPECT_EQ(w, 1.0f);
+  plain.vote(query, scratch, r);
+  ASSERT_EQ(r.segments.size(), 2u);
+  EXPECT_EQ(r.segments[0].segment, 0u);  // a tie, the lower id first: the hub
+  EXPECT_FLOAT_EQ(r.segments[0].votes, 150);
+  EXPECT_FLOAT_EQ(r.segments[1].votes, 150);
+
   const SegmentPointVotes normalized = build(true, {});
   const std::vector<float>& w = normalized.segment_weights();
   ASSERT_EQ(w.size(), 4u);
-  EXPECT_LE(w[3], 0.5f);  // the hub: 900 chance votes against 300 for each other segment
-  for (int s = 0; s < 3; ++s) EXPECT_GT(w[s], 1.0f) << s;
-  // A query that matches the hub as well as segment 0 (a feature of one of
-  // the copied points, 1 bit from both) now favours segment 0.
-  std::vector<HashCode> query;
-  for (size_t i = 0; i < 900; i += 3) query.push_back(segments[0][i]);
-  std::vector<float> scratch;
-  SegmentPointVoteResult r;
+  EXPECT_LE(w[0], 0.5f);  // 900 chance votes against 300 for each other segment
+  for (int s = 1; s < 4; ++s) EXPECT_GT(w[s], 1.0f) << s;
   normalized.vote(query, scratch, r);
-  ASSERT_FALSE(r.segments.empty());
-  EXPECT_EQ(r.segments[0].segment, 0u);
+  ASSERT_EQ(r.segments.size(), 2u);
+  EXPECT_EQ(r.segments[0].segment, 1u);
+  EXPECT_FLOAT_EQ(r.segments[0].votes, 150 * w[1]);
   EXPECT_FLOAT_EQ(r.total_votes, 300);
-  EXPECT_FLOAT_EQ(votes_of(r, 0), 300 * w[0]);
-  // Related segments (sharing images) are not counted as chance: with the
-  // hub related to every other segment, nothing marks it out.
-  const SegmentPointVotes related = build(true, {{3}, {3}, {3}, {0, 1, 2}});
-  EXPECT_GE(related.segment_weights()[3], 1.0f);
+
+  // Related segments (sharing images) do not count as chance: with the hub
+  // and segment 1 related, segment 1 receives no chance vote (its rate is
+  // clamped at 1/4: weight 4) and the hub's come from segments 2 and 3 only.
+  const SegmentPointVotes related = build(true, {{1}, {0}, {}, {}});
+  EXPECT_FLOAT_EQ(related.segment_weights()[1], 4.0f);
+  EXPECT_FLOAT_EQ(w[1], 1.5f);  // unrelated: 300 chance votes, the mean 450
 }
 
 TEST(SegmentPointVotes, RejectsBadOptionsAndMisuse) {

@@ -234,6 +234,7 @@ void take_localizer_options(Kwargs& k, LocalizerOptions& o) {
   if (k.take_choice("segment_votes", segment_votes, {"auto", "images", "points", "both"}))
     o.segment_votes = parse_segment_vote_source(segment_votes);
   k.take("vote_points", o.point_votes.points_per_segment);
+  k.take("vote_chance_normalization", o.point_votes.normalize_by_chance);
   k.take("accept_inliers", o.accept_inliers);
   k.take("early_stop", o.search.early_stop);
   k.take("full_search_fallback", o.full_search_fallback);
@@ -524,7 +525,7 @@ nlohmann::json build_record(const MapBuildOptions& o, const fs::path& map_dir) {
   if (!o.build_retrieval) a.push_back("--no-retrieval");
   add("--retrieval-dims", std::to_string(o.embedding.output_dims));
   add("--pq-training-images", std::to_string(o.pq_training_images));
-  add("--hash-rotation", to_string(o.hash_rotation));
+  if (o.hash_rotation) add("--hash-rotation", to_string(*o.hash_rotation));
   add("--point-coordinates", point_coordinates_name(o.segment_file.coordinates));
   add("--max-side", std::to_string(o.sift.max_image_side));
   add("--max-features", std::to_string(o.sift.max_features));
@@ -668,7 +669,8 @@ void bind_localizer(py::module_& m) {
 
 Localizer(map_dir, **options): options are LocalizerOptions fields, named as
 the `visloc localize` flags: setting ('1', '2', '3', '3+'), top_images,
-max_segments, segment_votes ('auto', 'points', 'images', 'both'), vote_points, accept_inliers, early_stop, full_search_fallback, threshold_px,
+max_segments, segment_votes ('auto', 'points', 'images', 'both'), vote_points,
+vote_chance_normalization, accept_inliers, early_stop, full_search_fallback, threshold_px,
 min_inliers, min_confidence, use_exif_focal, seed, cache_mib, max_image_side,
 max_features, contrast_threshold, root_sift, max_pixels. OpenCV's thread count,
 which SIFT uses, is process-wide: see visloc.set_opencv_threads.
@@ -846,7 +848,7 @@ void bind_build_map(py::module_& m) {
         MapBuildOptions o;
         o.images_dir = path_from(images, "build_map: images");
         const fs::path map_dir = path_from(out, "build_map: out");
-        std::string poses = "sfm", matcher = "auto", hash_rotation = "map";
+        std::string poses = "sfm", matcher = "auto", hash_rotation;
         const py::object gps = k.take_object("gps");  // None or 'exif': each image's EXIF; else a CSV
         if (!gps.is_none() && !(py::isinstance<py::str>(gps) && gps.cast<std::string>() == "exif")) {
           if (!is_path_like(gps))
