@@ -582,7 +582,10 @@ std::string city_report_markdown(const nlohmann::json& report, const CityBenchma
      << (c.with_sigma ? double(c.within1) / double(c.with_sigma) : 0.0) << " have their position error within 1σ and "
      << (c.with_sigma ? double(c.within2) / double(c.with_sigma) : 0.0) << " within 2σ.\n\n"
      << "Retrieval (candidates ranked by "
-     << (t.image_votes && t.point_votes ? "image and point votes"
+     << (t.image_votes && t.point_votes
+             ? (opt.localizer.segment_votes == SegmentVoteSource::kBoth
+                    ? "image and point votes"
+                    : "point votes, the retrieved images filling the places they leave")
          : t.point_votes               ? "point votes"
          : t.image_votes               ? "image votes"
                                        : "nothing: every segment is searched")

@@ -104,6 +104,39 @@ TEST(Localizer, LocalizesHeldOutFountainImages) {
 // The whole system on a small synthetic street: render, build a map with
 // COLMAP from the known poses, localize queries from other cameras. Skips
 // when the colmap binary is absent.
+// Point votes (segment_point_votes.h): the street's map rebuilt with small
+// segments, more of them than are searched, and no retrieval index: the
+// query features' nearest map points choose the one segment searched.
+void expect_point_votes_choose_the_segment(const fs::path& dir, const MapBuildOptions& shared,
+                                           const std::map<std::string, CameraPose>& truth,
+                                           const std::map<std::string, PinholeCamera>& cams) {
+  MapBuildOptions small = shared;
+  small.plan.min_placemarks = small.plan.max_placemarks = 3;
+  small.plan.overlap = 1;
+  const MapBuildResult smaller = build_map(dir / "map", small);
+  ASSERT_EQ(smaller.failed(), 0u);
+  ASSERT_GE(smaller.segments.size(), 2u);
+  LocalizerOptions one;
+  one.max_segments = 1;
+  one.segment_votes = SegmentVoteSource::kPoints;
+  Localizer voted(dir / "map", one);
+  EXPECT_TRUE(voted.has_point_votes());
+  EXPECT_GT(voted.point_vote_bytes(), 0u);
+  int voted_accurate = 0;
+  for (const auto& [name, pose] : truth) {
+    const LocalizationResult r = voted.localize_file(dir / "city" / "queries" / "images" / name, cams.at(name));
+    ASSERT_EQ(r.retrieval_segments.size(), 1u) << name;
+    EXPECT_EQ(r.candidates, r.retrieval_segments) << name;
+    EXPECT_GT(r.retrieval_votes[0], 0.0f);
+    EXPECT_FLOAT_EQ(r.retrieval_total_votes, 1.0f);  // the point votes' shares
+    voted_accurate += r.registered && position_error(r.cam_from_segment, pose) < 0.5;
+  }
+  EXPECT_GE(voted_accurate, 2) << "of " << truth.size() << " queries, searching only the best-voted segment";
+  // Image votes alone need the retrieval index, which this map has not.
+  one.segment_votes = SegmentVoteSource::kImages;
+  EXPECT_THROW(Localizer(dir / "map", one), Error);
+}
+
 TEST(Localizer, EndToEndOnSyntheticStreet) {
   if (!program_exists("colmap")) GTEST_SKIP() << "colmap is not installed";
   const fs::path dir = unique_temp_path("visloc_pipeline_test_city");
@@ -219,34 +252,7 @@ TEST(Localizer, EndToEndOnSyntheticStreet) {
   }
   EXPECT_GE(accurate, 2) << "of " << truth.size() << " queries";
 
-  // Point votes (segment_point_votes.h): small segments, more of them than
-  // are searched, and no retrieval index: the query features' nearest map
-  // points choose the one segment searched.
-  MapBuildOptions small = shared;
-  small.plan.min_placemarks = small.plan.max_placemarks = 3;
-  small.plan.overlap = 1;
-  const MapBuildResult smaller = build_map(dir / "map", small);
-  ASSERT_EQ(smaller.failed(), 0u);
-  ASSERT_GE(smaller.segments.size(), 2u);
-  LocalizerOptions one;
-  one.max_segments = 1;
-  one.segment_votes = SegmentVoteSource::kPoints;
-  Localizer voted(dir / "map", one);
-  EXPECT_TRUE(voted.has_point_votes());
-  EXPECT_GT(voted.point_vote_bytes(), 0u);
-  int voted_accurate = 0;
-  for (const auto& [name, pose] : truth) {
-    const LocalizationResult r = voted.localize_file(dir / "city" / "queries" / "images" / name, cams.at(name));
-    ASSERT_EQ(r.retrieval_segments.size(), 1u) << name;
-    EXPECT_EQ(r.candidates, r.retrieval_segments) << name;
-    EXPECT_GT(r.retrieval_votes[0], 0.0f);
-    EXPECT_FLOAT_EQ(r.retrieval_total_votes, 1.0f);  // the point votes' shares
-    voted_accurate += r.registered && position_error(r.cam_from_segment, pose) < 0.5;
-  }
-  EXPECT_GE(voted_accurate, 2) << "of " << truth.size() << " queries, searching only the best-voted segment";
-  // Image votes alone need the retrieval index, which this map has not.
-  one.segment_votes = SegmentVoteSource::kImages;
-  EXPECT_THROW(Localizer(dir / "map", one), Error);
+  expect_point_votes_choose_the_segment(dir, shared, truth, cams);
 }
 
 #include <zlib.h>
