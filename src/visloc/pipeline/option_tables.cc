@@ -24,6 +24,10 @@ void add_options(OptionTable& t, LocalizerOptions& o) {
   t.add("--vote-points", o.point_votes.points_per_segment,
         "Point votes: points indexed per segment (0: all; each costs ~65 bytes of memory)")
       .range(0, 1 << 28);
+  t.add("--vote-radius", o.point_votes.probe_radius,
+        "Point votes: lookup-table buckets probed per table: the feature's 16-bit sub-code (0) and also "
+        "those 1 bit off it (1: 17 buckets, finds matches that differ in more bits)")
+      .range(0, 1);
   t.flag("--vote-chance-normalization", o.point_votes.normalize_by_chance,
          "Point votes: divide each segment's votes by its rate of chance votes from unrelated segments' points");
   t.add("--accept-inliers", o.accept_inliers,

@@ -13,6 +13,8 @@ void SegmentPointVoteOptions::validate() const {
   if (max_hamming < 0 || max_hamming > kHashBits)
     throw_error(ErrorCode::kInvalidArgument, "max_hamming must be in [0, ", kHashBits, "], got ", max_hamming);
   if (max_bucket < 1) throw_error(ErrorCode::kInvalidArgument, "max_bucket must be >= 1, got ", max_bucket);
+  if (probe_radius < 0 || probe_radius > 1)
+    throw_error(ErrorCode::kInvalidArgument, "vote_radius (probe radius) must be 0 or 1, got ", probe_radius);
 }
 
 SegmentPointVotes::SegmentPointVotes(const SegmentPointVoteOptions& options) : options_(options) {
@@ -74,21 +76,31 @@ struct SegmentPointVotes::Nearest {
 
 bool SegmentPointVotes::nearest(const HashCode& q, const uint8_t* excluded, Nearest& out, size_t& compared) const {
   out.reset(static_cast<uint32_t>(options_.max_hamming));
-  const uint32_t max_bucket = static_cast<uint32_t>(options_.max_bucket);
-  const bool ids16 = lookup_.uses_16bit_ids();
-  for (int t = 0; t < kHashTables; ++t) {
-    uint32_t begin, end;
-    lookup_.bucket_range(t, hash_subcode(q, t), begin, end);
-    if (end - begin > max_bucket) continue;
-    compared += end - begin;
-    for (uint32_t i = begin; i < end; ++i) {
-      const uint32_t id = ids16 ? lookup_.ids16(t)[i] : lookup_.ids32(t)[i];
-      const uint32_t segment = segment_of_[id];
-      if (excluded && excluded[segment]) continue;
-      out.offer(hamming_distance(q, codes_[id]), segment);
+  for (int t = 0; t < kHashTables; ++t)
+    probe_bucket(t, hash_subcode(q, t), q, excluded, out, compared, options_.max_bucket);
+  // Radius 1 only when radius 0 may have missed a nearer point (see the header).
+  if (options_.probe_radius == 1 && !(out.count > 0 && out.distance < static_cast<uint32_t>(kHashTables)))
+    for (int t = 0; t < kHashTables; ++t) {
+      const uint32_t key = hash_subcode(q, t);
+      for (int bit = 0; bit < 16; ++bit)
+        probe_bucket(t, key ^ (1u << bit), q, excluded, out, compared, options_.max_bucket / 16);
     }
-  }
   return out.count > 0;
+}
+
+void SegmentPointVotes::probe_bucket(int table, uint32_t key, const HashCode& q, const uint8_t* excluded, Nearest& out,
+                                     size_t& compared, int max_bucket) const {
+  uint32_t begin, end;
+  lookup_.bucket_range(table, key, begin, end);
+  if (end - begin > static_cast<uint32_t>(max_bucket)) return;
+  compared += end - begin;
+  const bool ids16 = lookup_.uses_16bit_ids();
+  for (uint32_t i = begin; i < end; ++i) {
+    const uint32_t id = ids16 ? lookup_.ids16(table)[i] : lookup_.ids32(table)[i];
+    const uint32_t segment = segment_of_[id];
+    if (excluded && excluded[segment]) continue;
+    out.offer(hamming_distance(q, codes_[id]), segment);
+  }
 }
 
 void SegmentPointVotes::compute_chance_weights(const std::vector<std::vector<uint32_t>>& related) {

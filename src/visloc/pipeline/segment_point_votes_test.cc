@@ -101,6 +101,39 @@ TEST(SegmentPointVotes, FarFeaturesDoNotVoteAndTiesAreSplit) {
   EXPECT_FLOAT_EQ(votes_of(r, 0), 1);
 }
 
+TEST(SegmentPointVotes, RadiusOneFindsPointsThatDifferInEverySubCode) {
+  RandomGenerator rng(29);
+  const std::vector<HashCode> a = random_codes(1000, rng);
+  // One bit off in each of the 8 sub-codes: no bucket of radius 0 holds a[7].
+  HashCode q = a[7];
+  for (int table = 0; table < kHashTables; ++table) q.w[table / 4] ^= uint64_t(1) << (16 * (table % 4) + 3);
+  const HashCode query[] = {q};
+  std::vector<float> scratch;
+  SegmentPointVoteResult r;
+  for (int radius : {0, 1}) {
+    SegmentPointVotes votes({.points_per_segment = 0, .probe_radius = radius});
+    votes.add_segment(2, a);
+    votes.finalize();
+    votes.vote(query, scratch, r);
+    EXPECT_FLOAT_EQ(votes_of(r, 2), radius == 0 ? 0.0f : 1.0f) << radius;
+  }
+  // A feature within 7 bits of a point: radius 0 has found its nearest (every
+  // point that near shares a sub-code), and radius 1 probes nothing more.
+  HashCode near = a[9];
+  near.w[0] ^= 0x5;
+  const HashCode near_query[] = {near};
+  size_t compared[2] = {0, 0};
+  for (int radius : {0, 1}) {
+    SegmentPointVotes votes({.points_per_segment = 0, .probe_radius = radius});
+    votes.add_segment(2, a);
+    votes.finalize();
+    votes.vote(near_query, scratch, r);
+    EXPECT_FLOAT_EQ(votes_of(r, 2), 1.0f);
+    compared[radius] = r.candidates_compared;
+  }
+  EXPECT_EQ(compared[0], compared[1]);
+}
+
 TEST(SegmentPointVotes, KeepsAnEvenStrideOfEachSegmentsPoints) {
   RandomGenerator rng(13);
   const std::vector<HashCode> a = random_codes(100, rng);
@@ -137,6 +170,20 @@ TEST(SegmentPointVotes, SkipsOverfullBuckets) {
   open.vote(query, scratch, r);
   EXPECT_EQ(r.candidates_compared, 8u * 50u);
   EXPECT_FLOAT_EQ(r.total_votes, 1);
+
+  // Radius 1's buckets (16 per table) get a sixteenth of the bound each: a
+  // feature one bit off in every sub-code finds the 50 points only when
+  // max_bucket / 16 ≥ 50.
+  HashCode off = same[0];
+  for (int table = 0; table < kHashTables; ++table) off.w[table / 4] ^= uint64_t(1) << (16 * (table % 4));
+  const HashCode off_query[] = {off};
+  for (int bound : {799, 800}) {
+    SegmentPointVotes radius1({.points_per_segment = 0, .max_bucket = bound, .probe_radius = 1});
+    radius1.add_segment(0, same);
+    radius1.finalize();
+    radius1.vote(off_query, scratch, r);
+    EXPECT_FLOAT_EQ(r.total_votes, bound == 800 ? 1.0f : 0.0f) << bound;
+  }
 }
 
 TEST(SegmentPointVotes, ChanceNormalizationDiscountsAHubSegment) {
@@ -196,6 +243,8 @@ TEST(SegmentPointVotes, RejectsBadOptionsAndMisuse) {
   EXPECT_THROW(SegmentPointVotes({.max_hamming = 129}), Error);
   EXPECT_THROW(SegmentPointVotes({.max_hamming = -1}), Error);
   EXPECT_THROW(SegmentPointVotes({.max_bucket = 0}), Error);
+  EXPECT_THROW(SegmentPointVotes({.probe_radius = 2}), Error);
+  EXPECT_THROW(SegmentPointVotes({.probe_radius = -1}), Error);
   SegmentPointVotes votes;
   std::vector<float> scratch;
   SegmentPointVoteResult r;
