@@ -500,52 +500,62 @@ nlohmann::json city_report_json(const fs::path& city_dir, const CityBenchmarkOpt
                                 const nlohmann::json& build_summary, const CityLocalizationTally& t,
                                 const CityQueryCounts& c) {
   return {
-      {"city", {{"road_length_m", nlohmann::json::parse(read_file(city_dir / "city.json")).at("counts").at("road_length_m")},
-                {"roads", split.max_road + 1},
-                {"roads_left_out", std::vector<int>(split.left_out.begin(), split.left_out.end())},
-                {"placemarks_mapped", split.mapped_centres.size()},
-                {"images_mapped", split.mapped.size()}}},
+      {"city",
+       {{"road_length_m", nlohmann::json::parse(read_file(city_dir / "city.json")).at("counts").at("road_length_m")},
+        {"roads", split.max_road + 1},
+        {"roads_left_out", std::vector<int>(split.left_out.begin(), split.left_out.end())},
+        {"placemarks_mapped", split.mapped_centres.size()},
+        {"images_mapped", split.mapped.size()}}},
       {"map", build_summary},
       {"peak_memory_bytes_of_localizing_process", peak_memory_bytes()},
       {"peak_memory_bytes_city_queries", t.peak_city_queries},
       {"localized_in_separate_process", opt.stage == CityBenchmarkStage::kLocalize},
-      {"segment_votes", {{"option", to_string(opt.localizer.segment_votes)},
-                         {"image_votes_used", t.image_votes},
-                         {"point_votes_used", t.point_votes},
-                         {"point_vote_index_bytes", t.point_vote_bytes}}},
+      {"segment_votes",
+       {{"option", to_string(opt.localizer.segment_votes)},
+        {"image_votes_used", t.image_votes},
+        {"point_votes_used", t.point_votes},
+        {"point_vote_index_bytes", t.point_vote_bytes},
+        {"points_per_segment", opt.localizer.point_votes.points_per_segment},
+        {"probe_radius", opt.localizer.point_votes.probe_radius},
+        {"normalize_by_chance", opt.localizer.point_votes.normalize_by_chance}}},
       {"positives", pose_summary(t.positives.errors_m, t.positives.count, t.positives.registered, t.positives.wrong)},
       {"negatives_unmapped_streets",
        pose_summary(t.negatives.errors_m, t.negatives.count, t.negatives.registered, t.negatives.wrong)},
       {"between_not_scored", {{"queries", t.between.count}, {"registered", t.between.registered}}},
-      {"near_but_unseen_not_scored", {{"queries", t.near_unseen.count}, {"registered", t.near_unseen.registered},
-                                      {"rule", {{"min_visible_points", opt.positive_min_visible_points},
-                                                {"range_m", opt.visibility_range_m}}}}},
+      {"near_but_unseen_not_scored",
+       {{"queries", t.near_unseen.count},
+        {"registered", t.near_unseen.registered},
+        {"rule", {{"min_visible_points", opt.positive_min_visible_points}, {"range_m", opt.visibility_range_m}}}}},
       {"foreign_photos", {{"queries", t.foreigners.count}, {"registered", t.foreigners.registered}}},
       {"wrong_poses", c.wrong_total},
       {"wrong_pose_rule", {{"position_m", opt.wrong_position_m}, {"rotation_deg", opt.wrong_rotation_deg}}},
-      {"confidence", {{"min_confidence", opt.localizer.min_confidence},
-                      {"turned_away_right_poses", c.turned_away_right},
-                      {"turned_away_wrong_poses", c.turned_away_wrong}}},
-      {"uncertainty", {{"registered_positives_with_sigma", c.with_sigma},
-                       {"within_1_sigma", c.with_sigma ? double(c.within1) / double(c.with_sigma) : 0.0},
-                       {"within_2_sigma", c.with_sigma ? double(c.within2) / double(c.with_sigma) : 0.0}}},
+      {"confidence",
+       {{"min_confidence", opt.localizer.min_confidence},
+        {"turned_away_right_poses", c.turned_away_right},
+        {"turned_away_wrong_poses", c.turned_away_wrong}}},
+      {"uncertainty",
+       {{"registered_positives_with_sigma", c.with_sigma},
+        {"within_1_sigma", c.with_sigma ? double(c.within1) / double(c.with_sigma) : 0.0},
+        {"within_2_sigma", c.with_sigma ? double(c.within2) / double(c.with_sigma) : 0.0}}},
       {"retrieval",
        {{"positives_with_true_segment_among_candidates", t.retrieval_hits},
         {"fraction", t.positives.count ? double(t.retrieval_hits) / double(t.positives.count) : 0.0},
-        {"median_rank_of_true_segment", t.true_ranks.empty() ? nlohmann::json(nullptr) : nlohmann::json(median(t.true_ranks))},
+        {"median_rank_of_true_segment",
+         t.true_ranks.empty() ? nlohmann::json(nullptr) : nlohmann::json(median(t.true_ranks))},
         {"rank_histogram", c.rank_histogram},
         {"true_segment_rule", {{"share_of_best", opt.true_segment_share}}},
-        {"median_top_candidate_vote_share", t.top_vote_share.empty() ? nlohmann::json(nullptr)
-                                                                     : nlohmann::json(median(t.top_vote_share))},
-        {"median_segments_voted", t.voted_segments.empty() ? nlohmann::json(nullptr)
-                                                           : nlohmann::json(median(t.voted_segments))}}},
-      {"median_ms_per_positive", {{"total", median_or_zero(t.ms_total)},
-                                  {"excluding_features", median_or_zero(t.ms_excluding_features)},
-                                  {"retrieval", median_or_zero(t.ms_retrieval)},
-                                  {"matching", median_or_zero(t.ms_matching)},
-                                  {"ransac", median_or_zero(t.ms_ransac)},
-                                  {"registered_excluding_features", median_or_zero(t.ms_registered)},
-                                  {"missed_excluding_features", median_or_zero(t.ms_missed)}}},
+        {"median_top_candidate_vote_share",
+         t.top_vote_share.empty() ? nlohmann::json(nullptr) : nlohmann::json(median(t.top_vote_share))},
+        {"median_segments_voted",
+         t.voted_segments.empty() ? nlohmann::json(nullptr) : nlohmann::json(median(t.voted_segments))}}},
+      {"median_ms_per_positive",
+       {{"total", median_or_zero(t.ms_total)},
+        {"excluding_features", median_or_zero(t.ms_excluding_features)},
+        {"retrieval", median_or_zero(t.ms_retrieval)},
+        {"matching", median_or_zero(t.ms_matching)},
+        {"ransac", median_or_zero(t.ms_ransac)},
+        {"registered_excluding_features", median_or_zero(t.ms_registered)},
+        {"missed_excluding_features", median_or_zero(t.ms_missed)}}},
       {"per_query", t.per_query}};
 }
 
@@ -571,10 +581,11 @@ std::string city_report_markdown(const nlohmann::json& report, const CityBenchma
   md << "| foreign photos | " << t.foreigners.count << " | " << t.foreigners.registered << " | " << t.foreigners.wrong
      << " | " << (t.foreigners.count - t.foreigners.registered) << " | - |\n\n"
      << "Wrong poses in all: " << c.wrong_total << " (a wrong pose: registered more than " << opt.wrong_position_m
-     << " m or " << opt.wrong_rotation_deg << "° from the truth, or any registered foreign photo). "
-     << t.between.count << " queries between " << opt.positive_max_distance_m << " and " << opt.negative_min_distance_m
+     << " m or " << opt.wrong_rotation_deg << "° from the truth, or any registered foreign photo). " << t.between.count
+     << " queries between " << opt.positive_max_distance_m << " and " << opt.negative_min_distance_m
      << " m from the map are not scored, nor " << t.near_unseen.count << " near the map that see fewer than "
-     << opt.positive_min_visible_points << " of its points. A negative registered within the thresholds of its true pose (it sees "
+     << opt.positive_min_visible_points
+     << " of its points. A negative registered within the thresholds of its true pose (it sees "
      << "mapped facades) is not a wrong pose: " << (t.negatives.registered - t.negatives.wrong) << " here.\n\n"
      << "Confidence threshold " << opt.localizer.min_confidence << ": of the poses with at least "
      << opt.localizer.ransac.min_inliers << " inliers it turned away " << c.turned_away_wrong << " wrong and "
@@ -582,14 +593,15 @@ std::string city_report_markdown(const nlohmann::json& report, const CityBenchma
      << (c.with_sigma ? double(c.within1) / double(c.with_sigma) : 0.0) << " have their position error within 1σ and "
      << (c.with_sigma ? double(c.within2) / double(c.with_sigma) : 0.0) << " within 2σ.\n\n"
      << "Retrieval (candidates ranked by "
-     << (t.image_votes && t.point_votes
-             ? (opt.localizer.segment_votes == SegmentVoteSource::kBoth
-                    ? "image and point votes"
-                    : "point votes, the retrieved images filling the places they leave")
-         : t.point_votes               ? "point votes"
-         : t.image_votes               ? "image votes"
-                                       : "nothing: every segment is searched")
-     << (t.point_votes ? "; point-vote index " + std::to_string((t.point_vote_bytes + 512 * 1024) / (1024 * 1024)) + " MiB" : std::string())
+     << (t.image_votes && t.point_votes ? (opt.localizer.segment_votes == SegmentVoteSource::kBoth
+                                               ? "image and point votes"
+                                               : "point votes, the retrieved images filling the places they leave")
+         : t.point_votes                ? "point votes"
+         : t.image_votes                ? "image votes"
+                                        : "nothing: every segment is searched")
+     << (t.point_votes ? "; point-vote index " + std::to_string((t.point_vote_bytes + 512 * 1024) / (1024 * 1024)) +
+                             " MiB, probe radius " + std::to_string(opt.localizer.point_votes.probe_radius)
+                       : std::string())
      << "): the true segment is among the candidates for " << t.retrieval_hits << "/" << t.positives.count
      << " positives";
   if (!t.true_ranks.empty()) md << " (median rank " << median(t.true_ranks) << ")";

@@ -76,23 +76,30 @@ struct SegmentPointVotes::Nearest {
 
 bool SegmentPointVotes::nearest(const HashCode& q, const uint8_t* excluded, Nearest& out, size_t& compared) const {
   out.reset(static_cast<uint32_t>(options_.max_hamming));
+  bool skipped_a_bucket = false;
   for (int t = 0; t < kHashTables; ++t)
-    probe_bucket(t, hash_subcode(q, t), q, excluded, out, compared, options_.max_bucket);
-  // Radius 1 only when radius 0 may have missed a nearer point (see the header).
-  if (options_.probe_radius == 1 && !(out.count > 0 && out.distance < static_cast<uint32_t>(kHashTables)))
-    for (int t = 0; t < kHashTables; ++t) {
-      const uint32_t key = hash_subcode(q, t);
-      for (int bit = 0; bit < 16; ++bit)
-        probe_bucket(t, key ^ (1u << bit), q, excluded, out, compared, options_.max_bucket / 16);
-    }
+    skipped_a_bucket |= !probe_bucket(t, hash_subcode(q, t), q, excluded, out, compared, options_.max_bucket);
+  if (options_.probe_radius == 0) return out.count > 0;
+  // Radius 1 only when radius 0 may have missed a nearer point: a point within
+  // 7 bits shares a sub-code with the feature (pigeonhole over 8 tables), so
+  // once every exact bucket was read and the nearest found (or the bound
+  // itself) is under 8 bits, radius 1 can only offer points farther away.
+  const uint32_t bound = out.count > 0 ? out.distance : static_cast<uint32_t>(options_.max_hamming);
+  if (!skipped_a_bucket && bound < static_cast<uint32_t>(kHashTables)) return out.count > 0;
+  const int radius1_max_bucket = std::max(1, options_.max_bucket / 16);
+  for (int t = 0; t < kHashTables; ++t) {
+    const uint32_t key = hash_subcode(q, t);
+    for (int bit = 0; bit < 16; ++bit)
+      probe_bucket(t, key ^ (1u << bit), q, excluded, out, compared, radius1_max_bucket);
+  }
   return out.count > 0;
 }
 
-void SegmentPointVotes::probe_bucket(int table, uint32_t key, const HashCode& q, const uint8_t* excluded, Nearest& out,
+bool SegmentPointVotes::probe_bucket(int table, uint32_t key, const HashCode& q, const uint8_t* excluded, Nearest& out,
                                      size_t& compared, int max_bucket) const {
   uint32_t begin, end;
   lookup_.bucket_range(table, key, begin, end);
-  if (end - begin > static_cast<uint32_t>(max_bucket)) return;
+  if (end - begin > static_cast<uint32_t>(max_bucket)) return false;
   compared += end - begin;
   const bool ids16 = lookup_.uses_16bit_ids();
   for (uint32_t i = begin; i < end; ++i) {
@@ -101,6 +108,7 @@ void SegmentPointVotes::probe_bucket(int table, uint32_t key, const HashCode& q,
     if (excluded && excluded[segment]) continue;
     out.offer(hamming_distance(q, codes_[id]), segment);
   }
+  return true;
 }
 
 void SegmentPointVotes::compute_chance_weights(const std::vector<std::vector<uint32_t>>& related) {

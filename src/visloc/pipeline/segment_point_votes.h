@@ -18,14 +18,15 @@
 // Vote of one query feature: among the points whose sub-code equals one of
 // its 8 sub-codes (radius 0) or, with probe_radius 1, differs from it in one
 // bit (16 more buckets per table, probed only when radius 0 found no point
-// within 7 bits: every point that near shares a sub-code with the feature, by
-// the pigeonhole principle, so radius 0 has then found the nearest), the
+// within 7 bits, or skipped an overfull bucket: every point that near shares a
+// sub-code with the feature, by the pigeonhole principle, so radius 0 has then
+// found the nearest), the
 // nearest by Hamming distance d0 on the 128 bits. Why radius 1: a query
 // photographed by another camera differs from the map's descriptors in ~10-25
 // bits, and at 20 bits a 16-bit sub-code is intact with probability
-// (1 - 20/128)^16 ≈ 0.07 per table, against ≈ 0.28 for "at most one bit off".
-// Each of radius 1's 16 buckets per table is skipped above max_bucket / 16
-// points, so that they cost at most what the exact bucket may.
+// (1 - 20/128)^16 ≈ 0.07 per table, against ≈ 0.26 for "at most one bit off".
+// Each of radius 1's 16 buckets per table is skipped above max(1,
+// max_bucket / 16) points, so that they cost at most what the exact bucket may.
 // When d0 ≤ max_hamming it gives one vote, split equally among the distinct
 // segments that hold a point at d0. The bound comes from the null
 // distribution, not from data: two unrelated codes differ in ~Binomial(128,
@@ -49,7 +50,7 @@ namespace visloc {
 struct SegmentPointVoteOptions {
   int points_per_segment = 8192;  // points indexed per segment (0: all)
   int max_hamming = 32;           // a vote needs a point at most this far (bits of 128)
-  int max_bucket = 4096;          // buckets with more points are not probed
+  int max_bucket = 4096;          // buckets with more points are not probed (radius 1's: max(1, max_bucket / 16))
   int probe_radius = 0;           // per table, the feature's sub-code's bucket (0), also the 16 1 bit off (1)
   // Divide each segment's votes by its rate of chance votes: how often the
   // points of unrelated segments (sharing no image with it) find their
@@ -104,8 +105,9 @@ class SegmentPointVotes {
   // within max_hamming.
   struct Nearest;
   bool nearest(const HashCode& q, const uint8_t* excluded, Nearest& out, size_t& compared) const;
-  // Offers the points of bucket `key` of `table` (skipped when over max_bucket points).
-  void probe_bucket(int table, uint32_t key, const HashCode& q, const uint8_t* excluded, Nearest& out, size_t& compared,
+  // Offers the points of bucket `key` of `table`; false (nothing offered) when
+  // it holds more than max_bucket points.
+  bool probe_bucket(int table, uint32_t key, const HashCode& q, const uint8_t* excluded, Nearest& out, size_t& compared,
                     int max_bucket) const;
   void compute_chance_weights(const std::vector<std::vector<uint32_t>>& related);
   bool finalized_ = false;

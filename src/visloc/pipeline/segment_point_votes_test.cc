@@ -23,6 +23,12 @@ HashCode flipped(HashCode code, int bits, RandomGenerator& rng) {
   return code;
 }
 
+// `code` with bit `bit` of table `table`'s 16-bit sub-code flipped.
+HashCode flip_subcode_bit(HashCode code, int table, int bit) {
+  code.w[table / 4] ^= uint64_t(1) << (16 * (table % 4) + bit);
+  return code;
+}
+
 float votes_of(const SegmentPointVoteResult& r, uint32_t segment) {
   for (const SegmentPointVote& v : r.segments)
     if (v.segment == segment) return v.votes;
@@ -118,20 +124,68 @@ TEST(SegmentPointVotes, RadiusOneFindsPointsThatDifferInEverySubCode) {
     EXPECT_FLOAT_EQ(votes_of(r, 2), radius == 0 ? 0.0f : 1.0f) << radius;
   }
   // A feature within 7 bits of a point: radius 0 has found its nearest (every
-  // point that near shares a sub-code), and radius 1 probes nothing more.
+  // point that near shares a sub-code), and radius 1 probes nothing more. A
+  // far point sits in one of the feature's radius-1 buckets (table 1's
+  // sub-code 1 bit off, every other bit complemented), so radius 1 would
+  // compare it, and only it, if it ran.
   HashCode near = a[9];
   near.w[0] ^= 0x5;
+  HashCode far = {{~near.w[0], ~near.w[1]}};
+  far.w[0] = (far.w[0] & ~(uint64_t(0xFFFF) << 16)) | (near.w[0] & (uint64_t(0xFFFF) << 16));
+  far = flip_subcode_bit(far, 1, 0);
+  const std::vector<HashCode> two_points = {a[9], far};
   const HashCode near_query[] = {near};
   size_t compared[2] = {0, 0};
   for (int radius : {0, 1}) {
     SegmentPointVotes votes({.points_per_segment = 0, .probe_radius = radius});
-    votes.add_segment(2, a);
+    votes.add_segment(2, two_points);
     votes.finalize();
     votes.vote(near_query, scratch, r);
     EXPECT_FLOAT_EQ(votes_of(r, 2), 1.0f);
     compared[radius] = r.candidates_compared;
   }
-  EXPECT_EQ(compared[0], compared[1]);
+  EXPECT_EQ(compared[0], 7u);  // a[9], in the 7 tables whose sub-code the 2 flipped bits left intact
+  EXPECT_EQ(compared[1], compared[0]);
+  // 8 bits from a[9] (it shares only table 1's sub-code), radius 1 runs and compares `far` too.
+  HashCode farther = near;
+  for (int table = 2; table < kHashTables; ++table) farther = flip_subcode_bit(farther, table, 5);
+  const HashCode farther_query[] = {farther};
+  SegmentPointVotes radius1({.points_per_segment = 0, .probe_radius = 1});
+  radius1.add_segment(2, two_points);
+  radius1.finalize();
+  radius1.vote(farther_query, scratch, r);
+  EXPECT_FLOAT_EQ(votes_of(r, 2), 1.0f);
+  // a[9] in table 1 and in the radius-1 buckets of tables 2-7 (6), `far` in one of table 1.
+  EXPECT_EQ(r.candidates_compared, 8u);
+}
+
+TEST(SegmentPointVotes, RadiusOneStillRunsWhenAnExactBucketWasSkipped) {
+  // q's nearest points, both 7 bits away: `one` (segment 1) shares only
+  // table 7's sub-code with q, `two` (segment 2) only table 0's, whose bucket
+  // is overfull (60 fillers share it). Radius 0 finds `one` within 7 bits, but
+  // having skipped a bucket it cannot know it found every nearest point;
+  // radius 1 finds `two` in table 1 (1 bit off) and the vote is split.
+  RandomGenerator rng(31);
+  const HashCode q = random_codes(1, rng)[0];
+  HashCode one = q, two = q;
+  for (int table = 0; table < 7; ++table) one = flip_subcode_bit(one, table, 2);
+  for (int table = 1; table < 8; ++table) two = flip_subcode_bit(two, table, 2);
+  std::vector<HashCode> fillers = random_codes(60, rng);
+  for (HashCode& f : fillers) f.w[0] = (f.w[0] & ~uint64_t(0xFFFF)) | (q.w[0] & 0xFFFF);
+  std::vector<HashCode> segment2 = fillers;
+  segment2.push_back(two);
+  const HashCode query[] = {q};
+  std::vector<float> scratch;
+  SegmentPointVoteResult r;
+  for (int radius : {0, 1}) {
+    SegmentPointVotes votes({.points_per_segment = 0, .max_bucket = 50, .probe_radius = radius});
+    votes.add_segment(1, std::vector<HashCode>{one});
+    votes.add_segment(2, segment2);
+    votes.finalize();
+    votes.vote(query, scratch, r);
+    EXPECT_FLOAT_EQ(votes_of(r, 1), radius == 0 ? 1.0f : 0.5f) << radius;
+    EXPECT_FLOAT_EQ(votes_of(r, 2), radius == 0 ? 0.0f : 0.5f) << radius;
+  }
 }
 
 TEST(SegmentPointVotes, KeepsAnEvenStrideOfEachSegmentsPoints) {

@@ -71,6 +71,7 @@ def test_not_a_map_raises_format_error(tmp_path):
         ({"setting": "4"}, ValueError, "setting"),
         ({"segment_votes": "pixels"}, ValueError, "segment_votes"),
         ({"vote_points": -1}, ValueError, "vote_points"),
+        ({"vote_radius": 2}, ValueError, "vote_radius"),
         ({"top_images": "20"}, TypeError, "top_images"),
         ({"use_exif_focal": 1}, TypeError, "use_exif_focal"),
         ({"top_image": 20}, TypeError, "top_image"),
