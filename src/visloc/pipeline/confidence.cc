@@ -11,9 +11,11 @@ namespace visloc {
 
 namespace {
 constexpr std::array<const char*, kConfidenceInputs> kNames = {
-    "log_inliers", "inlier_ratio",   "coverage",      "residual",        "margin",
-    "vote_share",  "camera_distance", "height_excess", "tilt_excess_beyond_10deg"};
-constexpr std::array<int, kConfidenceInputs> kSigns = {+1, +1, +1, -1, -1, +1, -1, -1, -1};
+    "log_inliers",     "inlier_ratio",  "coverage",
+    "residual",        "margin",        "vote_share",
+    "camera_distance", "height_excess", "tilt_excess_beyond_10deg",
+    "log_explained"};
+constexpr std::array<int, kConfidenceInputs> kSigns = {+1, +1, +1, -1, -1, +1, -1, -1, -1, +1};
 
 double number(const nlohmann::json& j, const char* key) {
   const auto it = j.find(key);
@@ -34,7 +36,8 @@ nlohmann::json ConfidenceFeatures::to_json() const {
           {"vote_share", vote_share},
           {"camera_distance", camera_distance},
           {"height_excess", height_excess},
-          {"tilt_excess_deg", tilt_excess_deg}};
+          {"tilt_excess_deg", tilt_excess_deg},
+          {"explained", explained}};
 }
 
 ConfidenceFeatures ConfidenceFeatures::from_json(const nlohmann::json& j) {
@@ -49,21 +52,17 @@ ConfidenceFeatures ConfidenceFeatures::from_json(const nlohmann::json& j) {
   f.camera_distance = number(j, "camera_distance");
   f.height_excess = number(j, "height_excess");
   f.tilt_excess_deg = number(j, "tilt_excess_deg");
+  f.explained = number(j, "explained");
   return f;
 }
 
 std::array<double, kConfidenceInputs> confidence_inputs(const ConfidenceFeatures& f) {
-  return {std::log(std::max(1.0, f.inliers)),
-          std::clamp(f.inlier_ratio, 0.0, 1.0),
-          std::clamp(f.coverage, 0.0, 1.0),
-          std::clamp(f.residual, 0.0, 1.0),
-          std::clamp(f.margin, 0.0, 1.0),
-          std::clamp(f.vote_share, 0.0, 1.0),
-          std::clamp(f.camera_distance, 0.0, 10.0),
-          std::clamp(f.height_excess, 0.0, 10.0),
+  return {std::log(std::max(1.0, f.inliers)), std::clamp(f.inlier_ratio, 0.0, 1.0), std::clamp(f.coverage, 0.0, 1.0),
+          std::clamp(f.residual, 0.0, 1.0), std::clamp(f.margin, 0.0, 1.0), std::clamp(f.vote_share, 0.0, 1.0),
+          std::clamp(f.camera_distance, 0.0, 10.0), std::clamp(f.height_excess, 0.0, 10.0),
           // Phones tilt more than street-view rigs: 10° beyond the map's
           // cameras is tolerated, the rest counts (per 10°).
-          std::clamp(f.tilt_excess_deg - 10.0, 0.0, 80.0) / 10.0};
+          std::clamp(f.tilt_excess_deg - 10.0, 0.0, 80.0) / 10.0, std::log(std::clamp(f.explained, 1e-3, 1.0))};
 }
 
 const std::array<const char*, kConfidenceInputs>& confidence_input_names() { return kNames; }
@@ -158,6 +157,29 @@ void MapCameraRange::assess(const CameraPose& pose, ConfidenceFeatures* f) const
 
 const double kDefaultMinConfidence = 0.64036051120557025;
 
+double explained_fraction(std::span<const float> xyz, const CameraPose& cam_from_segment, const PinholeCamera& camera,
+                          double focal, const Eigen::Vector2d& principal_point_offset, double max_depth,
+                          size_t inliers) {
+  if (!(max_depth > 0) || !(focal > 0)) return 0;
+  const Eigen::Matrix3d R = cam_from_segment.rotation_matrix();
+  const Eigen::Vector3d& t = cam_from_segment.translation;
+  // Image bounds in coordinates centred on the assumed principal point, as
+  // the pose's projection gives them.
+  const double u_min = -camera.cx - principal_point_offset.x(),
+               u_max = camera.width - camera.cx - principal_point_offset.x();
+  const double v_min = -camera.cy - principal_point_offset.y(),
+               v_max = camera.height - camera.cy - principal_point_offset.y();
+  size_t in_view = 0;
+  for (size_t i = 0; i + 2 < xyz.size(); i += 3) {
+    const Eigen::Vector3d X = R * Eigen::Vector3d(xyz[i], xyz[i + 1], xyz[i + 2]) + t;
+    if (!(X.z() > 0) || X.z() > max_depth) continue;
+    const double u = focal * X.x() / X.z(), v = focal * X.y() / X.z();
+    in_view += u >= u_min && u < u_max && v >= v_min && v < v_max;
+  }
+  if (in_view == 0) return 0;
+  return std::min(1.0, static_cast<double>(inliers) / static_cast<double>(in_view));
+}
+
 const ConfidenceModel& ConfidenceModel::builtin() {
   static const ConfidenceModel model = [] {
     ConfidenceModel m;
@@ -180,6 +202,15 @@ const ConfidenceModel& ConfidenceModel::builtin() {
     m.weights[6] = 0;  // camera_distance
     m.weights[7] = -2.4492118734726498;  // height_excess
     m.weights[8] = -1.7647481475415481;  // tilt_excess_beyond_10deg
+    // log_explained (session 16) was not an input of that fit. Refitted with
+    // it (same command, today's map build; and with the seed-7 8-road city
+    // added), the model is worse on the KITTI hard split (7 wrong poses kept
+    // against 2) and the threshold collapses (0.001-0.1): those cities give
+    // only 2-9 wrong poses, and their right poses reach explained fractions
+    // of 0.004 (facades hide points the count includes). So it is reported
+    // and fitted, not yet weighed: the training data needs the failure it
+    // catches (queries past the mapped street's end) first.
+    m.weights[9] = 0;  // log_explained
     m.threshold = kDefaultMinConfidence;
     return m;
   }();

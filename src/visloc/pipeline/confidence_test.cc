@@ -18,6 +18,7 @@ ConfidenceFeatures strong_pose() {
   f.residual = 0.25;
   f.margin = 0.05;
   f.vote_share = 0.6;
+  f.explained = 0.1;
   return f;
 }
 
@@ -48,6 +49,7 @@ TEST(ConfidenceModel, StrongPosesAreConfidentWeakOnesAreNot) {
   weak.camera_distance = 4;
   weak.height_excess = 1;
   weak.tilt_excess_deg = 40;
+  weak.explained = 0.002;
   EXPECT_LT(m.evaluate(weak), m.threshold);
   EXPECT_LT(m.evaluate(weak), m.evaluate(strong));
 }
@@ -168,6 +170,38 @@ TEST(MapCameraRange, PlausibilityOfPosesAgainstTheMapCameras) {
   ConfidenceFeatures f;
   none.assess(pose_at({100, 100, 100}, 80), &f);
   EXPECT_EQ(f.camera_distance, 0);
+}
+
+TEST(ExplainedFraction, CountsTheMapPointsInViewUpToTheInliersDepth) {
+  // Camera at the origin looking along +z (identity pose), 640 × 480, f 500,
+  // principal point at the centre. 40 points in view at depth 10, and points
+  // that must not count: behind, beyond the depth bound, left of the image.
+  const PinholeCamera camera = PinholeCamera::centered(640, 480, 500.0);
+  std::vector<float> xyz;
+  const auto add = [&](double x, double y, double z, int n) {
+    for (int i = 0; i < n; ++i) xyz.insert(xyz.end(), {float(x + 0.01 * i), float(y), float(z)});
+  };
+  add(0, 0, 10, 40);    // in view
+  add(0, 0, -10, 30);   // behind
+  add(0, 0, 30, 20);    // deeper than the bound
+  add(-20, 0, 10, 10);  // u = -1000 px: left of the image
+  const CameraPose identity;
+  const Eigen::Vector2d no_offset = Eigen::Vector2d::Zero();
+  EXPECT_DOUBLE_EQ(explained_fraction(xyz, identity, camera, 500, no_offset, 20.0, 10), 10.0 / 40.0);
+  // A deeper bound takes the 20 at 30 m too; more inliers than points in view: 1.
+  EXPECT_DOUBLE_EQ(explained_fraction(xyz, identity, camera, 500, no_offset, 35.0, 10), 10.0 / 60.0);
+  EXPECT_DOUBLE_EQ(explained_fraction(xyz, identity, camera, 500, no_offset, 20.0, 100), 1.0);
+  // The principal-point offset moves the image: shifted 350 px, the 40 at
+  // u ≈ 0 fall off its left edge (u + cx + offset < 0 is outside).
+  EXPECT_DOUBLE_EQ(explained_fraction(xyz, identity, camera, 500, Eigen::Vector2d(-350, 0), 20.0, 10), 0.0);
+  // The pose is applied: 15 m back, the 40 are 25 m deep, the 30 that were
+  // behind 5 m in front, the 20 at 45 m; the 10 stay left of the image.
+  const CameraPose back = CameraPose::from_matrix(Eigen::Matrix3d::Identity(), Eigen::Vector3d(0, 0, 15));
+  EXPECT_DOUBLE_EQ(explained_fraction(xyz, back, camera, 500, no_offset, 26.0, 10), 10.0 / 70.0);
+  EXPECT_DOUBLE_EQ(explained_fraction(xyz, back, camera, 500, no_offset, 46.0, 10), 10.0 / 90.0);
+  // Nothing in view, or no depth: 0.
+  EXPECT_EQ(explained_fraction({}, identity, camera, 500, no_offset, 20.0, 10), 0.0);
+  EXPECT_EQ(explained_fraction(xyz, identity, camera, 500, no_offset, 0.0, 10), 0.0);
 }
 
 }  // namespace

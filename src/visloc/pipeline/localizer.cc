@@ -553,6 +553,8 @@ void Localizer::Impl::Search::assess_best() {
   std::optional<Eigen::Vector3d> up;
   if (frame.georegistered) up = frame.enu_from_segment.rotation.transpose() * Eigen::Vector3d::UnitZ();
   MapCameraRange(best_segment_->images(), up).assess(res.cam_from_segment, &cf);
+  cf.explained = explained_fraction(best_segment_->xyz(), res.cam_from_segment, camera_, res.focal_px,
+                                    res.principal_point_offset, best_quality_.inlier_depth_p90, res.inliers);
   res.confidence = ConfidenceModel::builtin().evaluate(cf);
   res.registered = best_has_enough_inliers_ && res.confidence >= options_.min_confidence;
   if (best_quality_.covariance.valid)

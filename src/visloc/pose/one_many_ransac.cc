@@ -322,7 +322,7 @@ RefinedPose refine_on_inliers(CandidateSelection& inliers, const PinholeCamera& 
 }
 
 // The pose's evidence on its final inliers: 1-1 inlier ratio, residuals,
-// image coverage (8×8 grid) and the covariance.
+// image coverage (8×8 grid), depth range and the covariance.
 PoseQuality measure_quality(const AbsolutePoseEstimator& estimator, const CandidateSelection& inliers,
                             const PinholeCamera& camera, const CameraPose& pose, double focal,
                             const Eigen::Vector2d& pp_offset, double threshold_px, double pp_prior_px) {
@@ -330,14 +330,17 @@ PoseQuality measure_quality(const AbsolutePoseEstimator& estimator, const Candid
   PoseQuality q;
   q.hypothesis_features = estimator.num_hypotheses();
   q.hypothesis_inliers = estimator.count_one_one(P);
-  std::vector<double> residuals;
+  std::vector<double> residuals, depths;
   residuals.reserve(inliers.image.size());
+  depths.reserve(inliers.image.size());
+  const Eigen::Matrix3d R = pose.rotation_matrix();
   constexpr int kGrid = 8;
   std::array<bool, kGrid * kGrid> occupied{};
   const double w = std::max<double>(1, static_cast<double>(camera.width));
   const double h = std::max<double>(1, static_cast<double>(camera.height));
   for (size_t k = 0; k < inliers.image.size(); ++k) {
     residuals.push_back(std::sqrt(reprojection_error2(P, inliers.world[k], inliers.image[k])));
+    depths.push_back((R * inliers.world[k] + pose.translation).z());
     const double u = inliers.image[k].x() + camera.cx, v = inliers.image[k].y() + camera.cy;
     const int gx = std::clamp(static_cast<int>(u / w * kGrid), 0, kGrid - 1);
     const int gy = std::clamp(static_cast<int>(v / h * kGrid), 0, kGrid - 1);
@@ -346,6 +349,9 @@ PoseQuality measure_quality(const AbsolutePoseEstimator& estimator, const Candid
   if (!residuals.empty()) {
     std::nth_element(residuals.begin(), residuals.begin() + residuals.size() / 2, residuals.end());
     q.median_residual_px = residuals[residuals.size() / 2];
+    const size_t p90 = std::min(depths.size() - 1, depths.size() * 9 / 10);
+    std::nth_element(depths.begin(), depths.begin() + p90, depths.end());
+    q.inlier_depth_p90 = depths[p90];
   }
   q.coverage = static_cast<double>(std::count(occupied.begin(), occupied.end(), true)) / (kGrid * kGrid);
   q.covariance = pose_covariance(inliers.image.data(), inliers.world.data(), inliers.image.size(), pose, focal,
