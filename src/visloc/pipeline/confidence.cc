@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <cmath>
 #include <numbers>
+#include <string_view>
 
 #include "visloc/util/error.h"
 
@@ -52,7 +53,9 @@ ConfidenceFeatures ConfidenceFeatures::from_json(const nlohmann::json& j) {
   f.camera_distance = number(j, "camera_distance");
   f.height_excess = number(j, "height_excess");
   f.tilt_excess_deg = number(j, "tilt_excess_deg");
-  f.explained = number(j, "explained");
+  // Reports written before the input existed lack it: they get the value
+  // that neither raises nor lowers a confidence against a typical right pose.
+  f.explained = j.contains("explained") ? number(j, "explained") : kExplainedWhenUnknown;
   return f;
 }
 
@@ -64,6 +67,8 @@ std::array<double, kConfidenceInputs> confidence_inputs(const ConfidenceFeatures
           // cameras is tolerated, the rest counts (per 10°).
           std::clamp(f.tilt_excess_deg - 10.0, 0.0, 80.0) / 10.0, std::log(std::clamp(f.explained, 1e-3, 1.0))};
 }
+
+static_assert(std::string_view(kNames[kExplainedInput]) == "log_explained");
 
 const std::array<const char*, kConfidenceInputs>& confidence_input_names() { return kNames; }
 const std::array<int, kConfidenceInputs>& confidence_input_signs() { return kSigns; }
@@ -90,7 +95,11 @@ ConfidenceModel ConfidenceModel::from_json(const nlohmann::json& j) {
   m.threshold = number(j, "threshold");
   if (m.threshold < 0 || m.threshold > 1)
     throw_error(ErrorCode::kFormat, "confidence model: threshold must be in [0, 1], got ", m.threshold);
-  for (int k = 0; k < kConfidenceInputs; ++k) m.weights[k] = number(j["weights"], kNames[k]);
+  for (int k = 0; k < kConfidenceInputs; ++k) {
+    // A model written before log_explained existed did not weigh it.
+    if (k == kExplainedInput && !j["weights"].contains(kNames[k])) continue;
+    m.weights[k] = number(j["weights"], kNames[k]);
+  }
   return m;
 }
 

@@ -60,6 +60,11 @@ struct ConfidenceFeatures {
 };
 
 inline constexpr int kConfidenceInputs = 10;
+inline constexpr int kExplainedInput = 9;  // log_explained, the last input
+// ConfidenceFeatures::from_json of a report written before `explained`
+// existed: the median of the right poses on the training city (0.082), as
+// kVoteShareWithoutRetrieval does for votes.
+inline constexpr double kExplainedWhenUnknown = 0.08;
 // A map without retrieval gives no evidence through votes: its poses get the
 // median share of the right poses of the fit's data, so that the term
 // neither raises nor lowers their confidence against a typical right pose.

@@ -86,6 +86,23 @@ TEST(ConfidenceModel, BadJsonIsRejectedNamingTheField) {
   f.erase("residual");
   EXPECT_THROW(ConfidenceFeatures::from_json(f), Error);
   EXPECT_THROW(ConfidenceFeatures::from_json(nlohmann::json::array()), Error);
+  f = strong_pose().to_json();
+  f["explained"] = "x";
+  EXPECT_THROW(ConfidenceFeatures::from_json(f), Error);
+}
+
+TEST(ConfidenceModel, JsonFromBeforeTheExplainedInputStillReads) {
+  // Reports and models written before `explained` existed.
+  nlohmann::json f = strong_pose().to_json();
+  f.erase("explained");
+  EXPECT_EQ(ConfidenceFeatures::from_json(f).explained, kExplainedWhenUnknown);
+  ConfidenceModel m = ConfidenceModel::builtin();
+  m.weights[kExplainedInput] = 2;
+  nlohmann::json j = m.to_json();
+  EXPECT_EQ(ConfidenceModel::from_json(j).weights[kExplainedInput], 2);
+  j["weights"].erase("log_explained");
+  EXPECT_EQ(ConfidenceModel::from_json(j).weights[kExplainedInput], 0);
+  EXPECT_EQ(ConfidenceModel::from_json(j).weights[0], m.weights[0]);
 }
 
 // Map cameras along a street (x), 2 m high (z up), looking along +y, level.
@@ -185,20 +202,24 @@ TEST(ExplainedFraction, CountsTheMapPointsInViewUpToTheInliersDepth) {
   add(0, 0, -10, 30);   // behind
   add(0, 0, 30, 20);    // deeper than the bound
   add(-20, 0, 10, 10);  // u = -1000 px: left of the image
+  add(0, 6, 10, 5);     // v = 300 px below the centre: under the image
+  add(6.5, 0, 10, 8);   // u = 325 px right of the centre: right of the image (645 ≥ 640)
   const CameraPose identity;
   const Eigen::Vector2d no_offset = Eigen::Vector2d::Zero();
   EXPECT_DOUBLE_EQ(explained_fraction(xyz, identity, camera, 500, no_offset, 20.0, 10), 10.0 / 40.0);
   // A deeper bound takes the 20 at 30 m too; more inliers than points in view: 1.
   EXPECT_DOUBLE_EQ(explained_fraction(xyz, identity, camera, 500, no_offset, 35.0, 10), 10.0 / 60.0);
   EXPECT_DOUBLE_EQ(explained_fraction(xyz, identity, camera, 500, no_offset, 20.0, 100), 1.0);
-  // The principal-point offset moves the image: shifted 350 px, the 40 at
-  // u ≈ 0 fall off its left edge (u + cx + offset < 0 is outside).
-  EXPECT_DOUBLE_EQ(explained_fraction(xyz, identity, camera, 500, Eigen::Vector2d(-350, 0), 20.0, 10), 0.0);
+  // The principal-point offset moves the projections: at -350 px the 40 at
+  // u ≈ 0 land at pixel ≈ -30 (outside) and the 8 at u = 325 at pixel 295
+  // (inside; with the sign flipped they would land at 995).
+  EXPECT_DOUBLE_EQ(explained_fraction(xyz, identity, camera, 500, Eigen::Vector2d(-350, 0), 20.0, 4), 4.0 / 8.0);
   // The pose is applied: 15 m back, the 40 are 25 m deep, the 30 that were
-  // behind 5 m in front, the 20 at 45 m; the 10 stay left of the image.
+  // behind 5 m in front, the 20 at 45 m; the 10 stay left of the image; the
+  // 5 below and the 8 to the right come into it (v = 120, u = 130 px).
   const CameraPose back = CameraPose::from_matrix(Eigen::Matrix3d::Identity(), Eigen::Vector3d(0, 0, 15));
-  EXPECT_DOUBLE_EQ(explained_fraction(xyz, back, camera, 500, no_offset, 26.0, 10), 10.0 / 70.0);
-  EXPECT_DOUBLE_EQ(explained_fraction(xyz, back, camera, 500, no_offset, 46.0, 10), 10.0 / 90.0);
+  EXPECT_DOUBLE_EQ(explained_fraction(xyz, back, camera, 500, no_offset, 26.0, 10), 10.0 / 83.0);
+  EXPECT_DOUBLE_EQ(explained_fraction(xyz, back, camera, 500, no_offset, 46.0, 10), 10.0 / 103.0);
   // Nothing in view, or no depth: 0.
   EXPECT_EQ(explained_fraction({}, identity, camera, 500, no_offset, 20.0, 10), 0.0);
   EXPECT_EQ(explained_fraction(xyz, identity, camera, 500, no_offset, 0.0, 10), 0.0);

@@ -187,7 +187,9 @@ class Localizer::Impl::Search {
   // One pass over the candidates with the given search; the best pose wins.
   void search_candidates(const std::vector<size_t>& candidates, const CascadeSearchOptions& search);
   // Confidence, uncertainty and the geographic pose of the best pose so far.
-  void assess_best();
+  // `final_assessment`: after a search pass (not a new best pose's early-stop
+  // check), where the explained fraction is always measured and reported.
+  void assess_best(bool final_assessment);
 
  private:
   // Cascade search of one segment into ws_.matches and ws_.correspondences.
@@ -511,7 +513,7 @@ void Localizer::Impl::Search::keep_if_best(const std::shared_ptr<const Segment>&
   res_.focal_estimated = !camera_.has_focal;
   res_.principal_point_offset = pose.principal_point_offset;
   res_.matches_one_to_one = ws_.matches.query.size();
-  assess_best();  // for the early stop; assessed again once every candidate is searched
+  assess_best(false);  // for the early stop; assessed again once every candidate is searched
 }
 
 ConfidenceFeatures Localizer::Impl::Search::confidence_features() const {
@@ -538,7 +540,7 @@ ConfidenceFeatures Localizer::Impl::Search::confidence_features() const {
   return cf;
 }
 
-void Localizer::Impl::Search::assess_best() {
+void Localizer::Impl::Search::assess_best(bool final_assessment) {
   LocalizationResult& res = res_;
   res.registered = false;
   res.confidence = 0;
@@ -553,9 +555,13 @@ void Localizer::Impl::Search::assess_best() {
   std::optional<Eigen::Vector3d> up;
   if (frame.georegistered) up = frame.enu_from_segment.rotation.transpose() * Eigen::Vector3d::UnitZ();
   MapCameraRange(best_segment_->images(), up).assess(res.cam_from_segment, &cf);
-  cf.explained = explained_fraction(best_segment_->xyz(), res.cam_from_segment, camera_, res.focal_px,
-                                    res.principal_point_offset, best_quality_.inlier_depth_p90, res.inliers);
-  res.confidence = ConfidenceModel::builtin().evaluate(cf);
+  // A pass over the segment's points: in an early-stop check only when the
+  // model weighs it.
+  const ConfidenceModel& model = ConfidenceModel::builtin();
+  if (final_assessment || model.weights[kExplainedInput] != 0)
+    cf.explained = explained_fraction(best_segment_->xyz(), res.cam_from_segment, camera_, res.focal_px,
+                                      res.principal_point_offset, best_quality_.inlier_depth_p90, res.inliers);
+  res.confidence = model.evaluate(cf);
   res.registered = best_has_enough_inliers_ && res.confidence >= options_.min_confidence;
   if (best_quality_.covariance.valid)
     res.uncertainty = pose_uncertainty(best_quality_.covariance, res.cam_from_segment, frame);
@@ -585,7 +591,7 @@ LocalizationResult Localizer::localize_features(const FeatureSet& f, const Pinho
   if (!candidates.empty()) {
     res.candidates.clear();
     search.search_candidates(candidates, impl_->search);
-    search.assess_best();
+    search.assess_best(true);
     // Prioritized search stops at N_early matches; on repetitive facades they
     // can all be wrong. Before giving up, search every feature once more.
     if (!res.registered && impl_->search.prioritize && options_.full_search_fallback) {
@@ -594,7 +600,7 @@ LocalizationResult Localizer::localize_features(const FeatureSet& f, const Pinho
       res.candidates.clear();
       res.full_search_fallback = true;
       search.search_candidates(candidates, full);
-      search.assess_best();
+      search.assess_best(true);
     }
   }
   res.times.total = total.elapsed_ms();

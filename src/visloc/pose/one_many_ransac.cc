@@ -349,7 +349,7 @@ PoseQuality measure_quality(const AbsolutePoseEstimator& estimator, const Candid
   if (!residuals.empty()) {
     std::nth_element(residuals.begin(), residuals.begin() + residuals.size() / 2, residuals.end());
     q.median_residual_px = residuals[residuals.size() / 2];
-    const size_t p90 = std::min(depths.size() - 1, depths.size() * 9 / 10);
+    const size_t p90 = (9 * depths.size() + 9) / 10 - 1;  // nearest rank: the ⌈0.9 n⌉-th smallest
     std::nth_element(depths.begin(), depths.begin() + p90, depths.end());
     q.inlier_depth_p90 = depths[p90];
   }
