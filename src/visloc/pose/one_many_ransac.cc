@@ -349,6 +349,8 @@ PoseQuality measure_quality(const AbsolutePoseEstimator& estimator, const Candid
   if (!residuals.empty()) {
     std::nth_element(residuals.begin(), residuals.begin() + residuals.size() / 2, residuals.end());
     q.median_residual_px = residuals[residuals.size() / 2];
+    std::nth_element(depths.begin(), depths.begin() + depths.size() / 2, depths.end());
+    q.inlier_depth_median = std::abs(depths[depths.size() / 2]);
     const size_t p90 = (9 * depths.size() + 9) / 10 - 1;  // nearest rank: the ⌈0.9 n⌉-th smallest
     std::nth_element(depths.begin(), depths.begin() + p90, depths.end());
     q.inlier_depth_p90 = depths[p90];
@@ -360,22 +362,13 @@ PoseQuality measure_quality(const AbsolutePoseEstimator& estimator, const Candid
 }
 
 // The strongest rival: the best score of a verified model whose camera is
-// elsewhere (farther than 10% of the inliers' median depth) or looks
+// elsewhere (farther than 10% of the inliers' median depth, `depth`) or looks
 // elsewhere (> 10°) than both the final pose and the best model itself
 // (6-point DLT models scatter: a copy of the best one is no rival).
-size_t rival_score(const AbsolutePoseEstimator& estimator, const CandidateSelection& inliers, const CameraPose& pose,
+size_t rival_score(const AbsolutePoseEstimator& estimator, double depth, const CameraPose& pose,
                    const Matrix34d& best_model, size_t best_score) {
   using ModelSummary = AbsolutePoseEstimator::ModelSummary;
   const Eigen::Vector3d c = pose.center(), a = pose.viewing_direction();
-  std::vector<double> depths;
-  depths.reserve(inliers.world.size());
-  const Eigen::Matrix3d R = pose.rotation_matrix();
-  for (const auto& X : inliers.world) depths.push_back((R * X + pose.translation).z());
-  double depth = 0;
-  if (!depths.empty()) {
-    std::nth_element(depths.begin(), depths.begin() + depths.size() / 2, depths.end());
-    depth = std::abs(depths[depths.size() / 2]);
-  }
   const double cos_limit = std::cos(10.0 * M_PI / 180.0);
   auto differs = [&](const ModelSummary& m, const Eigen::Vector3d& centre, const Eigen::Vector3d& axis) {
     return (m.center - centre).norm() > 0.1 * depth || m.axis.dot(axis) < cos_limit;
@@ -484,7 +477,7 @@ PoseEstimate estimate_pose(const CorrespondenceSet& corr, const PinholeCamera& c
   result.quality = measure_quality(estimator, inliers, camera, pose, focal, pp_offset, options.threshold_px,
                                    pp_refined ? pp_prior_px : 0.0);
   result.quality.best_score = best_score;
-  result.quality.rival_score = rival_score(estimator, inliers, pose, best_model, best_score);
+  result.quality.rival_score = rival_score(estimator, result.quality.inlier_depth_median, pose, best_model, best_score);
   result.principal_point_offset = pp_offset;
   st.refinement_ms = ms_between(t_refine, Clock::now());
   result.has_pose = true;
