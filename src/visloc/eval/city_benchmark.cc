@@ -34,6 +34,8 @@ namespace fs = std::filesystem;
 void CityBenchmarkOptions::validate() const {
   city.validate();
   if (leave_out_roads < 0) throw_error(ErrorCode::kInvalidArgument, "bench city: leave_out_roads must be >= 0");
+  if (!(leave_out_road_end_m >= 0) || !std::isfinite(leave_out_road_end_m))
+    throw_error(ErrorCode::kInvalidArgument, "bench city: leave_out_road_end_m must be a finite number >= 0");
   if (!(positive_max_distance_m > 0) || !(negative_min_distance_m >= positive_max_distance_m))
     throw_error(ErrorCode::kInvalidArgument,
                 "bench city: need 0 < positive_max_distance_m <= negative_min_distance_m");
@@ -52,6 +54,8 @@ namespace {
 
 struct CityPlacemark {
   int id = 0, road = 0;
+  double arc_m = 0;     // along its road
+  bool mapped = false;  // set by split_city
   Eigen::Vector3d enu = Eigen::Vector3d::Zero();
 };
 
@@ -63,6 +67,7 @@ std::vector<CityPlacemark> read_city_placemarks(const fs::path& city_json) {
       CityPlacemark c;
       c.id = p.at("id").get<int>();
       c.road = p.at("road").get<int>();
+      c.arc_m = p.at("arc_m").get<double>();
       const auto e = p.at("enu").get<std::vector<double>>();
       if (e.size() != 3) throw std::runtime_error("enu must have 3 numbers");
       c.enu = {e[0], e[1], e[2]};
@@ -225,11 +230,13 @@ struct CityMapSplit {
   std::vector<CityPlacemark> placemarks;
   int max_road = 0;
   std::set<int> left_out;                        // roads
-  std::vector<GpsRecord> mapped;                 // every image of a placemark on a mapped road
-  std::vector<Eigen::Vector3d> mapped_centres;  // placemarks on mapped roads
+  size_t road_end_placemarks_left_out = 0;       // on mapped roads (leave_out_road_end_m)
+  std::vector<GpsRecord> mapped;                 // every image of a mapped placemark
+  std::vector<Eigen::Vector3d> mapped_centres;   // mapped placemarks
 };
 
-// Leaves the last leave_out_roads roads out of the map; writes OUT/map_gps.csv.
+// Leaves the last leave_out_roads roads out of the map, and the last
+// leave_out_road_end_m metres of every other road; writes OUT/map_gps.csv.
 CityMapSplit split_city(const fs::path& city_dir, const fs::path& out, const CityBenchmarkOptions& opt) {
   CityMapSplit s;
   s.placemarks = read_city_placemarks(city_dir / "city.json");
@@ -238,8 +245,17 @@ CityMapSplit split_city(const fs::path& city_dir, const fs::path& out, const Cit
   if (static_cast<int>(s.left_out.size()) > s.max_road)
     throw_error(ErrorCode::kInvalidArgument, "bench city: the city has ", s.max_road + 1, " roads; leaving out ",
                 opt.leave_out_roads, " would map none");
+  std::map<int, double> road_end_arc;
+  for (const auto& p : s.placemarks) road_end_arc[p.road] = std::max(road_end_arc[p.road], p.arc_m);
+  for (auto& p : s.placemarks) {
+    p.mapped = !s.left_out.count(p.road);
+    if (p.mapped && opt.leave_out_road_end_m > 0 && p.arc_m > road_end_arc[p.road] - opt.leave_out_road_end_m) {
+      p.mapped = false;
+      ++s.road_end_placemarks_left_out;
+    }
+  }
 
-  // The map: every image of a placemark on a mapped road.
+  // The map: every image of a mapped placemark.
   std::map<int, const CityPlacemark*> placemark_by_id;
   for (const auto& p : s.placemarks) placemark_by_id[p.id] = &p;
   for (const auto& r : read_gps_csv(city_dir / "gps.csv")) {
@@ -248,11 +264,14 @@ CityMapSplit split_city(const fs::path& city_dir, const fs::path& out, const Cit
     if (it == placemark_by_id.end())
       throw_error(ErrorCode::kFormat, (city_dir / "gps.csv").string(), ": placemark ", *r.placemark, " of ", r.image,
                   " is not in city.json");
-    if (!s.left_out.count(it->second->road)) s.mapped.push_back(r);
+    if (it->second->mapped) s.mapped.push_back(r);
   }
+  if (s.mapped.empty())
+    throw_error(ErrorCode::kInvalidArgument, "bench city: leaving out ", opt.leave_out_roads, " roads and ",
+                opt.leave_out_road_end_m, " m of every road's end maps no placemark");
   write_gps_csv(out / "map_gps.csv", s.mapped);
   for (const auto& p : s.placemarks)
-    if (!s.left_out.count(p.road)) s.mapped_centres.push_back(p.enu);
+    if (p.mapped) s.mapped_centres.push_back(p.enu);
   return s;
 }
 
@@ -338,7 +357,7 @@ void localize_city_query(const NamedPose& q, const CityQueryContext& ctx, CityLo
   const Eigen::Vector3d c = q.cam_from_world.center();
   double nearest = std::numeric_limits<double>::infinity();
   for (const auto& p : ctx.split.placemarks) {
-    if (ctx.split.left_out.count(p.road)) continue;
+    if (!p.mapped) continue;
     const double d = (p.enu - c).head<2>().norm();
     if (d < nearest) {
       nearest = d;
@@ -504,6 +523,11 @@ nlohmann::json city_report_json(const fs::path& city_dir, const CityBenchmarkOpt
        {{"road_length_m", nlohmann::json::parse(read_file(city_dir / "city.json")).at("counts").at("road_length_m")},
         {"roads", split.max_road + 1},
         {"roads_left_out", std::vector<int>(split.left_out.begin(), split.left_out.end())},
+        {"road_end_left_out_m", opt.leave_out_road_end_m},
+        {"road_end_placemarks_left_out", split.road_end_placemarks_left_out},
+        {"placemarks_on_roads_left_out",
+         std::count_if(split.placemarks.begin(), split.placemarks.end(),
+                       [&](const CityPlacemark& p) { return split.left_out.count(p.road) > 0; })},
         {"placemarks_mapped", split.mapped_centres.size()},
         {"images_mapped", split.mapped.size()}}},
       {"map", build_summary},
@@ -568,9 +592,14 @@ std::string city_report_markdown(const nlohmann::json& report, const CityBenchma
   md << std::fixed << std::setprecision(3);
   md << "# City benchmark\n\n"
      << "City: " << report["city"]["road_length_m"] << " m of street, " << (split.max_road + 1) << " roads, "
-     << split.left_out.size() << " left out of the map; map: " << build_summary.at("segments") << " segments ("
-     << build_summary.at("segments_failed") << " failed), " << points << " points.\n\n"
-     << "| queries | count | registered | wrong poses | misses | median position error (m) |\n|---|---|---|---|---|---|\n";
+     << split.left_out.size() << " left out of the map";
+  if (opt.leave_out_road_end_m > 0)
+    md << ", and the last " << opt.leave_out_road_end_m << " m of the others (" << split.road_end_placemarks_left_out
+       << " placemarks)";
+  md << "; map: " << build_summary.at("segments") << " segments (" << build_summary.at("segments_failed")
+     << " failed), " << points << " points.\n\n"
+     << "| queries | count | registered | wrong poses | misses | median position error (m) "
+        "|\n|---|---|---|---|---|---|\n";
   auto row = [&](const char* name, const QueryKindTally& k) {
     md << "| " << name << " | " << k.count << " | " << k.registered << " | " << k.wrong << " | "
        << (k.count - k.registered) << " | " << (k.errors_m.empty() ? std::string("-") : std::to_string(median(k.errors_m)))

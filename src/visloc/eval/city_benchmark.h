@@ -39,6 +39,11 @@ struct CityBenchmarkOptions {
   // The last roads of the layout are not mapped. On the default 2×2 grid the
   // last two are parallel streets 90 m apart that cross mapped ones every 90 m.
   int leave_out_roads = 2;
+  // On every mapped road, the placemarks within this many metres of the
+  // road's end are left out of the map too. Queries there stand past the end
+  // of a mapped street, some looking along it into the map (the KITTI hard
+  // split's case: a map of frames 0-99, queries from frames 100-159).
+  double leave_out_road_end_m = 0;
   double positive_max_distance_m = 12;  // a positive is this close to a mapped placemark (in plan)...
   double negative_min_distance_m = 30;  // ...a negative this far from every one (between: neither)
   // A query near the map is a positive only when it sees the map: some

@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include <filesystem>
+#include <limits>
 
 #include "visloc/sfm/process.h"
 #include "visloc/util/error.h"
@@ -16,6 +17,11 @@ using namespace visloc;
 TEST(CityBenchmark, OptionsAreValidated) {
   CityBenchmarkOptions o;
   o.leave_out_roads = -1;
+  EXPECT_THROW(o.validate(), Error);
+  o = {};
+  o.leave_out_road_end_m = -1;
+  EXPECT_THROW(o.validate(), Error);
+  o.leave_out_road_end_m = std::numeric_limits<double>::quiet_NaN();
   EXPECT_THROW(o.validate(), Error);
   o = {};
   o.negative_min_distance_m = 5;  // below the positive distance
@@ -44,6 +50,7 @@ TEST(CityBenchmark, SmallCityRunsAndResumes) {
   o.city.queries.resolutions = {{640, 480}};
   o.city.jobs = 2;
   o.leave_out_roads = 1;
+  o.leave_out_road_end_m = 1;  // placemarks are 10-12 m apart: the last one of each mapped road
   o.map.jobs = 2;
   o.map.itq.iterations = 10;
   o.map.pq.iterations = 10;
@@ -56,6 +63,11 @@ TEST(CityBenchmark, SmallCityRunsAndResumes) {
   ASSERT_TRUE(fs::exists(dir / "report.md"));
   EXPECT_EQ(r["city"]["roads"].get<int>(), 4);
   EXPECT_EQ(r["city"]["roads_left_out"].size(), 1u);
+  EXPECT_EQ(r["city"]["road_end_placemarks_left_out"].get<int>(), 3);
+  // Every image of the mapped placemarks is mapped; the rest are not.
+  const auto city = nlohmann::json::parse(read_file(dir / "city" / "city.json"));
+  EXPECT_EQ(r["city"]["placemarks_mapped"].get<size_t>(),
+            city["placemarks"].size() - 3 - r["city"]["placemarks_on_roads_left_out"].get<size_t>());
   EXPECT_GE(r["map"]["segments"].get<int>(), 1);
   const size_t positives = r["positives"]["queries"].get<size_t>();
   const size_t scored = positives + r["negatives_unmapped_streets"]["queries"].get<size_t>() +

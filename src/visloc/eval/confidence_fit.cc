@@ -38,7 +38,12 @@ std::vector<ConfidenceSample> read_confidence_samples(const std::filesystem::pat
   for (const auto& q : report["per_query"]) {
     if (!q.is_object() || !q.contains("confidence_features")) continue;  // no pose
     const std::string kind = q.value("kind", std::string(q.value("negative", false) ? "negative_listed" : "query"));
-    if (kind == "between" || kind == "near_unseen") continue;  // not scored by the benchmark
+    // Every pose with a truth is a sample, judged by its error. That includes
+    // the city benchmark's "between" and "near_unseen" queries: it does not
+    // score them, since whether they should register is open, but a pose
+    // they return is right or wrong all the same, and queries just past a
+    // mapped street's end (the KITTI hard split's wrong poses, 16-18 m past
+    // the last mapped frame) are "between".
     ConfidenceSample s;
     try {
       s.features = ConfidenceFeatures::from_json(q["confidence_features"]);

@@ -32,6 +32,9 @@ struct ConfidenceSample {
 // The samples of a report.json written by `visloc bench city` (per_query
 // with kind, confidence_features and pose_position_error_m) or by `visloc
 // eval` (per_query with negative, confidence_features and pose errors).
+// Every query with a pose and a truth is a sample, right when the pose is
+// within `rule` (bench city's "between" and "near_unseen" queries too, which
+// its report does not score); foreign photos and listed negatives are wrong.
 // Throws Error(kFormat) naming the file when it holds neither.
 std::vector<ConfidenceSample> read_confidence_samples(const std::filesystem::path& report, const WrongPoseRule& rule);
 

@@ -136,5 +136,28 @@ TEST(Evaluation, CountsWrongPosesApartFromMissesAndReadsBackAsSamples) {
   std::filesystem::remove_all(dir);
 }
 
+// A city benchmark report: every kind of query with a pose is a sample, the
+// ones the benchmark does not score ("between", "near_unseen") too, judged by
+// the pose's error; foreign photos are wrong whatever their pose.
+TEST(ConfidenceFit, ReadsEveryCityQueryKindWithAPose) {
+  nlohmann::json features = ConfidenceFeatures{}.to_json();
+  auto entry = [&](const char* kind, double error_m) {
+    nlohmann::json q = {{"image", kind}, {"kind", kind}, {"confidence_features", features}};
+    if (error_m >= 0) q["pose_position_error_m"] = error_m, q["pose_rotation_error_deg"] = 1.0;
+    return q;
+  };
+  nlohmann::json report = {{"per_query",
+                            {entry("positive", 0.1), entry("negative", 40), entry("between", 30),
+                             entry("near_unseen", 0.2), entry("foreign", -1), entry("positive", -1)}}};
+  const auto dir = unique_temp_path("visloc_city_conf");
+  std::filesystem::create_directories(dir);
+  write_file_atomic(dir / "report.json", report.dump());
+  const auto samples = read_confidence_samples(dir / "report.json", WrongPoseRule{});
+  ASSERT_EQ(samples.size(), 5u);  // the last positive has no pose error
+  const std::vector<bool> right = {true, false, false, true, false};
+  for (size_t i = 0; i < samples.size(); ++i) EXPECT_EQ(samples[i].right, right[i]) << i;
+  std::filesystem::remove_all(dir);
+}
+
 }  // namespace
 }  // namespace visloc
