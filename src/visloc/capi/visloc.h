@@ -111,7 +111,8 @@ typedef struct visloc_result {
   double heading_deg;      /* viewing direction, degrees clockwise from north */
   double confidence;       /* 0-1 score that the pose is right (within 5 m, 10 deg; higher is surer; not a
                               calibrated probability), 0 without a pose */
-  /* 1-sigma uncertainty from the pose refinement's covariance (has_sigma):
+  /* Uncertainty (has_sigma): the pose refinement's covariance σ times the
+   * confidence model's calibration (σ holds 68% of its training errors):
    * centre (sqrt of the covariance's trace) in segment units and rotation;
    * with has_enu also in metres (3D, horizontal, vertical), and with
    * has_heading_sigma the heading's. */

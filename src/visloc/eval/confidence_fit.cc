@@ -35,32 +35,41 @@ std::vector<ConfidenceSample> read_confidence_samples(const std::filesystem::pat
     throw_error(ErrorCode::kFormat, path.string(), ": no per_query array (a report.json of bench city or eval)");
   std::vector<ConfidenceSample> samples;
   try {
-  for (const auto& q : report["per_query"]) {
-    if (!q.is_object() || !q.contains("confidence_features")) continue;  // no pose
-    const std::string kind = q.value("kind", std::string(q.value("negative", false) ? "negative_listed" : "query"));
-    // Every pose with a truth is a sample, judged by its error. That includes
-    // the city benchmark's "between" and "near_unseen" queries: it does not
-    // score them, since whether they should register is open, but a pose
-    // they return is right or wrong all the same, and queries just past a
-    // mapped street's end (the KITTI hard split's wrong poses, 16-18 m past
-    // the last mapped frame) are "between".
-    ConfidenceSample s;
-    try {
-      s.features = ConfidenceFeatures::from_json(q["confidence_features"]);
-    } catch (const Error& e) {
-      throw_error(ErrorCode::kFormat, path.string(), ": ", q.value("image", std::string("?")), ": ", e.what());
+    // The σ in the report is the covariance's times this (1 before it existed).
+    double report_sigma_scale = 1;
+    if (report.contains("uncertainty") && report["uncertainty"].is_object())
+      report_sigma_scale = report["uncertainty"].value("sigma_scale", 1.0);
+    if (!(report_sigma_scale > 0) || !std::isfinite(report_sigma_scale))
+      throw_error(ErrorCode::kFormat, path.string(), ": uncertainty.sigma_scale must be a positive number");
+    for (const auto& q : report["per_query"]) {
+      if (!q.is_object() || !q.contains("confidence_features")) continue;  // no pose
+      const std::string kind = q.value("kind", std::string(q.value("negative", false) ? "negative_listed" : "query"));
+      // Every pose with a truth is a sample, judged by its error. That includes
+      // the city benchmark's "between" and "near_unseen" queries: it does not
+      // score them, since whether they should register is open, but a pose
+      // they return is right or wrong all the same, and queries just past a
+      // mapped street's end (the KITTI hard split's wrong poses, 16-18 m past
+      // the last mapped frame) are "between".
+      ConfidenceSample s;
+      try {
+        s.features = ConfidenceFeatures::from_json(q["confidence_features"]);
+      } catch (const Error& e) {
+        throw_error(ErrorCode::kFormat, path.string(), ": ", q.value("image", std::string("?")), ": ", e.what());
+      }
+      if (kind == "foreign" || kind == "negative_listed") {
+        s.right = false;  // these must not register at all
+      } else {
+        const auto pos = q.find("pose_position_error_m");
+        if (pos == q.end() || !pos->is_number()) continue;  // no truth to judge the pose by
+        const auto rot = q.find("pose_rotation_error_deg");
+        const double rot_err = rot != q.end() && rot->is_number() ? rot->get<double>() : 0.0;
+        s.right = pos->get<double>() <= rule.position_m && rot_err <= rule.rotation_deg;
+        const auto sigma = q.find("position_sigma");  // segment units, as the pose error
+        if (sigma != q.end() && sigma->is_number() && sigma->get<double>() > 0)
+          s.error_over_unscaled_sigma = pos->get<double>() / sigma->get<double>() * report_sigma_scale;
+      }
+      samples.push_back(s);
     }
-    if (kind == "foreign" || kind == "negative_listed") {
-      s.right = false;  // these must not register at all
-    } else {
-      const auto pos = q.find("pose_position_error_m");
-      if (pos == q.end() || !pos->is_number()) continue;  // no truth to judge the pose by
-      const auto rot = q.find("pose_rotation_error_deg");
-      const double rot_err = rot != q.end() && rot->is_number() ? rot->get<double>() : 0.0;
-      s.right = pos->get<double>() <= rule.position_m && rot_err <= rule.rotation_deg;
-    }
-    samples.push_back(s);
-  }
   } catch (const nlohmann::json::exception& e) {
     throw_error(ErrorCode::kFormat, path.string(), ": bad per_query entry: ", e.what());
   }
@@ -87,6 +96,15 @@ std::vector<PrecisionRecallPoint> precision_recall_curve(const std::vector<doubl
     curve.push_back(p);
   }
   return curve;
+}
+
+double sigma_scale_for_share(std::vector<double> error_over_sigma, double share) {
+  if (error_over_sigma.empty()) return 1;
+  const size_t rank = static_cast<size_t>(std::ceil(share * static_cast<double>(error_over_sigma.size())));
+  const size_t k = std::clamp<size_t>(rank, 1, error_over_sigma.size()) - 1;
+  std::nth_element(error_over_sigma.begin(), error_over_sigma.begin() + static_cast<std::ptrdiff_t>(k),
+                   error_over_sigma.end());
+  return std::max(error_over_sigma[k], 1e-9);
 }
 
 double threshold_for_precision(const std::vector<PrecisionRecallPoint>& curve, double target) {
@@ -242,6 +260,14 @@ ConfidenceFit fit_confidence(const std::vector<ConfidenceSample>& samples, const
   fit.model.threshold = threshold_for_precision(curve, options.target_precision);
   for (const auto& p : curve)
     if (p.threshold >= fit.model.threshold) fit.at_threshold = p;
+  // σ: calibrated on the poses the model registers and gets right.
+  std::vector<double> ratios;
+  for (const auto& s : samples)
+    if (s.right && s.error_over_unscaled_sigma >= 0 && s.features.inliers >= options.min_inliers &&
+        fit.model.evaluate(s.features) >= fit.model.threshold)
+      ratios.push_back(s.error_over_unscaled_sigma);
+  fit.sigma_samples = ratios.size();
+  fit.model.sigma_scale = sigma_scale_for_share(ratios);
   return fit;
 }
 
@@ -255,6 +281,7 @@ nlohmann::json ConfidenceFit::to_json() const {
           {"right_poses", right},
           {"wrong_poses", wrong},
           {"threshold_samples", threshold_samples},
+          {"sigma_samples", sigma_samples},
           {"dropped_inputs", dropped_inputs},
           {"at_threshold",
            {{"precision", at_threshold.precision},
@@ -290,13 +317,18 @@ nlohmann::json ConfidenceCheck::to_json() const {
           {"right_poses_registered", right_registered},
           {"right_poses_lost", right_lost},
           {"wrong_poses_registered", wrong_registered},
-          {"threshold", threshold}};
+          {"threshold", threshold},
+          {"sigma_scale", sigma_scale},
+          {"right_poses_registered_with_sigma", with_sigma},
+          {"within_1_sigma", within_1_sigma},
+          {"within_2_sigma", within_2_sigma}};
 }
 
 ConfidenceCheck check_confidence(const std::vector<ConfidenceSample>& samples, const ConfidenceModel& model,
                                  double min_inliers) {
   ConfidenceCheck out;
   out.threshold = model.threshold;
+  out.sigma_scale = model.sigma_scale;
   std::vector<double> scores;
   std::vector<bool> right;
   for (const auto& s : samples) {
@@ -307,6 +339,16 @@ ConfidenceCheck check_confidence(const std::vector<ConfidenceSample>& samples, c
     const bool accepted = c >= model.threshold;
     if (s.right) (accepted ? out.right_registered : out.right_lost)++;
     else if (accepted) ++out.wrong_registered;
+    if (s.right && accepted && s.error_over_unscaled_sigma >= 0) {
+      const double z = s.error_over_unscaled_sigma / model.sigma_scale;
+      ++out.with_sigma;
+      out.within_1_sigma += z <= 1;
+      out.within_2_sigma += z <= 2;
+    }
+  }
+  if (out.with_sigma) {
+    out.within_1_sigma /= static_cast<double>(out.with_sigma);
+    out.within_2_sigma /= static_cast<double>(out.with_sigma);
   }
   out.poses_with_min_inliers = scores.size();
   out.curve = precision_recall_curve(scores, right, out.right_registered + out.right_lost);
@@ -319,6 +361,7 @@ std::string confidence_model_code(const ConfidenceModel& model) {
   for (int k = 0; k < kConfidenceInputs; ++k)
     code << "    m.weights[" << k << "] = " << model.weights[k] << ";  // " << confidence_input_names()[k] << "\n";
   code << "    threshold " << model.threshold << "\n";
+  code << "    m.sigma_scale = " << model.sigma_scale << ";\n";
   return code.str();
 }
 
@@ -364,7 +407,9 @@ void run_confidence_benchmark(const ConfidenceBenchmarkOptions& o, std::ostream&
   write_file_atomic(o.out_dir / (o.fit ? "fit.json" : "check.json"), summary.dump(2));
   out << "Poses with >= " << o.fit_options.min_inliers << " inliers: " << check.poses_with_min_inliers
       << "; at confidence >= " << model.threshold << ": " << check.right_registered << " right registered, "
-      << check.right_lost << " right lost, " << check.wrong_registered << " wrong registered.\n";
+      << check.right_lost << " right lost, " << check.wrong_registered << " wrong registered. σ (scale "
+      << model.sigma_scale << "): of " << check.with_sigma << " right poses registered with one, "
+      << check.within_1_sigma << " within 1σ, " << check.within_2_sigma << " within 2σ.\n";
 }
 
 }  // namespace visloc

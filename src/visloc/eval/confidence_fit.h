@@ -9,6 +9,8 @@
 //     (confidence_input_signs) is dropped and the rest refitted;
 //   * the threshold: the lowest confidence at which the registered poses
 //     (≥ min_inliers) at or above it are right with the target precision;
+//   * the σ scale: the 68th percentile of error / σ over the right poses
+//     at or above the threshold;
 //   * the precision-recall curve of a confidence over a query set.
 #pragma once
 
@@ -27,6 +29,10 @@ namespace visloc {
 struct ConfidenceSample {
   ConfidenceFeatures features;
   bool right = false;  // the pose is within the wrong-pose thresholds of the truth
+  // The pose's position error over its σ before any sigma_scale (the
+  // report's σ times its uncertainty.sigma_scale, 1 when absent); -1 without
+  // a σ or a truth.
+  double error_over_unscaled_sigma = -1;
 };
 
 // The samples of a report.json written by `visloc bench city` (per_query
@@ -56,6 +62,10 @@ struct PrecisionRecallPoint {
 std::vector<PrecisionRecallPoint> precision_recall_curve(const std::vector<double>& scores,
                                                         const std::vector<bool>& right, size_t positives);
 
+// The sigma_scale that puts the given share of `error_over_sigma` within
+// 1σ: its nearest-rank quantile (1 when empty).
+double sigma_scale_for_share(std::vector<double> error_over_sigma, double share = 0.68);
+
 // The lowest threshold whose precision is at least `target` (1.0 when none:
 // nothing is accepted but a perfect score).
 double threshold_for_precision(const std::vector<PrecisionRecallPoint>& curve, double target);
@@ -68,6 +78,7 @@ struct ConfidenceFit {
   double l2 = 0;                             // the penalty used
   std::vector<std::pair<double, double>> cross_validation;  // (l2, weighted log loss per sample)
   PrecisionRecallPoint at_threshold;         // on the fit's own data
+  size_t sigma_samples = 0;                  // right poses at the threshold with a σ (model.sigma_scale)
   nlohmann::json to_json() const;
 };
 
@@ -84,7 +95,11 @@ void plot_precision_recall(const std::filesystem::path& stem, const std::string&
 struct ConfidenceCheck {
   size_t poses_with_min_inliers = 0;
   size_t right_registered = 0, right_lost = 0, wrong_registered = 0;
-  double threshold = 0;  // the model's
+  double threshold = 0, sigma_scale = 1;  // the model's
+  // Of the right poses registered that have a σ: how many, and the fractions
+  // of their errors within 1 and 2 of the model's σ (its sigma_scale).
+  size_t with_sigma = 0;
+  double within_1_sigma = 0, within_2_sigma = 0;
   std::vector<PrecisionRecallPoint> curve;
   nlohmann::json to_json() const;  // the counts and the threshold
 };

@@ -136,6 +136,67 @@ TEST(Evaluation, CountsWrongPosesApartFromMissesAndReadsBackAsSamples) {
   std::filesystem::remove_all(dir);
 }
 
+TEST(ConfidenceFit, SigmaScaleIsThe68thPercentileOfErrorOverSigma) {
+  EXPECT_EQ(sigma_scale_for_share({}), 1.0);
+  std::vector<double> ratios;
+  for (int i = 1; i <= 100; ++i) ratios.push_back(i / 50.0);  // 0.02 ... 2.00
+  EXPECT_DOUBLE_EQ(sigma_scale_for_share(ratios), 68 / 50.0);
+  EXPECT_DOUBLE_EQ(sigma_scale_for_share(ratios, 0.9), 90 / 50.0);
+  EXPECT_DOUBLE_EQ(sigma_scale_for_share({3.0}), 3.0);
+}
+
+// The fit calibrates σ on its right poses at the threshold, and a check
+// counts their errors within the model's σ.
+TEST(ConfidenceFit, CalibratesSigmaOnTheRightPosesItRegisters) {
+  std::vector<ConfidenceSample> samples;
+  int right_count = 0;
+  for (int i = 0; i < 200; ++i) {
+    ConfidenceSample s;
+    s.right = i % 4 != 0;
+    const int k = s.right ? right_count++ : 0;
+    s.features.inliers = s.right ? 60 + i % 30 : 12 + i % 5;
+    s.features.coverage = s.right ? 0.5 : 0.1;
+    s.features.residual = 0.3;
+    s.features.explained = 0.08;
+    s.error_over_unscaled_sigma = s.right ? 0.5 + (k % 10) * 0.25 : 30;  // 0.5 ... 2.75
+    samples.push_back(s);
+  }
+  const ConfidenceFit fit = fit_confidence(samples, ConfidenceFitOptions{});
+  EXPECT_EQ(fit.sigma_samples, 150u);
+  // Right poses' ratios: 15 of each of 0.5, 0.75, ..., 2.75; the 102nd of 150 is 2.0.
+  EXPECT_DOUBLE_EQ(fit.model.sigma_scale, 2.0);
+  const ConfidenceCheck check = check_confidence(samples, fit.model, 12);
+  EXPECT_EQ(check.with_sigma, 150u);
+  EXPECT_DOUBLE_EQ(check.within_1_sigma, 0.7);  // ratios up to 2.0: 7 of 10
+  EXPECT_DOUBLE_EQ(check.within_2_sigma, 1.0);
+}
+
+// A report's σ was its covariance's times its uncertainty.sigma_scale: the
+// samples undo it.
+TEST(ConfidenceFit, SamplesUndoTheReportsSigmaScale) {
+  nlohmann::json q = {{"image", "a"},
+                      {"kind", "positive"},
+                      {"confidence_features", ConfidenceFeatures{}.to_json()},
+                      {"pose_position_error_m", 0.3},
+                      {"pose_rotation_error_deg", 1.0},
+                      {"position_sigma", 0.2}};
+  nlohmann::json report = {{"per_query", {q}}, {"uncertainty", {{"sigma_scale", 1.5}}}};
+  const auto dir = unique_temp_path("visloc_sigma_conf");
+  std::filesystem::create_directories(dir);
+  write_file_atomic(dir / "report.json", report.dump());
+  auto samples = read_confidence_samples(dir / "report.json", WrongPoseRule{});
+  ASSERT_EQ(samples.size(), 1u);
+  EXPECT_DOUBLE_EQ(samples[0].error_over_unscaled_sigma, 0.3 / 0.2 * 1.5);
+  report.erase("uncertainty");  // written before sigma_scale: the σ was the covariance's
+  write_file_atomic(dir / "report.json", report.dump());
+  samples = read_confidence_samples(dir / "report.json", WrongPoseRule{});
+  EXPECT_DOUBLE_EQ(samples[0].error_over_unscaled_sigma, 0.3 / 0.2);
+  report["uncertainty"] = {{"sigma_scale", -2}};
+  write_file_atomic(dir / "report.json", report.dump());
+  EXPECT_THROW(read_confidence_samples(dir / "report.json", WrongPoseRule{}), Error);
+  std::filesystem::remove_all(dir);
+}
+
 // A city benchmark report: every kind of query with a pose is a sample, the
 // ones the benchmark does not score ("between", "near_unseen") too, judged by
 // the pose's error; foreign photos are wrong whatever their pose.

@@ -221,10 +221,12 @@ nlohmann::json EvaluationReport::to_json(const std::vector<LocalizationResult>& 
       in2 += q.position_error <= 2 * sigma;
       sigmas.push_back(sigma);
     }
-    j["uncertainty"] = {{"registered_with_sigma", n},
-                        {"within_1_sigma", n ? double(in1) / n : 0.0},
-                        {"within_2_sigma", n ? double(in2) / n : 0.0},
-                        {"median_position_sigma", stats(sigmas).is_null() ? nlohmann::json() : stats(sigmas)["median"]}};
+    j["uncertainty"] = {
+        {"sigma_scale", ConfidenceModel::builtin().sigma_scale},
+        {"registered_with_sigma", n},
+        {"within_1_sigma", n ? double(in1) / n : 0.0},
+        {"within_2_sigma", n ? double(in2) / n : 0.0},
+        {"median_position_sigma", stats(sigmas).is_null() ? nlohmann::json() : stats(sigmas)["median"]}};
   }
   nlohmann::json per = nlohmann::json::array();
   for (const auto& q : per_query) {

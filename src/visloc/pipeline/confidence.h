@@ -62,13 +62,14 @@ struct ConfidenceFeatures {
 inline constexpr int kConfidenceInputs = 10;
 inline constexpr int kExplainedInput = 9;  // log_explained, the last input
 // ConfidenceFeatures::from_json of a report written before `explained`
-// existed: the median of the right poses on the training city (0.082), as
-// kVoteShareWithoutRetrieval does for votes.
-inline constexpr double kExplainedWhenUnknown = 0.08;
+// existed: the median of the right poses (>= 12 inliers) on the training
+// cities (0.093), as kVoteShareWithoutRetrieval does for votes.
+inline constexpr double kExplainedWhenUnknown = 0.093;
 // A map without retrieval gives no evidence through votes: its poses get the
 // median share of the right poses of the fit's data, so that the term
-// neither raises nor lowers their confidence against a typical right pose.
-inline constexpr double kVoteShareWithoutRetrieval = 0.4;
+// neither raises nor lowers their confidence against a typical right pose
+// (>= 12 inliers on the builtin model's training cities: 0.19).
+inline constexpr double kVoteShareWithoutRetrieval = 0.19;
 // The builtin model's threshold (ConfidenceModel::builtin().threshold), the
 // localizer's default min_confidence.
 extern const double kDefaultMinConfidence;
@@ -87,6 +88,13 @@ struct ConfidenceModel {
   std::array<double, kConfidenceInputs> weights{};
   // The threshold chosen on the fit's data for a precision of ≥ 99.5%.
   double threshold = 0.5;
+  // The factor on the refinement's covariance σ that makes a reported σ the
+  // radius holding 68% of the errors (as ARCore and Android report a
+  // position's accuracy): the 68th percentile of error / σ over the fit's
+  // right poses at the threshold. The first-order covariance leaves out
+  // what the residuals do not show (the map's own errors, the inlier
+  // selection), so it comes out > 1. 1 in a model written without it.
+  double sigma_scale = 1;
   double evaluate(const ConfidenceFeatures& f) const;  // in [0, 1]
   nlohmann::json to_json() const;
   static ConfidenceModel from_json(const nlohmann::json& j);  // throws Error(kFormat)

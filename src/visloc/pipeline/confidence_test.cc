@@ -5,6 +5,7 @@
 #include <cmath>
 
 #include "visloc/pipeline/confidence.h"
+#include "visloc/pipeline/localizer.h"
 #include "visloc/util/error.h"
 
 namespace visloc {
@@ -103,6 +104,50 @@ TEST(ConfidenceModel, JsonFromBeforeTheExplainedInputStillReads) {
   j["weights"].erase("log_explained");
   EXPECT_EQ(ConfidenceModel::from_json(j).weights[kExplainedInput], 0);
   EXPECT_EQ(ConfidenceModel::from_json(j).weights[0], m.weights[0]);
+}
+
+TEST(ConfidenceModel, SigmaScaleRoundTripsDefaultsToOneAndIsChecked) {
+  ConfidenceModel m;
+  m.sigma_scale = 1.7;
+  nlohmann::json j = m.to_json();
+  EXPECT_EQ(ConfidenceModel::from_json(j).sigma_scale, 1.7);
+  j.erase("sigma_scale");  // a model written before it
+  EXPECT_EQ(ConfidenceModel::from_json(j).sigma_scale, 1.0);
+  for (double bad : {0.0, -1.0}) {
+    j["sigma_scale"] = bad;
+    EXPECT_THROW(ConfidenceModel::from_json(j), Error) << bad;
+  }
+  j["sigma_scale"] = "x";
+  EXPECT_THROW(ConfidenceModel::from_json(j), Error);
+  // The builtin model's σ is calibrated: the covariance alone is too small.
+  EXPECT_GT(ConfidenceModel::builtin().sigma_scale, 1.0);
+}
+
+// Every σ of a pose scales with sigma_scale: position, rotation, and in a
+// geo-registered segment the metre and heading σ.
+TEST(PoseUncertainty, EverySigmaScalesWithTheModelsScale) {
+  PoseCovariance cov;
+  cov.valid = true;
+  Eigen::Matrix<double, 6, 6> a = Eigen::Matrix<double, 6, 6>::Random();
+  cov.omega_t = 1e-4 * (a * a.transpose() + Eigen::Matrix<double, 6, 6>::Identity());
+  const CameraPose pose = CameraPose::from_matrix(
+      Eigen::AngleAxisd(0.3, Eigen::Vector3d(0.2, 1, 0.1).normalized()).toRotationMatrix(), Eigen::Vector3d(1, 2, 3));
+  Similarity3d enu_from_segment;
+  enu_from_segment.scale = 2;
+  enu_from_segment.rotation = Eigen::AngleAxisd(0.5, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  const PoseUncertainty one = pose_uncertainty(cov, pose, enu_from_segment, 1.0);
+  const PoseUncertainty scaled = pose_uncertainty(cov, pose, enu_from_segment, 1.5);
+  ASSERT_TRUE(one.position_sigma_m && one.horizontal_sigma_m && one.vertical_sigma_m && one.heading_sigma_deg);
+  EXPECT_GT(one.position_sigma, 0);
+  EXPECT_NEAR(scaled.position_sigma, 1.5 * one.position_sigma, 1e-12);
+  EXPECT_NEAR(scaled.rotation_sigma_deg, 1.5 * one.rotation_sigma_deg, 1e-12);
+  EXPECT_NEAR(*scaled.position_sigma_m, 1.5 * *one.position_sigma_m, 1e-12);
+  EXPECT_NEAR(*scaled.horizontal_sigma_m, 1.5 * *one.horizontal_sigma_m, 1e-12);
+  EXPECT_NEAR(*scaled.vertical_sigma_m, 1.5 * *one.vertical_sigma_m, 1e-12);
+  EXPECT_NEAR(*scaled.heading_sigma_deg, 1.5 * *one.heading_sigma_deg, 1e-12);
+  // The metre σ is the segment σ times the segment's scale (a rotation keeps the trace).
+  EXPECT_NEAR(*one.position_sigma_m, 2 * one.position_sigma, 1e-12);
+  EXPECT_FALSE(pose_uncertainty(cov, pose, std::nullopt, 1.0).position_sigma_m);
 }
 
 // Map cameras along a street (x), 2 m high (z up), looking along +y, level.

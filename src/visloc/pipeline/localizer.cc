@@ -87,19 +87,21 @@ SegmentFrame segment_frame(const Segment& seg) {
   return f;
 }
 
-// The 1σ uncertainty of a pose from its covariance (valid), in the segment
-// frame and, when the segment is geo-registered, in metres and degrees.
+}  // namespace
+
 PoseUncertainty pose_uncertainty(const PoseCovariance& cov, const CameraPose& cam_from_segment,
-                                 const SegmentFrame& frame) {
+                                 const std::optional<Similarity3d>& enu_from_segment, double sigma_scale) {
   PoseUncertainty u;
+  const double scale2 = sigma_scale * sigma_scale;
   const Eigen::Matrix3d R = cam_from_segment.rotation_matrix();
-  const Eigen::Matrix3d center_cov = cov.center(cam_from_segment);
+  const Eigen::Matrix3d center_cov = scale2 * cov.center(cam_from_segment);
+  const Eigen::Matrix3d omega_cov = scale2 * cov.omega_t.topLeftCorner<3, 3>();
   u.valid = true;
   u.position_sigma = std::sqrt(std::max(0.0, center_cov.trace()));
-  u.rotation_sigma_deg = std::sqrt(std::max(0.0, cov.omega_t.topLeftCorner<3, 3>().trace())) * 180.0 / M_PI;
-  if (frame.georegistered) {
-    const Eigen::Matrix3d& Rs = frame.enu_from_segment.rotation;
-    const double s2 = frame.enu_from_segment.scale * frame.enu_from_segment.scale;
+  u.rotation_sigma_deg = std::sqrt(std::max(0.0, omega_cov.trace())) * 180.0 / M_PI;
+  if (enu_from_segment) {
+    const Eigen::Matrix3d& Rs = enu_from_segment->rotation;
+    const double s2 = enu_from_segment->scale * enu_from_segment->scale;
     const Eigen::Matrix3d enu_cov = s2 * Rs * center_cov * Rs.transpose();
     u.position_sigma_m = std::sqrt(std::max(0.0, enu_cov.trace()));
     u.horizontal_sigma_m = std::sqrt(std::max(0.0, enu_cov(0, 0) + enu_cov(1, 1)));
@@ -113,14 +115,12 @@ PoseUncertainty pose_uncertainty(const PoseCovariance& cov, const CameraPose& ca
     if (h2 > 1e-12) {
       const Eigen::RowVector3d dh_dd(d.y() / h2, -d.x() / h2, 0);
       const Eigen::RowVector3d g = dh_dd * dd_domega;
-      const double var = g * cov.omega_t.topLeftCorner<3, 3>() * g.transpose();
+      const double var = g * omega_cov * g.transpose();
       u.heading_sigma_deg = std::sqrt(std::max(0.0, var)) * 180.0 / M_PI;
     }
   }
   return u;
 }
-
-}  // namespace
 
 // The per-query buffers of the search, reused across queries: a query takes
 // one from the pool (one per concurrent query) and gives it back.
@@ -564,7 +564,9 @@ void Localizer::Impl::Search::assess_best(bool final_assessment) {
   res.confidence = model.evaluate(cf);
   res.registered = best_has_enough_inliers_ && res.confidence >= options_.min_confidence;
   if (best_quality_.covariance.valid)
-    res.uncertainty = pose_uncertainty(best_quality_.covariance, res.cam_from_segment, frame);
+    res.uncertainty =
+        pose_uncertainty(best_quality_.covariance, res.cam_from_segment,
+                         frame.georegistered ? std::optional(frame.enu_from_segment) : std::nullopt, model.sigma_scale);
   if (frame.georegistered) {
     const Eigen::Vector3d c = frame.enu_from_segment.apply(res.cam_from_segment.center());
     res.center_enu = c;

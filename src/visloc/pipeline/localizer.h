@@ -20,6 +20,7 @@
 
 #include "visloc/features/sift_extractor.h"
 #include "visloc/geo/enu_frame.h"
+#include "visloc/geo/similarity_transform.h"
 #include "visloc/geometry/camera.h"
 #include "visloc/geometry/pose.h"
 #include "visloc/matching/cascade_index.h"
@@ -114,15 +115,24 @@ struct StageTimes {
 
 // 1σ uncertainty of a pose, from the covariance of its refinement on the
 // inliers (pose_refinement.h, pose_covariance): the residual noise the
-// inliers show, propagated to the camera centre and heading. In the segment
-// frame's units, and in metres / degrees of the ENU frame when the segment is
-// geo-registered (as a GNSS receiver or ARCore reports its accuracy).
+// inliers show, propagated to the camera centre and heading, each σ times
+// the confidence model's sigma_scale (calibrated so that σ is the radius of
+// 68% of the errors on the model's training city; pipeline/confidence.h).
+// In the segment frame's units, and in metres / degrees of the ENU frame when
+// the segment is geo-registered (as a GNSS receiver or ARCore reports its
+// accuracy).
 struct PoseUncertainty {
   bool valid = false;
   double position_sigma = 0;       // sqrt(trace Σ_centre), segment units
   double rotation_sigma_deg = 0;   // sqrt(trace Σ_ω)
   std::optional<double> position_sigma_m, horizontal_sigma_m, vertical_sigma_m, heading_sigma_deg;
 };
+
+// The uncertainty of a pose from the covariance of its refinement (valid):
+// every σ is sigma_scale × the covariance's; the metre and heading σ are set
+// when enu_from_segment is given (a geo-registered segment).
+PoseUncertainty pose_uncertainty(const PoseCovariance& covariance, const CameraPose& cam_from_segment,
+                                 const std::optional<Similarity3d>& enu_from_segment, double sigma_scale);
 
 struct LocalizationResult {
   std::string image;
