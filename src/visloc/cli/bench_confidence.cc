@@ -15,7 +15,8 @@ void add_bench_confidence(CLI::App& bench) {
   CLI::App* cmd = bench.add_subcommand(
       "confidence",
       "The localizer's confidence on the poses of benchmark reports (report.json of 'bench city' or 'eval', run "
-      "with --min-confidence 0 to see every pose): with --fit, fit the logistic model and its threshold (the "
+      "with --min-confidence 0 to see every pose): with --fit, fit the logistic model, its threshold and its σ scale "
+      "(the "
       "builtin model in pipeline/confidence.cc came from this, on synthetic cities only); without, check a model "
       "(the builtin one, or --model) on them. Writes model.json / check.json and a precision-recall plot to --out");
   OptionTable t;

@@ -2,7 +2,10 @@
 // rendered whole, its map is built from all streets but a few, and three
 // kinds of query are localized against it:
 //   positives  query views near mapped streets (other cameras than the map's);
-//   negatives  query views on the streets left out of the map;
+//   negatives  query views far from every mapped placemark: on the streets left
+//              out of the map, or past a mapped street's end
+//              (leave_out_road_end_m); the report calls them
+//              negatives_unmapped_streets;
 //   foreign    photos of other places (../shared/data: KITTI, Lund, Strecha).
 // A wrong pose is a positive or negative registered more than
 // wrong_position_m or wrong_rotation_deg from its truth, or any registered
@@ -39,8 +42,9 @@ struct CityBenchmarkOptions {
   // The last roads of the layout are not mapped. On the default 2×2 grid the
   // last two are parallel streets 90 m apart that cross mapped ones every 90 m.
   int leave_out_roads = 2;
-  // On every mapped road, the placemarks within this many metres of the
-  // road's end are left out of the map too. Queries there stand past the end
+  // On every mapped road, the placemarks within this many metres of its last
+  // placemark (the far end, by arc length) are left out of the map too, that
+  // one included. Queries there stand past the end
   // of a mapped street, some looking along it into the map (the KITTI hard
   // split's case: a map of frames 0-99, queries from frames 100-159).
   double leave_out_road_end_m = 0;

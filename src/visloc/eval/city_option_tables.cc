@@ -29,7 +29,8 @@ void add_city_options(OptionTable& t, synth::CityOptions& o) {
 void add_split_options(OptionTable& t, CityBenchmarkOptions& o) {
   t.add("--leave-out-roads", o.leave_out_roads, "The last roads of the layout are left out of the map");
   t.add("--leave-out-road-end", o.leave_out_road_end_m,
-        "The last metres of every other road are left out of the map too: queries past a mapped street's end");
+        "Metres at the far end of every mapped road (from its last placemark) left out of the map too: queries "
+        "past a mapped street's end (0: none)");
   t.add("--positive-distance", o.positive_max_distance_m,
         "A query within this distance (m, in plan) of a mapped placemark is a positive");
   t.add("--negative-distance", o.negative_min_distance_m,

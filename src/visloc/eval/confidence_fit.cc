@@ -64,7 +64,10 @@ std::vector<ConfidenceSample> read_confidence_samples(const std::filesystem::pat
         const auto rot = q.find("pose_rotation_error_deg");
         const double rot_err = rot != q.end() && rot->is_number() ? rot->get<double>() : 0.0;
         s.right = pos->get<double>() <= rule.position_m && rot_err <= rule.rotation_deg;
-        const auto sigma = q.find("position_sigma");  // segment units, as the pose error
+        // σ in the units of the pose error: the segment's, or metres when eval
+        // judged the pose by GPS truth (error_frame "enu").
+        const auto sigma =
+            q.find(q.value("error_frame", std::string("segment")) == "enu" ? "position_sigma_m" : "position_sigma");
         if (sigma != q.end() && sigma->is_number() && sigma->get<double>() > 0)
           s.error_over_unscaled_sigma = pos->get<double>() / sigma->get<double>() * report_sigma_scale;
       }
@@ -99,8 +102,11 @@ std::vector<PrecisionRecallPoint> precision_recall_curve(const std::vector<doubl
 }
 
 double sigma_scale_for_share(std::vector<double> error_over_sigma, double share) {
+  if (!(share > 0 && share <= 1))
+    throw_error(ErrorCode::kInvalidArgument, "sigma scale: the share must be in (0, 1], got ", share);
   if (error_over_sigma.empty()) return 1;
-  const size_t rank = static_cast<size_t>(std::ceil(share * static_cast<double>(error_over_sigma.size())));
+  // Nearest rank ceil(share n); the epsilon keeps 0.68 × 150 = 102.00000000000001 at 102.
+  const size_t rank = static_cast<size_t>(std::ceil(share * static_cast<double>(error_over_sigma.size()) - 1e-9));
   const size_t k = std::clamp<size_t>(rank, 1, error_over_sigma.size()) - 1;
   std::nth_element(error_over_sigma.begin(), error_over_sigma.begin() + static_cast<std::ptrdiff_t>(k),
                    error_over_sigma.end());

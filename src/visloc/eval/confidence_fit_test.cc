@@ -143,6 +143,12 @@ TEST(ConfidenceFit, SigmaScaleIsThe68thPercentileOfErrorOverSigma) {
   EXPECT_DOUBLE_EQ(sigma_scale_for_share(ratios), 68 / 50.0);
   EXPECT_DOUBLE_EQ(sigma_scale_for_share(ratios, 0.9), 90 / 50.0);
   EXPECT_DOUBLE_EQ(sigma_scale_for_share({3.0}), 3.0);
+  // 0.68 × 150 is 102.00000000000001 in floating point: still the 102nd.
+  std::vector<double> distinct;
+  for (int i = 1; i <= 150; ++i) distinct.push_back(i);
+  EXPECT_DOUBLE_EQ(sigma_scale_for_share(distinct), 102);
+  EXPECT_THROW(sigma_scale_for_share(distinct, 0), Error);
+  EXPECT_THROW(sigma_scale_for_share(distinct, std::nan("")), Error);
 }
 
 // The fit calibrates σ on its right poses at the threshold, and a check
@@ -159,6 +165,17 @@ TEST(ConfidenceFit, CalibratesSigmaOnTheRightPosesItRegisters) {
     s.features.residual = 0.3;
     s.features.explained = 0.08;
     s.error_over_unscaled_sigma = s.right ? 0.5 + (k % 10) * 0.25 : 30;  // 0.5 ... 2.75
+    samples.push_back(s);
+  }
+  // Right poses with too few inliers to register: their errors do not count.
+  for (int i = 0; i < 20; ++i) {
+    ConfidenceSample s;
+    s.right = true;
+    s.features.inliers = 8;
+    s.features.coverage = 0.5;
+    s.features.residual = 0.3;
+    s.features.explained = 0.08;
+    s.error_over_unscaled_sigma = 50;
     samples.push_back(s);
   }
   const ConfidenceFit fit = fit_confidence(samples, ConfidenceFitOptions{});
@@ -191,6 +208,12 @@ TEST(ConfidenceFit, SamplesUndoTheReportsSigmaScale) {
   write_file_atomic(dir / "report.json", report.dump());
   samples = read_confidence_samples(dir / "report.json", WrongPoseRule{});
   EXPECT_DOUBLE_EQ(samples[0].error_over_unscaled_sigma, 0.3 / 0.2);
+  // eval with GPS truth: the error is in metres, so is the σ it is divided by.
+  report["per_query"][0]["error_frame"] = "enu";
+  report["per_query"][0]["position_sigma_m"] = 0.4;
+  write_file_atomic(dir / "report.json", report.dump());
+  samples = read_confidence_samples(dir / "report.json", WrongPoseRule{});
+  EXPECT_DOUBLE_EQ(samples[0].error_over_unscaled_sigma, 0.3 / 0.4);
   report["uncertainty"] = {{"sigma_scale", -2}};
   write_file_atomic(dir / "report.json", report.dump());
   EXPECT_THROW(read_confidence_samples(dir / "report.json", WrongPoseRule{}), Error);

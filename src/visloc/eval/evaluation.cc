@@ -248,6 +248,7 @@ nlohmann::json EvaluationReport::to_json(const std::vector<LocalizationResult>& 
                      {"matching", q.times.matching}, {"ransac", q.times.ransac}, {"total", q.times.total}};
     if (q.confidence_features) e["confidence_features"] = q.confidence_features->to_json();
     if (q.pose_position_error >= 0) e["pose_position_error_m"] = q.pose_position_error;
+    if (q.uncertainty_in_metres) e["error_frame"] = "enu";  // else the segment's (pose truth)
     if (q.pose_rotation_error >= 0) e["pose_rotation_error_deg"] = q.pose_rotation_error;
     if (q.uncertainty.valid) {
       e["position_sigma"] = q.uncertainty.position_sigma;

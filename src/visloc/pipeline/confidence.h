@@ -17,10 +17,11 @@
 //     onto a repeated facade sees the map's dense interior, of which its few
 //     inliers explain a sliver. Measured (session 16, every pose with ≥ 12
 //     inliers): KITTI hard split, 0.002-0.018 for the 7 wrong poses against
-//     0.045-0.125 for the 28 right ones; KITTI odd frames 0.019-0.075; but
-//     on the synthetic training cities right poses go down to 0.004 and
-//     wrong ones up to 0.039, so the builtin model gives it no weight yet
-//     (confidence.cc says why).
+//     0.045-0.125 for the 28 right ones; KITTI odd frames 0.019-0.075. On
+//     synthetic cities it separates less (right poses down to 0.004, wrong
+//     ones up to 0.17), so the builtin model, fitted on cities whose queries
+//     include ones past a mapped street's end (confidence.cc), weighs it
+//     0.84: not enough alone for the KITTI hard split's wrong poses.
 // A logistic model, confidence = σ(b + Σ_k w_k x_k), on transformed inputs
 // x_k (confidence_inputs). Its coefficients are fitted once, on synthetic
 // positives and negatives, by `visloc bench confidence` (eval/

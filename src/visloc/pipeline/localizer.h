@@ -117,13 +117,13 @@ struct StageTimes {
 // inliers (pose_refinement.h, pose_covariance): the residual noise the
 // inliers show, propagated to the camera centre and heading, each σ times
 // the confidence model's sigma_scale (calibrated so that σ is the radius of
-// 68% of the errors on the model's training city; pipeline/confidence.h).
+// 68% of the position errors on the model's training cities; pipeline/confidence.h).
 // In the segment frame's units, and in metres / degrees of the ENU frame when
 // the segment is geo-registered (as a GNSS receiver or ARCore reports its
 // accuracy).
 struct PoseUncertainty {
   bool valid = false;
-  double position_sigma = 0;       // sqrt(trace Σ_centre), segment units
+  double position_sigma = 0;       // sigma_scale × sqrt(trace Σ_centre), segment units
   double rotation_sigma_deg = 0;   // sqrt(trace Σ_ω)
   std::optional<double> position_sigma_m, horizontal_sigma_m, vertical_sigma_m, heading_sigma_deg;
 };
