@@ -28,7 +28,9 @@ CascadeLookup::CascadeLookup(std::span<const HashCode> codes) : num_points_(code
   bitmap_.assign(kHashTables * kBitmapWords, 0);
   rank_.assign(kHashTables * kBitmapWords, 0);
   const bool small = n <= 65536;
-  (small ? ids16_.resize(kHashTables * n) : ids32_.resize(kHashTables * n));
+  // One id of padding: an empty bucket at a table's end starts at N, and the
+  // search reads a bucket's first id before it knows whether the bucket is empty.
+  (small ? ids16_.resize(kHashTables * n + 1) : ids32_.resize(kHashTables * n + 1));
   std::vector<uint32_t> count(kHashBuckets + 1);
   offsets_.clear();
   for (int k = 0; k < kHashTables; ++k) {
@@ -120,10 +122,10 @@ CascadeMatcher::CascadeMatcher(CascadeIndexView index, const PqCodebook& codeboo
 namespace {
 
 // Below this many ranked candidates the ADC distances are computed without the
-// table: measured (bench/micro_bench BM_KernelAdcDirect40) the table and its
-// lookups cost as much as ~70 direct distances with AVX2 or AVX-512 and ~40
-// with the scalar kernels.
-constexpr size_t kDirectAdcMaxCandidates = 48;
+// table. Measured (bench/micro_bench BM_KernelAdcDirect40): the table and its
+// lookups cost ~1.5 µs with AVX2 or AVX-512 and ~2.5 µs with the scalar
+// kernels; a direct distance ~7 ns with AVX2 and ~42 ns scalar.
+inline size_t direct_adc_max_candidates(SimdLevel level) { return level == SimdLevel::kScalar ? 48 : 160; }
 
 // The probes of one table: the exact bucket, then (radius 1) the 16 buckets
 // one bit away, in that order.
@@ -154,60 +156,97 @@ void coarse_sizes_impl(const CascadeLookup& lookup, const HashCode* codes, size_
   }
 }
 
-// Coarse: the union of the probed buckets, deduplicated by a per-point stamp.
-template <typename Id>
-inline void collect_candidates(const CascadeLookup& lookup, const Id* const* ids, const HashCode& code, int probes,
-                               uint32_t* stamp, uint32_t s, std::vector<uint32_t>& candidates) {
+// The probes of one feature: [begin, end) of every probed bucket, in probe
+// order (table 0..7; the exact bucket, then its one-bit neighbours), and the
+// sum of their sizes. Branch-free, so the loads of different probes overlap.
+struct ProbeRanges {
+  static constexpr int kMaxProbes = kHashTables * (kHashTableBits + 1);
+  uint32_t begin[kMaxProbes], end[kMaxProbes];
+  uint32_t listed = 0;  // Σ bucket sizes (the coarse size, before deduplication)
+};
+
+VISLOC_POPCNT_CLONES
+void probe_ranges(const CascadeLookup& lookup, const HashCode& code, int probes, ProbeRanges& r) {
+  uint32_t listed = 0;
+  int c = 0;
   for (int k = 0; k < kHashTables; ++k) {
     const uint32_t key = hash_subcode(code, k);
+    for (int b = 0; b < probes; ++b, ++c) {
+      lookup.bucket_range(k, probe_bucket(key, b), r.begin[c], r.end[c]);
+      listed += r.end[c] - r.begin[c];
+    }
+  }
+  r.listed = listed;
+}
+
+// Coarse: the union of the probed buckets, deduplicated by a per-point stamp,
+// in probe order (within a bucket, increasing point id), into `out` (room for
+// r.listed + 1). A bucket's first id is taken without a branch, since most
+// buckets hold 0 or 1 points: it is read even from an empty bucket (the
+// lookup's padding makes that safe), then counted only if the bucket has it
+// and it is new; the stamp is rewritten unchanged otherwise.
+template <typename Id>
+size_t gather_candidates(const Id* const* ids, const ProbeRanges& r, int probes, uint32_t* stamp, uint32_t s,
+                         uint32_t* out) {
+  size_t n = 0;
+  int c = 0;
+  for (int k = 0; k < kHashTables; ++k) {
     const Id* table_ids = ids[k];
-    for (int b = 0; b < probes; ++b) {
-      uint32_t begin, end;
-      lookup.bucket_range(k, probe_bucket(key, b), begin, end);
-      for (uint32_t i = begin; i < end; ++i) {
+    for (int b = 0; b < probes; ++b, ++c) {
+      const uint32_t begin = r.begin[c], end = r.end[c];
+      const uint32_t first = table_ids[begin];
+      const uint32_t old = stamp[first];
+      const bool non_empty = begin < end;
+      out[n] = first;
+      n += static_cast<size_t>(non_empty & (old != s));
+      stamp[first] = non_empty ? s : old;
+      for (uint32_t i = begin + 1; i < end; ++i) {
         const uint32_t id = table_ids[i];
-        if (stamp[id] != s) {
-          stamp[id] = s;
-          candidates.push_back(id);
-        }
+        out[n] = id;
+        n += static_cast<size_t>(stamp[id] != s);
+        stamp[id] = s;
       }
     }
   }
+  return n;
 }
 
-VISLOC_POPCNT_CLONES
-void collect_all(const CascadeLookup& lookup, const HashCode& code, int probes, uint32_t* stamp, uint32_t s,
-                 std::vector<uint32_t>& candidates) {
+size_t collect_all(const CascadeLookup& lookup, const ProbeRanges& r, int probes, uint32_t* stamp, uint32_t s,
+                   uint32_t* out) {
   if (lookup.uses_16bit_ids()) {
     const uint16_t* ids[kHashTables];
     for (int k = 0; k < kHashTables; ++k) ids[k] = lookup.ids16(k);
-    collect_candidates(lookup, ids, code, probes, stamp, s, candidates);
-  } else {
-    const uint32_t* ids[kHashTables];
-    for (int k = 0; k < kHashTables; ++k) ids[k] = lookup.ids32(k);
-    collect_candidates(lookup, ids, code, probes, stamp, s, candidates);
+    return gather_candidates(ids, r, probes, stamp, s, out);
   }
+  const uint32_t* ids[kHashTables];
+  for (int k = 0; k < kHashTables; ++k) ids[k] = lookup.ids32(k);
+  return gather_candidates(ids, r, probes, stamp, s, out);
 }
 
-// Refined: the `list` nearest of ws.candidates (more than `list`) by Hamming
-// distance, by a counting sort over 0..128, into ws.shortlist (candidate order
-// kept; of the candidates at the cut distance, the first ones).
-inline void refined_shortlist(const SearchKernels& kernels, const HashCode& code, const HashCode* codes,
+// Refined: the `list` nearest of the n candidates (more than `list`) by
+// Hamming distance, by a counting sort over 0..128, into the first `list`
+// entries of ws.shortlist (candidate order kept; of the candidates at the cut
+// distance, the first ones).
+inline void refined_shortlist(const SearchKernels& kernels, const HashCode& code, const HashCode* codes, size_t n,
                               uint32_t list, CascadeWorkspace& ws) {
   uint32_t hist[kHashBits + 1];
-  ws.hamming.resize(ws.candidates.size());
+  if (ws.hamming.size() < n) ws.hamming.resize(n);
   std::fill(std::begin(hist), std::end(hist), 0u);
-  kernels.hamming_distances(code, codes, ws.candidates.data(), ws.candidates.size(), ws.hamming.data(), hist);
+  kernels.hamming_distances(code, codes, ws.candidates.data(), n, ws.hamming.data(), hist);
   uint32_t cut = 0, below = 0;  // distances < cut all fit; some of distance == cut
   while (below + hist[cut] < list) below += hist[cut++];
+  // Branch-free selection: every candidate is written, and counted when it is
+  // below the cut or among the first `at_cut` at it.
   uint32_t at_cut = list - below;
-  ws.shortlist.clear();
-  for (size_t i = 0; i < ws.candidates.size(); ++i) {
-    if (ws.hamming[i] < cut) ws.shortlist.push_back(ws.candidates[i]);
-    else if (ws.hamming[i] == cut && at_cut > 0) {
-      ws.shortlist.push_back(ws.candidates[i]);
-      --at_cut;
-    }
+  if (ws.shortlist.size() < size_t(list) + 1) ws.shortlist.resize(size_t(list) + 1);
+  uint32_t* out = ws.shortlist.data();
+  size_t taken = 0;
+  for (size_t i = 0; i < n && taken < list; ++i) {
+    const uint32_t h = ws.hamming[i];
+    const uint32_t tie = static_cast<uint32_t>(h == cut) & static_cast<uint32_t>(at_cut > 0);
+    out[taken] = ws.candidates[i];
+    taken += static_cast<uint32_t>(h < cut) | tie;
+    at_cut -= tie;
   }
 }
 
@@ -288,13 +327,18 @@ void CascadeMatcher::match_hashed(const DescriptorMatrix& queries, std::span<con
   CascadeWorkspace& ws = *ws_;
   const CascadeLookup& lookup = *index_.lookup;
 
-  // 1. Search order: all features in index order, or by increasing coarse size.
+  // 1. Search order: by increasing coarse size (prioritized), or all features
+  //    in index order (their coarse sizes come with their probes below).
   Timer t;
-  coarse_sizes(codes, options.lut_radius, ws.sizes);
   ws.order.clear();
-  for (size_t f = 0; f < nq; ++f)
-    if (ws.sizes[f] >= 2) ws.order.push_back((uint64_t(ws.sizes[f]) << 32) | f);
-  if (options.prioritize) std::sort(ws.order.begin(), ws.order.end());
+  if (options.prioritize) {
+    coarse_sizes(codes, options.lut_radius, ws.sizes);
+    for (size_t f = 0; f < nq; ++f)
+      if (ws.sizes[f] >= 2) ws.order.push_back((uint64_t(ws.sizes[f]) << 32) | f);
+    std::sort(ws.order.begin(), ws.order.end());
+  } else {
+    for (size_t f = 0; f < nq; ++f) ws.order.push_back(f);
+  }
   out.stats.ms_order = t.elapsed_ms();
 
   // 2. Per feature: coarse → refined → precise.
@@ -309,6 +353,8 @@ void CascadeMatcher::match_hashed(const DescriptorMatrix& queries, std::span<con
   const size_t early = options.prioritize && options.early_stop > 0 ? size_t(options.early_stop) : SIZE_MAX;
   const int probes = options.lut_radius == 1 ? kHashTableBits + 1 : 1;
   float qf[kDescriptorDim];
+  ProbeRanges ranges;
+  std::span<const uint32_t> ranked;
 
   for (uint64_t entry : ws.order) {
     if (out.query.size() >= early) {
@@ -317,42 +363,45 @@ void CascadeMatcher::match_hashed(const DescriptorMatrix& queries, std::span<con
     }
     const uint32_t f = static_cast<uint32_t>(entry & 0xffffffffu);
     const HashCode code = codes[f];
+    probe_ranges(lookup, code, probes, ranges);
+    if (ranges.listed < 2) continue;  // not searched: no ratio test possible
     if (++ws.stamp_value == 0) {  // wrapped: reset the stamps once every 2^32 features
       std::fill(ws.stamp.begin(), ws.stamp.end(), 0u);
       ws.stamp_value = 1;
     }
-    ws.candidates.clear();
-    collect_all(lookup, code, probes, ws.stamp.data(), ws.stamp_value, ws.candidates);
-    out.stats.coarse_candidates += ws.candidates.size();
+    if (ws.candidates.size() < size_t(ranges.listed) + 1) ws.candidates.resize(size_t(ranges.listed) + 1);
+    const size_t n_candidates =
+        collect_all(lookup, ranges, probes, ws.stamp.data(), ws.stamp_value, ws.candidates.data());
+    out.stats.coarse_candidates += n_candidates;
     ++out.stats.features_searched;
-    if (ws.candidates.size() < 2) continue;
+    if (n_candidates < 2) continue;
 
     // Refined: top L_R by Hamming distance.
-    const std::vector<uint32_t>* ranked = &ws.candidates;
-    if (options.refined && ws.candidates.size() > size_t(options.refined_list)) {
-      refined_shortlist(kernels, code, index_.codes, uint32_t(options.refined_list), ws);
-      ranked = &ws.shortlist;
+    ranked = std::span<const uint32_t>(ws.candidates.data(), n_candidates);
+    if (options.refined && n_candidates > size_t(options.refined_list)) {
+      refined_shortlist(kernels, code, index_.codes, n_candidates, uint32_t(options.refined_list), ws);
+      ranked = std::span<const uint32_t>(ws.shortlist.data(), size_t(options.refined_list));
     }
-    out.stats.ranked_candidates += ranked->size();
+    out.stats.ranked_candidates += ranked.size();
 
     // Precise: PQ asymmetric distances, the `keep` nearest by insertion.
     const uint8_t* q = queries.row(f);
     for (int j = 0; j < kDescriptorDim; ++j) qf[j] = q[j];
     // A short list (L_R = 40 after the refined step) costs less without the
-    // 16 × 256 table; both paths give the same distances bit for bit.
-    ws.ranked_distances.resize(ranked->size());
-    if (ranked->size() <= kDirectAdcMaxCandidates) {
-      kernels.adc_direct(codebook_->centroids().data(), qf, index_.pq_codes, ranked->data(), ranked->size(),
+    // 16 × 256 table; the two paths' distances differ by float rounding only,
+    // and every candidate of a feature takes the same path.
+    ws.ranked_distances.resize(ranked.size());
+    if (ranked.size() <= direct_adc_max_candidates(kernels.level)) {
+      kernels.adc_direct(codebook_->centroids().data(), qf, index_.pq_codes, ranked.data(), ranked.size(),
                          ws.ranked_distances.data());
     } else {
       kernels.adc_table(codebook_->centroids_transposed(), qf, ws.table.data());
-      kernels.adc_distances(ws.table.data(), index_.pq_codes, ranked->data(), ranked->size(),
-                            ws.ranked_distances.data());
+      kernels.adc_distances(ws.table.data(), index_.pq_codes, ranked.data(), ranked.size(), ws.ranked_distances.data());
     }
     int filled = 0;
-    for (size_t r = 0; r < ranked->size(); ++r) {
+    for (size_t r = 0; r < ranked.size(); ++r) {
       const float d = ws.ranked_distances[r];
-      const uint32_t id = (*ranked)[r];
+      const uint32_t id = ranked[r];
       if (filled == keep && d >= best_d[keep - 1]) continue;
       int pos = filled < keep ? filled++ : keep - 1;
       while (pos > 0 && best_d[pos - 1] > d) {

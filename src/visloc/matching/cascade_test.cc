@@ -2,6 +2,7 @@
 
 #include <Eigen/Dense>
 #include <algorithm>
+#include <bit>
 #include <filesystem>
 #include <random>
 
@@ -219,6 +220,57 @@ TEST(CascadeIndex, LargeSegmentsUse32BitIds) {
   CascadeLookup lookup(codes);
   ASSERT_FALSE(lookup.uses_16bit_ids());
   expect_csr_of_subcodes(lookup, codes, &CascadeLookup::ids32);
+}
+
+// The coarse list of a feature is exactly the set of points that share a
+// probed bucket with it: checked against brute force over every point, one
+// feature at a time, for 16-bit and 32-bit point ids, both radii, and buckets
+// crowded and sparse (so that empty, single and multi-point buckets and the
+// last bucket of a table are all probed).
+TEST(CascadeSearch, CoarseListsAreTheUnionOfTheProbedBuckets) {
+  std::mt19937_64 rng(12);
+  std::vector<float> train(300 * 128);
+  for (auto& x : train) x = float(rng() % 200);
+  const PqCodebook codebook = PqCodebook::train(train.data(), 300, {.iterations = 2});
+  for (size_t points : {3000u, 70000u}) {
+    std::vector<HashCode> codes(points);
+    for (auto& c : codes) {  // table 3's last bucket crowded; tables 4-7 crowded or sparse
+      c = {{rng(), rng() & 0xFFFF00FF00FFull}};
+      if (rng() % 8 == 0) c.w[0] |= 0xFFFF000000000000ull;
+    }
+    std::vector<uint8_t> pq(points * kPqCodeBytes);
+    for (auto& b : pq) b = static_cast<uint8_t>(rng());
+    const CascadeLookup lookup(codes);
+    ASSERT_EQ(lookup.uses_16bit_ids(), points <= 65536);
+    BinaryHasher unused;
+    CascadeMatcher matcher({points, unused.view(), codes.data(), pq.data(), &lookup}, codebook);
+    DescriptorMatrix one(1);
+    for (int q = 0; q < 60; ++q) {
+      HashCode code = codes[rng() % points];
+      code.w[0] ^= uint64_t(1) << (rng() % 64);
+      if (q % 3 == 0) code = {{rng(), rng()}};
+      for (int radius : {0, 1}) {
+        size_t listed = 0, distinct = 0;
+        for (const HashCode& c : codes) {
+          size_t tables = 0;
+          for (int k = 0; k < kHashTables; ++k)
+            tables += std::popcount(hash_subcode(c, k) ^ hash_subcode(code, k)) <= radius;
+          listed += tables;
+          distinct += tables > 0;
+        }
+        CascadeSearchOptions o;
+        o.lut_radius = radius;
+        o.refined = false;
+        o.prioritize = false;
+        CascadeMatches m;
+        matcher.match_hashed(one, std::span<const HashCode>(&code, 1), o, m);
+        SCOPED_TRACE(::testing::Message() << points << " points, query " << q << ", radius " << radius);
+        EXPECT_EQ(m.stats.features_searched, listed >= 2 ? 1u : 0u);
+        EXPECT_EQ(m.stats.coarse_candidates, listed >= 2 ? distinct : 0u);
+        EXPECT_EQ(m.stats.ranked_candidates, listed >= 2 && distinct >= 2 ? distinct : 0u);
+      }
+    }
+  }
 }
 
 TEST(CascadeSearch, FindsPlantedMatches) {

@@ -42,21 +42,29 @@ void adc_distances_scalar(const float* table, const uint8_t* pq, const uint32_t*
   for (size_t i = 0; i < n; ++i) out[i] = adc_distance(table, pq + size_t(ids[i]) * kPqCodeBytes);
 }
 
+// The direct distance's own order, which its SIMD variant follows lane for
+// lane: per dimension j, two partial sums over the sub-vectors (even m, odd
+// m, each in increasing m), added; then the 8 dimensions by a fixed tree
+// ((0+4)+(2+6)) + ((1+5)+(3+7)).
 void adc_direct_scalar(const float* c, const float* q, const uint8_t* pq, const uint32_t* ids, size_t n,
                        float* out) {
   for (size_t i = 0; i < n; ++i) {
     const uint8_t* code = pq + size_t(ids[i]) * kPqCodeBytes;
-    float total = 0;
-    for (int m = 0; m < kPqSubvectors; ++m) {
-      const float* ck = c + (size_t(m) * kPqCentroids + code[m]) * kPqSubDim;
-      float d = 0;
+    float even[kPqSubDim] = {}, odd[kPqSubDim] = {};
+    for (int m = 0; m < kPqSubvectors; m += 2) {
+      const float* c0 = c + (size_t(m) * kPqCentroids + code[m]) * kPqSubDim;
+      const float* c1 = c + (size_t(m + 1) * kPqCentroids + code[m + 1]) * kPqSubDim;
       for (int j = 0; j < kPqSubDim; ++j) {
-        const float e = q[m * kPqSubDim + j] - ck[j];
-        d += e * e;
+        const float e0 = q[m * kPqSubDim + j] - c0[j];
+        const float e1 = q[(m + 1) * kPqSubDim + j] - c1[j];
+        even[j] = even[j] + e0 * e0;
+        odd[j] = odd[j] + e1 * e1;
       }
-      total += d;
     }
-    out[i] = total;
+    float s[kPqSubDim];
+    for (int j = 0; j < kPqSubDim; ++j) s[j] = even[j] + odd[j];
+    const float h0 = s[0] + s[4], h1 = s[1] + s[5], h2 = s[2] + s[6], h3 = s[3] + s[7];
+    out[i] = (h0 + h2) + (h1 + h3);
   }
 }
 
@@ -191,38 +199,30 @@ __attribute__((target("avx2"))) void hash_codes_avx2(const float* wt, const floa
   hash_codes_avx2_rows(wt, x + r0 * kDescriptorDim, n - r0, codes + r0);
 }
 
-// Lanes are sub-vectors (two halves of 8): per dimension j, the candidate's
-// 8 centroid values are gathered; each lane's sum over j is the table entry,
-// then the entries are added in order m = 0..15, as the reference.
+// Lanes are the 8 dimensions: each centroid row is one 8-float load, the
+// sub-vectors accumulate into two registers (even and odd m), and one
+// horizontal sum per candidate follows adc_direct_scalar's tree.
 __attribute__((target("avx2"))) void adc_direct_avx2(const float* c, const float* q, const uint8_t* pq,
                                                      const uint32_t* ids, size_t n, float* out) {
-  __m256 qt[2][kPqSubDim];  // qt[h][j] lane l = q[(8h + l)·8 + j]
-  for (int h = 0; h < 2; ++h)
-    for (int j = 0; j < kPqSubDim; ++j) {
-      alignas(32) float v[8];
-      for (int l = 0; l < 8; ++l) v[l] = q[(8 * h + l) * kPqSubDim + j];
-      qt[h][j] = _mm256_load_ps(v);
-    }
-  const __m256i lane_base = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+  __m256 qm[kPqSubvectors];
+  for (int m = 0; m < kPqSubvectors; ++m) qm[m] = _mm256_loadu_ps(q + m * kPqSubDim);
+  constexpr size_t kAhead = 4;  // the codes of a later candidate are fetched while this one is summed
   for (size_t i = 0; i < n; ++i) {
+    if (i + kAhead < n)
+      _mm_prefetch(reinterpret_cast<const char*>(pq + size_t(ids[i + kAhead]) * kPqCodeBytes), _MM_HINT_T0);
     const uint8_t* code = pq + size_t(ids[i]) * kPqCodeBytes;
-    alignas(32) float entries[kPqSubvectors];
-    for (int h = 0; h < 2; ++h) {
-      const __m256i b = _mm256_cvtepu8_epi32(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(code + 8 * h)));
-      // Float index of centroid (m, b_m): (m·256 + b_m)·8.
-      const __m256i m = _mm256_add_epi32(lane_base, _mm256_set1_epi32(8 * h));
-      const __m256i base = _mm256_slli_epi32(_mm256_add_epi32(_mm256_slli_epi32(m, 8), b), 3);
-      __m256 acc = _mm256_setzero_ps();
-      for (int j = 0; j < kPqSubDim; ++j) {
-        const __m256 cj = _mm256_i32gather_ps(c, _mm256_add_epi32(base, _mm256_set1_epi32(j)), 4);
-        const __m256 e = _mm256_sub_ps(qt[h][j], cj);
-        acc = _mm256_add_ps(acc, _mm256_mul_ps(e, e));
-      }
-      _mm256_store_ps(entries + 8 * h, acc);
+    __m256 even = _mm256_setzero_ps(), odd = _mm256_setzero_ps();
+    for (int m = 0; m < kPqSubvectors; m += 2) {
+      const __m256 e0 = _mm256_sub_ps(qm[m], _mm256_loadu_ps(c + (size_t(m) * kPqCentroids + code[m]) * kPqSubDim));
+      const __m256 e1 =
+          _mm256_sub_ps(qm[m + 1], _mm256_loadu_ps(c + (size_t(m + 1) * kPqCentroids + code[m + 1]) * kPqSubDim));
+      even = _mm256_add_ps(even, _mm256_mul_ps(e0, e0));
+      odd = _mm256_add_ps(odd, _mm256_mul_ps(e1, e1));
     }
-    float total = 0;
-    for (int mm = 0; mm < kPqSubvectors; ++mm) total += entries[mm];
-    out[i] = total;
+    const __m256 s = _mm256_add_ps(even, odd);
+    const __m128 h = _mm_add_ps(_mm256_castps256_ps128(s), _mm256_extractf128_ps(s, 1));  // s_j + s_{j+4}
+    const __m128 g = _mm_add_ps(h, _mm_movehl_ps(h, h));                                  // (h0+h2, h1+h3)
+    out[i] = _mm_cvtss_f32(_mm_add_ss(g, _mm_shuffle_ps(g, g, 1)));
   }
 }
 
@@ -268,35 +268,6 @@ __attribute__((target("avx512f"))) void adc_distances_avx512(const float* table,
   adc_distances_avx2(table, pq, ids + i, n - i, out + i);
 }
 
-// Lanes are the 16 sub-vectors: as adc_direct_avx2 in one register.
-__attribute__((target("avx512f"))) void adc_direct_avx512(const float* c, const float* q, const uint8_t* pq,
-                                                           const uint32_t* ids, size_t n, float* out) {
-  __m512 qt[kPqSubDim];  // qt[j] lane m = q[m·8 + j]
-  for (int j = 0; j < kPqSubDim; ++j) {
-    alignas(64) float v[kPqSubvectors];
-    for (int m = 0; m < kPqSubvectors; ++m) v[m] = q[m * kPqSubDim + j];
-    qt[j] = _mm512_load_ps(v);
-  }
-  const __m512i m_base = _mm512_slli_epi32(
-      _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15), 8);  // m·256
-  for (size_t i = 0; i < n; ++i) {
-    const uint8_t* code = pq + size_t(ids[i]) * kPqCodeBytes;
-    const __m512i b = _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(code)));
-    const __m512i base = _mm512_slli_epi32(_mm512_add_epi32(m_base, b), 3);
-    __m512 acc = _mm512_setzero_ps();
-    for (int j = 0; j < kPqSubDim; ++j) {
-      const __m512 cj = _mm512_i32gather_ps(_mm512_add_epi32(base, _mm512_set1_epi32(j)), c, 4);
-      const __m512 e = _mm512_sub_ps(qt[j], cj);
-      acc = _mm512_add_ps(acc, _mm512_mul_ps(e, e));
-    }
-    alignas(64) float entries[kPqSubvectors];
-    _mm512_store_ps(entries, acc);
-    float total = 0;
-    for (int m = 0; m < kPqSubvectors; ++m) total += entries[m];
-    out[i] = total;
-  }
-}
-
 // Blocks of 8 rows × 32 outputs (16 accumulators): the 16 KiB slice of W
 // for 32 outputs stays in L1 while 8 rows pass over it; each output is still
 // summed over j = 0..127 in order, as the reference.
@@ -337,8 +308,8 @@ constexpr SearchKernels kScalarKernels{SimdLevel::kScalar, hamming_scalar,    ad
 #ifdef VISLOC_X86_KERNELS
 constexpr SearchKernels kAvx2Kernels{SimdLevel::kAvx2,   hamming_popcnt,  adc_table_avx2,
                                      adc_distances_avx2, adc_direct_avx2, hash_codes_avx2};
-constexpr SearchKernels kAvx512Kernels{SimdLevel::kAvx512,     hamming_popcnt,    adc_table_avx512,
-                                       adc_distances_avx512, adc_direct_avx512, hash_codes_avx512};
+constexpr SearchKernels kAvx512Kernels{SimdLevel::kAvx512,   hamming_popcnt,  adc_table_avx512,
+                                       adc_distances_avx512, adc_direct_avx2, hash_codes_avx512};
 #endif
 
 SimdLevel best_level() {

@@ -6,9 +6,9 @@
 // are compiled for the newer instruction sets (GCC target attributes).
 //
 // Every variant returns bit-identical results to the reference: the ADC sums
-// are accumulated in the same order (sub-vector 0..15, dimension 0..7) with
-// separate multiplies and adds (no fused multiply-add), so a SIMD search
-// returns the same matches as the scalar one.
+// are accumulated in the reference's order with separate multiplies and adds
+// (no fused multiply-add), so a SIMD search returns the same matches as the
+// scalar one.
 //
 //   hamming_distances  d_i = popcount(q ⊕ codes[ids_i]) over 2 × 64-bit words,
 //                      and a histogram of d over 0..128 (the refined step's
@@ -16,10 +16,12 @@
 //   adc_table          the query's 16 × 256 table of squared sub-distances,
 //                      from centroids transposed to [m][j][k] (PqCodebook)
 //   adc_distances      d_i = Σ_m table[m·256 + pq_codes[ids_i·16 + m]]
-//   adc_direct         the same distances as adc_table + adc_distances without
-//                      the table: each candidate's 16 entries computed from
-//                      the centroids ([m][k][j]) as the table computes them
-//                      (cheaper when a feature ranks fewer than ~100 candidates)
+//   adc_direct         the same distances as adc_table + adc_distances, up to
+//                      float rounding, without the table: per candidate, its
+//                      16 centroid rows ([m][k][j]) are loaded whole and the
+//                      squares summed over m per dimension, then over the 8
+//                      dimensions (adc_direct_scalar gives the order). Cheaper
+//                      when a feature ranks fewer than ~100 candidates.
 //   hash_codes         bit i of row r = [Σ_j Wᵀ[j][i] · x_rj > 0] over j = 0..127
 //                      in order (x centred): the ITQ/LSH projection's signs
 #pragma once
