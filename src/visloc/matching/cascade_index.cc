@@ -103,7 +103,7 @@ void CascadeMatches::clear() {
 size_t CascadeWorkspace::capacity_bytes() const {
   return stamp.capacity() * 4 + query_codes.capacity() * sizeof(HashCode) + sizes.capacity() * 4 +
          order.capacity() * 8 + candidates.capacity() * 4 + hamming.capacity() + shortlist.capacity() * 4 +
-         ranked_distances.capacity() * 4 + encode.capacity() * 4 + table.capacity() * 4;
+         ranked_distances.capacity() * 4 + encode.capacity() * 4 + table.capacity() * 4 + counts.capacity() * 4;
 }
 
 CascadeMatcher::CascadeMatcher(CascadeIndexView index, const PqCodebook& codebook)
@@ -281,6 +281,31 @@ inline void emit_matches(uint32_t f, const float* best_d, const uint32_t* best_i
   }
 }
 
+// Features sorted by (size, index), those of size ≥ min_size, as
+// size << 32 | index: a counting sort over the sizes (stable, so ties stay in
+// index order), or std::sort when the sizes are large.
+void sort_by_size(const uint32_t* sizes, size_t n, uint32_t min_size, std::vector<uint32_t>& counts,
+                  std::vector<uint64_t>& order) {
+  order.clear();
+  uint32_t largest = 0;
+  for (size_t f = 0; f < n; ++f) largest = std::max(largest, sizes[f]);
+  constexpr uint32_t kCountingSortMax = 1u << 16;
+  if (largest >= kCountingSortMax) {
+    for (size_t f = 0; f < n; ++f)
+      if (sizes[f] >= min_size) order.push_back((uint64_t(sizes[f]) << 32) | f);
+    std::sort(order.begin(), order.end());
+    return;
+  }
+  counts.assign(size_t(largest) + 2, 0u);
+  size_t kept = 0;
+  for (size_t f = 0; f < n; ++f)
+    if (sizes[f] >= min_size) ++counts[sizes[f] + 1], ++kept;
+  for (size_t v = 1; v < counts.size(); ++v) counts[v] += counts[v - 1];
+  order.resize(kept);
+  for (size_t f = 0; f < n; ++f)
+    if (sizes[f] >= min_size) order[counts[sizes[f]]++] = (uint64_t(sizes[f]) << 32) | f;
+}
+
 }  // namespace
 
 void CascadeMatcher::coarse_sizes(std::span<const HashCode> codes, int radius, std::vector<uint32_t>& sizes) const {
@@ -327,17 +352,16 @@ void CascadeMatcher::match_hashed(const DescriptorMatrix& queries, std::span<con
   CascadeWorkspace& ws = *ws_;
   const CascadeLookup& lookup = *index_.lookup;
 
-  // 1. Search order: by increasing coarse size (prioritized), or all features
-  //    in index order (their coarse sizes come with their probes below).
+  // 1. Search order: by increasing (coarse size, index) when prioritized;
+  //    otherwise every feature in index order (its coarse size comes with its
+  //    probes below).
   Timer t;
-  ws.order.clear();
   if (options.prioritize) {
     coarse_sizes(codes, options.lut_radius, ws.sizes);
-    for (size_t f = 0; f < nq; ++f)
-      if (ws.sizes[f] >= 2) ws.order.push_back((uint64_t(ws.sizes[f]) << 32) | f);
-    std::sort(ws.order.begin(), ws.order.end());
+    sort_by_size(ws.sizes.data(), nq, 2, ws.counts, ws.order);
   } else {
-    for (size_t f = 0; f < nq; ++f) ws.order.push_back(f);
+    ws.order.resize(nq);
+    for (size_t f = 0; f < nq; ++f) ws.order[f] = f;
   }
   out.stats.ms_order = t.elapsed_ms();
 

@@ -170,6 +170,7 @@ struct CascadeWorkspace {
   std::vector<HashCode> query_codes;
   std::vector<uint32_t> sizes;
   std::vector<uint64_t> order;
+  std::vector<uint32_t> counts;  // the counting sort of the search order
   std::vector<uint32_t> candidates;
   std::vector<uint8_t> hamming;
   std::vector<uint32_t> shortlist;

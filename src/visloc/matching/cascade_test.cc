@@ -341,9 +341,22 @@ TEST(CascadeSearch, PrioritizationOrderAndEarlyStop) {
     ASSERT_NE(it, all.query.end());
     EXPECT_EQ(all.point[it - all.query.begin()], early.point[i]);
   }
-  // With early stop 0 the prioritized search is complete.
+  // With early stop 0 the prioritized search is complete, and its matches
+  // come in the order of a full sort by (coarse size, feature index), at both
+  // radii.
   pri.early_stop = 0;
-  EXPECT_EQ(matcher.match(q, pri).query.size(), all.query.size());
+  for (int radius : {0, 1}) {
+    pri.lut_radius = radius;
+    full.lut_radius = radius;
+    const CascadeMatches complete = matcher.match(q, pri);
+    const CascadeMatches unordered = matcher.match(q, full);
+    EXPECT_EQ(complete.query.size(), unordered.query.size());
+    matcher.coarse_sizes(qc, radius, sizes);
+    std::vector<uint32_t> expected = unordered.query;
+    std::sort(expected.begin(), expected.end(),
+              [&](uint32_t a, uint32_t b) { return std::pair(sizes[a], a) < std::pair(sizes[b], b); });
+    EXPECT_EQ(complete.query, expected) << "radius " << radius;
+  }
   pri.refined_list = 1;
   EXPECT_THROW(matcher.match(q, pri), Error);
 }
