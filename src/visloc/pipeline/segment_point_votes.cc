@@ -1,6 +1,7 @@
 #include "visloc/pipeline/segment_point_votes.h"
 
 #include <algorithm>
+#include <concepts>
 
 #include "visloc/util/error.h"
 
@@ -74,6 +75,15 @@ struct SegmentPointVotes::Nearest {
   }
 };
 
+// The x86-64 clone compiled with POPCNT makes the Hamming distances' popcount
+// one instruction (chosen at run time by the loader), as in the cascade search.
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#define VISLOC_POPCNT_CLONES __attribute__((target_clones("popcnt", "default")))
+#else
+#define VISLOC_POPCNT_CLONES
+#endif
+
+VISLOC_POPCNT_CLONES
 bool SegmentPointVotes::nearest(const HashCode& q, const uint8_t* excluded, Nearest& out, size_t& compared) const {
   out.reset(static_cast<uint32_t>(options_.max_hamming));
   bool skipped_a_bucket = false;
@@ -95,19 +105,33 @@ bool SegmentPointVotes::nearest(const HashCode& q, const uint8_t* excluded, Near
   return out.count > 0;
 }
 
-bool SegmentPointVotes::probe_bucket(int table, uint32_t key, const HashCode& q, const uint8_t* excluded, Nearest& out,
-                                     size_t& compared, int max_bucket) const {
+// A point's segment is read only when its distance could be offered (the
+// nearest so far or a tie): most points of a bucket are farther.
+template <typename Id>
+inline void offer_bucket(const Id* ids, uint32_t begin, uint32_t end, const HashCode& q, const HashCode* codes,
+                         const uint32_t* segment_of, const uint8_t* excluded, uint32_t& distance,
+                         std::invocable<uint32_t, uint32_t> auto&& offer) {
+  for (uint32_t i = begin; i < end; ++i) {
+    const uint32_t id = ids[i];
+    const uint32_t d = hamming_distance(q, codes[id]);
+    if (d > distance) continue;
+    const uint32_t segment = segment_of[id];
+    if (excluded && excluded[segment]) continue;
+    offer(d, segment);
+  }
+}
+
+inline bool SegmentPointVotes::probe_bucket(int table, uint32_t key, const HashCode& q, const uint8_t* excluded,
+                                            Nearest& out, size_t& compared, int max_bucket) const {
   uint32_t begin, end;
   lookup_.bucket_range(table, key, begin, end);
   if (end - begin > static_cast<uint32_t>(max_bucket)) return false;
   compared += end - begin;
-  const bool ids16 = lookup_.uses_16bit_ids();
-  for (uint32_t i = begin; i < end; ++i) {
-    const uint32_t id = ids16 ? lookup_.ids16(table)[i] : lookup_.ids32(table)[i];
-    const uint32_t segment = segment_of_[id];
-    if (excluded && excluded[segment]) continue;
-    out.offer(hamming_distance(q, codes_[id]), segment);
-  }
+  auto offer = [&out](uint32_t d, uint32_t segment) { out.offer(d, segment); };
+  if (lookup_.uses_16bit_ids())
+    offer_bucket(lookup_.ids16(table), begin, end, q, codes_.data(), segment_of_.data(), excluded, out.distance, offer);
+  else
+    offer_bucket(lookup_.ids32(table), begin, end, q, codes_.data(), segment_of_.data(), excluded, out.distance, offer);
   return true;
 }
 
