@@ -116,11 +116,11 @@ TEST(CityBenchmark, SmallCityRunsAndResumes) {
   // (what `bench city` runs in a fresh process) reads the build summary.
   const auto city_time = fs::last_write_time(dir / "city" / "city.json");
   o.stage = CityBenchmarkStage::kLocalize;
-  o.localizer.point_votes.probe_radius = 1;  // the report records the point-vote options
+  o.localizer.point_votes.probe_radius = 0;  // the report records the point-vote options
   const nlohmann::json again = run_city_benchmark(dir, o);
   EXPECT_TRUE(again["localized_in_separate_process"].get<bool>());
-  EXPECT_EQ(r["segment_votes"]["probe_radius"].get<int>(), 0);
-  EXPECT_EQ(again["segment_votes"]["probe_radius"].get<int>(), 1);
+  EXPECT_EQ(r["segment_votes"]["probe_radius"].get<int>(), 1);
+  EXPECT_EQ(again["segment_votes"]["probe_radius"].get<int>(), 0);
   EXPECT_EQ(again["segment_votes"]["points_per_segment"].get<int>(), o.localizer.point_votes.points_per_segment);
   EXPECT_GT(again["peak_memory_bytes_city_queries"].get<uint64_t>(), 0u);
   EXPECT_LE(again["peak_memory_bytes_city_queries"].get<uint64_t>(),

@@ -51,7 +51,11 @@ struct SegmentPointVoteOptions {
   int points_per_segment = 8192;  // points indexed per segment (0: all)
   int max_hamming = 32;           // a vote needs a point at most this far (bits of 128)
   int max_bucket = 4096;          // buckets with more points are not probed (radius 1's: max(1, max_bucket / 16))
-  int probe_radius = 0;           // per table, the feature's sub-code's bucket (0), also the 16 1 bit off (1)
+  // Per table, the feature's sub-code's bucket (0), also the 16 1 bit off (1).
+  // 1 by default: on the 13-segment city it puts the true segment
+  // among the candidates for 95.4% of positives against 93.3% and registers
+  // 474/495 against 465, for 28 ms per query against 11 (excluding features).
+  int probe_radius = 1;
   // Divide each segment's votes by its rate of chance votes: how often the
   // points of unrelated segments (sharing no image with it) find their
   // nearest point in it, relative to the mean over segments, clamped to
