@@ -121,11 +121,13 @@ CascadeMatcher::CascadeMatcher(CascadeIndexView index, const PqCodebook& codeboo
 
 namespace {
 
-// Below this many ranked candidates the ADC distances are computed without the
+// Up to this many ranked candidates the ADC distances are computed without the
 // table. Measured (bench/micro_bench BM_KernelAdcDirect40): the table and its
 // lookups cost ~1.5 µs with AVX2 or AVX-512 and ~2.5 µs with the scalar
-// kernels; a direct distance ~7 ns with AVX2 and ~42 ns scalar.
-inline size_t direct_adc_max_candidates(SimdLevel level) { return level == SimdLevel::kScalar ? 48 : 160; }
+// kernels; a direct distance ~7 ns with AVX2 and ~42 ns scalar. One bound for
+// every level: the two paths round differently, and every level must give the
+// same matches (so the scalar kernels pay up to ~2× between 60 and 160).
+constexpr size_t kDirectAdcMaxCandidates = 160;
 
 // The probes of one table: the exact bucket, then (radius 1) the 16 buckets
 // one bit away, in that order.
@@ -415,7 +417,7 @@ void CascadeMatcher::match_hashed(const DescriptorMatrix& queries, std::span<con
     // 16 × 256 table; the two paths' distances differ by float rounding only,
     // and every candidate of a feature takes the same path.
     ws.ranked_distances.resize(ranked.size());
-    if (ranked.size() <= direct_adc_max_candidates(kernels.level)) {
+    if (ranked.size() <= kDirectAdcMaxCandidates) {
       kernels.adc_direct(codebook_->centroids().data(), qf, index_.pq_codes, ranked.data(), ranked.size(),
                          ws.ranked_distances.data());
     } else {

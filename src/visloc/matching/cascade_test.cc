@@ -245,31 +245,44 @@ TEST(CascadeSearch, CoarseListsAreTheUnionOfTheProbedBuckets) {
     BinaryHasher unused;
     CascadeMatcher matcher({points, unused.view(), codes.data(), pq.data(), &lookup}, codebook);
     DescriptorMatrix one(1);
+    size_t complete_lists = 0;
     for (int q = 0; q < 60; ++q) {
       HashCode code = codes[rng() % points];
       code.w[0] ^= uint64_t(1) << (rng() % 64);
       if (q % 3 == 0) code = {{rng(), rng()}};
       for (int radius : {0, 1}) {
-        size_t listed = 0, distinct = 0;
-        for (const HashCode& c : codes) {
+        size_t listed = 0;
+        std::vector<uint32_t> expected;
+        for (uint32_t p = 0; p < points; ++p) {
           size_t tables = 0;
           for (int k = 0; k < kHashTables; ++k)
-            tables += std::popcount(hash_subcode(c, k) ^ hash_subcode(code, k)) <= radius;
+            tables += std::popcount(hash_subcode(codes[p], k) ^ hash_subcode(code, k)) <= radius;
           listed += tables;
-          distinct += tables > 0;
+          if (tables > 0) expected.push_back(p);
         }
+        const size_t distinct = expected.size();
+        // Ratios 1 and M = 64: the 1-M list holds the 64 nearest candidates
+        // (all of them when there are at most 64), which must be listed points.
         CascadeSearchOptions o;
         o.lut_radius = radius;
         o.refined = false;
         o.prioritize = false;
+        o.ratio_one_to_one = o.ratio_one_to_many = 1.0f;
+        o.max_one_to_many = 64;
         CascadeMatches m;
         matcher.match_hashed(one, std::span<const HashCode>(&code, 1), o, m);
         SCOPED_TRACE(::testing::Message() << points << " points, query " << q << ", radius " << radius);
         EXPECT_EQ(m.stats.features_searched, listed >= 2 ? 1u : 0u);
         EXPECT_EQ(m.stats.coarse_candidates, listed >= 2 ? distinct : 0u);
         EXPECT_EQ(m.stats.ranked_candidates, listed >= 2 && distinct >= 2 ? distinct : 0u);
+        std::vector<uint32_t> found = m.many_points;
+        std::sort(found.begin(), found.end());
+        EXPECT_TRUE(std::includes(expected.begin(), expected.end(), found.begin(), found.end()));
+        if (!m.many_query.empty() && distinct <= 64) EXPECT_EQ(found, expected);
+        if (listed >= 2 && distinct >= 2 && distinct <= 64) ++complete_lists;
       }
     }
+    EXPECT_GE(complete_lists, 10u) << "too few queries whose whole coarse list is checked";
   }
 }
 
@@ -458,9 +471,18 @@ TEST(CascadeSearch, EveryKernelLevelAndAReusedWorkspaceGiveTheSameMatches) {
   std::vector<size_t> rows;
   for (size_t i = 0; i < 600; ++i) rows.push_back(i * 7 % db.rows());
   DescriptorMatrix q = perturbed(db, rows, 6, 23);
-  for (bool prioritize : {false, true}) {
+  // Also without the refined step and with a longer L_R: 49-160 ranked
+  // candidates, where the direct ADC path must be taken at every level.
+  struct Config {
+    bool prioritize, refined;
+    int refined_list;
+  };
+  for (const Config& config :
+       {Config{false, true, 40}, Config{true, true, 40}, Config{false, false, 40}, Config{false, true, 100}}) {
     CascadeSearchOptions o;
-    o.prioritize = prioritize;
+    o.prioritize = config.prioritize;
+    o.refined = config.refined;
+    o.refined_list = config.refined_list;
     o.simd = SimdLevel::kScalar;
     const CascadeMatches ref = CascadeMatcher(t.view(), t.codebook).match(q, o);
     ASSERT_GT(ref.query.size(), 50u);

@@ -164,8 +164,7 @@ TEST(SearchKernels, HashCodesMatchTheReference) {
 
 // The direct distances: every level equals the scalar reference bit for bit;
 // they are the table's distances summed in another order, so equal to them
-// within float rounding (relative 1e-5), and exact for the first and last
-// centroids of every sub-space.
+// within float rounding (relative 1e-5).
 TEST(SearchKernels, AdcDirectEqualsItsReferenceAndTheTableWithinRounding) {
   const PqCodebook cb = random_codebook(7);
   std::mt19937 rng(8);

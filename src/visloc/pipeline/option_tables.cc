@@ -27,9 +27,8 @@ void add_options(OptionTable& t, LocalizerOptions& o) {
   t.add("--vote-radius", o.point_votes.probe_radius,
         "Point votes: lookup-table buckets probed per table: the feature's 16-bit sub-code (0) and also "
         "those 1 bit off it (1, the default: up to 17 buckets, only when radius 0 found no point within 7 bits or "
-        "skipped an "
-        "overfull bucket; finds "
-        "matches that differ in more bits; its buckets are skipped above a sixteenth of the bucket bound)")
+        "skipped an overfull bucket; finds matches that differ in more bits; its buckets are skipped above a "
+        "sixteenth of the bucket bound)")
       .range(0, 1);
   t.flag("--vote-chance-normalization", o.point_votes.normalize_by_chance,
          "Point votes: divide each segment's votes by its rate of chance votes from unrelated segments' points");

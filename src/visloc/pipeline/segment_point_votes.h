@@ -111,8 +111,8 @@ class SegmentPointVotes {
   bool nearest(const HashCode& q, const uint8_t* excluded, Nearest& out, size_t& compared) const;
   // Offers the points of bucket `key` of `table`; false (nothing offered) when
   // it holds more than max_bucket points.
-  bool probe_bucket(int table, uint32_t key, const HashCode& q, const uint8_t* excluded, Nearest& out, size_t& compared,
-                    int max_bucket) const;
+  inline bool probe_bucket(int table, uint32_t key, const HashCode& q, const uint8_t* excluded, Nearest& out,
+                           size_t& compared, int max_bucket) const;
   void compute_chance_weights(const std::vector<std::vector<uint32_t>>& related);
   bool finalized_ = false;
 };
