@@ -133,13 +133,8 @@ constexpr size_t kDirectAdcMaxCandidates = 160;
 // one bit away, in that order.
 inline uint32_t probe_bucket(uint32_t key, int b) { return b == 0 ? key : key ^ (1u << (b - 1)); }
 
-// The rank in CascadeLookup uses std::popcount: the x86-64 clone compiled with
-// POPCNT makes it one instruction (chosen at run time by the loader).
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
-#define VISLOC_POPCNT_CLONES __attribute__((target_clones("popcnt", "default")))
-#else
-#define VISLOC_POPCNT_CLONES
-#endif
+// The rank in CascadeLookup uses std::popcount: VISLOC_POPCNT_CLONES
+// (binary_hasher.h) makes it one instruction where the CPU has POPCNT.
 
 VISLOC_POPCNT_CLONES
 void coarse_sizes_impl(const CascadeLookup& lookup, const HashCode* codes, size_t n, int radius, uint32_t* sizes) {

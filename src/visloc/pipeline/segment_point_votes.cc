@@ -75,13 +75,8 @@ struct SegmentPointVotes::Nearest {
   }
 };
 
-// The x86-64 clone compiled with POPCNT makes the Hamming distances' popcount
-// one instruction (chosen at run time by the loader), as in the cascade search.
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
-#define VISLOC_POPCNT_CLONES __attribute__((target_clones("popcnt", "default")))
-#else
-#define VISLOC_POPCNT_CLONES
-#endif
+// VISLOC_POPCNT_CLONES (binary_hasher.h): the Hamming distances' popcount is
+// one instruction where the CPU has POPCNT, as in the cascade search.
 
 VISLOC_POPCNT_CLONES
 bool SegmentPointVotes::nearest(const HashCode& q, const uint8_t* excluded, Nearest& out, size_t& compared) const {
