@@ -278,9 +278,8 @@ inline void emit_matches(uint32_t f, const float* best_d, const uint32_t* best_i
   }
 }
 
-// Features sorted by (size, index), those of size ≥ min_size, as
-// size << 32 | index: a counting sort over the sizes (stable, so ties stay in
-// index order), or std::sort when the sizes are large.
+}  // namespace
+
 void sort_by_size(const uint32_t* sizes, size_t n, uint32_t min_size, std::vector<uint32_t>& counts,
                   std::vector<uint64_t>& order) {
   order.clear();
@@ -302,8 +301,6 @@ void sort_by_size(const uint32_t* sizes, size_t n, uint32_t min_size, std::vecto
   for (size_t f = 0; f < n; ++f)
     if (sizes[f] >= min_size) order[counts[sizes[f]]++] = (uint64_t(sizes[f]) << 32) | f;
 }
-
-}  // namespace
 
 void CascadeMatcher::coarse_sizes(std::span<const HashCode> codes, int radius, std::vector<uint32_t>& sizes) const {
   sizes.resize(codes.size());

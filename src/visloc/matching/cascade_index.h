@@ -180,6 +180,13 @@ struct CascadeWorkspace {
   size_t capacity_bytes() const;
 };
 
+// The prioritized search order: the features whose size is ≥ min_size, as
+// size << 32 | index, sorted by (size, index). A counting sort over the sizes
+// (stable, so ties stay in index order; `counts` is its reusable scratch), or
+// std::sort when a size reaches 65,536. Exposed for tests.
+void sort_by_size(const uint32_t* sizes, size_t n, uint32_t min_size, std::vector<uint32_t>& counts,
+                  std::vector<uint64_t>& order);
+
 // Searches one segment. Not thread-safe: one matcher (or workspace) per thread.
 class CascadeMatcher {
  public:

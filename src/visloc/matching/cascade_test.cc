@@ -539,3 +539,34 @@ TEST(FaissBaselines, IvfAdcAndImiFindPlantedMatches) {
     EXPECT_GT(st.distances_per_query, 0.0);
   }
 }
+
+// Both paths of the prioritized order (counting sort below 65,536, std::sort
+// from it) give the stable sort by size of the features kept, ties in index
+// order, and reuse their scratch across calls.
+TEST(CascadeSortBySize, BothPathsEqualAStableSortOfTheKeptFeatures) {
+  std::mt19937 rng(5);
+  std::vector<uint32_t> counts;
+  std::vector<uint64_t> order;
+  for (const uint32_t largest : {0u, 1u, 3u, 700u, 65535u, 65536u, 1u << 20, 0xFFFFFFFFu}) {
+    for (const uint32_t min_size : {0u, 2u, 500u}) {
+      std::vector<uint32_t> sizes(3000);
+      // Many ties (sizes from a small set) and the largest value present.
+      std::uniform_int_distribution<uint32_t> pick(0, 40);
+      for (auto& s : sizes) s = std::min(largest, pick(rng) * (largest / 40 + 1));
+      sizes[rng() % sizes.size()] = largest;
+      std::vector<uint32_t> kept;
+      for (uint32_t f = 0; f < sizes.size(); ++f)
+        if (sizes[f] >= min_size) kept.push_back(f);
+      std::stable_sort(kept.begin(), kept.end(), [&](uint32_t a, uint32_t b) { return sizes[a] < sizes[b]; });
+      sort_by_size(sizes.data(), sizes.size(), min_size, counts, order);
+      ASSERT_EQ(order.size(), kept.size()) << "largest " << largest << ", min_size " << min_size;
+      for (size_t i = 0; i < kept.size(); ++i) {
+        ASSERT_EQ(order[i] >> 32, sizes[kept[i]]) << "largest " << largest << ", rank " << i;
+        ASSERT_EQ(order[i] & 0xFFFFFFFFu, kept[i]) << "largest " << largest << ", rank " << i;
+      }
+    }
+  }
+  // No features: an empty order, whatever the scratch held before.
+  sort_by_size(nullptr, 0, 2, counts, order);
+  EXPECT_TRUE(order.empty());
+}
