@@ -60,7 +60,8 @@ typedef enum visloc_setting {
 /* Fill with visloc_options_init(), then change what you need. */
 typedef struct visloc_options {
   uint64_t cache_bytes;   /* budget of map segments kept in memory (default 512 MiB, at least 1 MiB) */
-  int max_segments;       /* candidate segments searched per photo (default 4) */
+  int max_segments;       /* candidate segments searched per photo (default 4; when they give no
+                             registered pose, the next 4 by votes are searched too) */
   int top_images;         /* retrieval: most similar map images voting for segments (default 20) */
   visloc_setting setting; /* default VISLOC_SETTING_3_PLUS */
   int max_image_side;     /* larger images are downscaled before SIFT (default 800; 0: never) */

@@ -327,6 +327,8 @@ struct CityLocalizationTally {
   QueryKindTally positives, negatives, between, near_unseen, foreigners;
   std::vector<double> ms_excluding_features, ms_total, ms_retrieval, ms_matching, ms_ransac, ms_registered, ms_missed;
   size_t retrieval_hits = 0;
+  size_t retrieval_hits_first = 0;        // ... within the first max_segments candidates
+  size_t fallback_segments_searched = 0;  // positives whose first candidates gave no registered pose
   std::vector<double> true_ranks, top_vote_share, voted_segments;
   nlohmann::json per_query = nlohmann::json::array();
   uint64_t peak_city_queries = 0;  // peak memory before the foreign photos
@@ -401,12 +403,14 @@ void localize_city_query(const NamedPose& q, const CityQueryContext& ctx, CityLo
         rank = static_cast<int>(i) + 1;
     if (rank > 0) {
       ++t.retrieval_hits;
+      t.retrieval_hits_first += rank <= opt.localizer.max_segments;
       t.true_ranks.push_back(rank);
     }
     if (r.retrieval_total_votes > 0 && !r.retrieval_votes.empty()) {
       t.top_vote_share.push_back(r.retrieval_votes[0] / r.retrieval_total_votes);
       t.voted_segments.push_back(static_cast<double>(r.retrieval_voted_segments));
     }
+    t.fallback_segments_searched += r.fallback_segments_searched;
     t.ms_excluding_features.push_back(r.times.total - r.times.features);
     t.ms_total.push_back(r.times.total);
     t.ms_retrieval.push_back(r.times.retrieval);
@@ -487,7 +491,7 @@ struct CityQueryCounts {
 
 CityQueryCounts count_city_queries(const CityLocalizationTally& t, const CityBenchmarkOptions& opt) {
   CityQueryCounts c;
-  c.rank_histogram.assign(static_cast<size_t>(opt.localizer.max_segments) + 1, 0);
+  c.rank_histogram.assign(static_cast<size_t>(opt.localizer.max_segments + opt.localizer.fallback_segments) + 1, 0);
   for (const auto& q : t.per_query)
     if (q["kind"] == "positive") {
       const int r = q["true_segment_rank"].get<int>();
@@ -565,6 +569,9 @@ nlohmann::json city_report_json(const fs::path& city_dir, const CityBenchmarkOpt
       {"retrieval",
        {{"positives_with_true_segment_among_candidates", t.retrieval_hits},
         {"fraction", t.positives.count ? double(t.retrieval_hits) / double(t.positives.count) : 0.0},
+        {"candidates", {{"first", opt.localizer.max_segments}, {"fallback", opt.localizer.fallback_segments}}},
+        {"positives_with_true_segment_among_first_candidates", t.retrieval_hits_first},
+        {"positives_that_searched_the_fallback_candidates", t.fallback_segments_searched},
         {"median_rank_of_true_segment",
          t.true_ranks.empty() ? nlohmann::json(nullptr) : nlohmann::json(median(t.true_ranks))},
         {"rank_histogram", c.rank_histogram},
@@ -635,6 +642,9 @@ std::string city_report_markdown(const nlohmann::json& report, const CityBenchma
      << "): the true segment is among the candidates for " << t.retrieval_hits << "/" << t.positives.count
      << " positives";
   if (!t.true_ranks.empty()) md << " (median rank " << median(t.true_ranks) << ")";
+  md << "; among the first " << opt.localizer.max_segments << ", searched first, for " << t.retrieval_hits_first
+     << "; the next " << opt.localizer.fallback_segments << " were searched for " << t.fallback_segments_searched
+     << " positives, whose first candidates gave no registered pose";
   md << "; by rank:";
   for (size_t r = 1; r < c.rank_histogram.size(); ++r) md << " " << r << ": " << c.rank_histogram[r] << ",";
   md << " not among them: " << c.rank_histogram[0] << ". A true segment shows the query at least "

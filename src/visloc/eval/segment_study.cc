@@ -174,6 +174,7 @@ nlohmann::json study_fingerprint(const StudyDataset& d, const SegmentStudyOption
           {"setting", to_string(o.localizer.setting)},
           {"top_images", o.localizer.top_images},
           {"max_segments", o.localizer.max_segments},
+          {"fallback_segments", o.localizer.fallback_segments},
           {"accept_inliers", o.localizer.accept_inliers},
           {"min_inliers", o.localizer.ransac.min_inliers},
           {"threshold_px", o.localizer.ransac.threshold_px},

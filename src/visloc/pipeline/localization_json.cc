@@ -44,6 +44,7 @@ nlohmann::json to_json(const LocalizationResult& r) {
                       {"voted_segments", r.retrieval_voted_segments},
                       {"total_votes", r.retrieval_total_votes}};
   if (r.full_search_fallback) j["full_search_fallback"] = true;
+  if (r.fallback_segments_searched) j["fallback_segments_searched"] = true;
   j["features"] = r.features;
   j["times_ms"] = {{"features", r.times.features},
                    {"retrieval", r.times.retrieval},

@@ -41,6 +41,10 @@ void LocalizerOptions::validate() const {
   ransac.validate();
   if (top_images < 1) throw_error(ErrorCode::kInvalidArgument, "top_images must be >= 1, got ", top_images);
   if (max_segments < 1) throw_error(ErrorCode::kInvalidArgument, "max_segments must be >= 1, got ", max_segments);
+  if (fallback_segments < 0)
+    throw_error(ErrorCode::kInvalidArgument, "fallback_segments must be >= 0, got ", fallback_segments);
+  if (max_segments > std::numeric_limits<int>::max() - fallback_segments)
+    throw_error(ErrorCode::kInvalidArgument, "max_segments + fallback_segments is too large");
   if (accept_inliers < 0)
     throw_error(ErrorCode::kInvalidArgument, "accept_inliers must be >= 0, got ", accept_inliers);
   if (cache_bytes < (1u << 20)) throw_error(ErrorCode::kInvalidArgument, "cache_bytes must be at least 1 MiB");
@@ -160,7 +164,8 @@ struct Localizer::Impl {
   std::unique_ptr<RetrievalMap> retrieval;  // null when the map has none
   std::unique_ptr<SegmentPointVotes> point_votes;  // null without a map rotation or when not asked for
   SegmentVoterOptions voting;
-  int max_segments = 4;  // candidates searched (options' max_segments)
+  int max_segments = 4;    // candidates searched first (options' max_segments)
+  int max_candidates = 8;  // max_segments + fallback_segments
   SegmentVoteSource segment_votes = SegmentVoteSource::kAuto;
   std::optional<EnuFrame> frame;
   std::unique_ptr<SiftExtractor> sift;
@@ -186,6 +191,10 @@ class Localizer::Impl::Search {
 
   // One pass over the candidates with the given search; the best pose wins.
   void search_candidates(const std::vector<size_t>& candidates, const CascadeSearchOptions& search);
+  // search_candidates with the map's search options, then assess_best; when
+  // no pose is registered and the search is prioritized, every feature of the
+  // candidates once more (full_search_fallback).
+  void search_pass(const std::vector<size_t>& candidates);
   // Confidence, uncertainty and the geographic pose of the best pose so far.
   // `final_assessment`: after a search pass (not a new best pose's early-stop
   // check), where the explained fraction is always measured and reported.
@@ -224,6 +233,7 @@ Localizer::Localizer(const std::filesystem::path& map_dir, const LocalizerOption
   impl_->cache = std::make_unique<SegmentCache>(impl_->map, options_.cache_bytes);
   impl_->voting.top_images = options_.top_images;
   impl_->max_segments = options_.max_segments;
+  impl_->max_candidates = options_.max_segments + options_.fallback_segments;
   // Point votes on a map of more segments than are searched (each query
   // feature's nearest point by the map-wide hash codes); image votes from the
   // retrieval index otherwise, or with both.
@@ -238,7 +248,7 @@ Localizer::Localizer(const std::filesystem::path& map_dir, const LocalizerOption
   // With both votes, every segment's image votes count in the sum.
   impl_->voting.max_candidates = source == SegmentVoteSource::kBoth && impl_->point_votes
                                      ? static_cast<int>(man.segments.size())
-                                     : options_.max_segments;
+                                     : impl_->max_candidates;
   if (many_segments && !impl_->point_votes &&
       (source == SegmentVoteSource::kPoints || source == SegmentVoteSource::kBoth))
     throw_error(ErrorCode::kFormat, map_dir.string(), ": segment votes '", to_string(source),
@@ -432,20 +442,36 @@ std::vector<size_t> Localizer::Impl::candidate_segments(const FeatureSet& f, Que
   std::stable_sort(ranked.begin(), ranked.end(), [](const auto& a, const auto& b) { return a.second > b.second; });
   res.retrieval_voted_segments = ranked.size();
   res.retrieval_total_votes = sources;
-  for (size_t k = 0; k < ranked.size() && static_cast<int>(k) < max_segments; ++k)
+  for (size_t k = 0; k < ranked.size() && static_cast<int>(k) < max_candidates; ++k)
     take(ranked[k].first, ranked[k].second);
   // auto: the retrieved images fill the places the point votes leave (a
   // query whose features found few map points), with no point votes.
-  if (retrieval && !sum_images && static_cast<int>(candidates.size()) < max_segments) {
+  if (retrieval && !sum_images && static_cast<int>(candidates.size()) < max_candidates) {
     const RetrievalQueryResult q = retrieval->query(f.descriptors, voting);
     for (const SegmentCandidate& c : q.candidates) {
       const auto index = position_of(c.segment);
-      if (static_cast<int>(candidates.size()) == max_segments) break;
+      if (static_cast<int>(candidates.size()) == max_candidates) break;
       if (index && std::find(candidates.begin(), candidates.end(), *index) == candidates.end()) take(*index, 0.0f);
     }
   }
   res.times.retrieval = t.elapsed_ms();
   return candidates;
+}
+
+void Localizer::Impl::Search::search_pass(const std::vector<size_t>& candidates) {
+  const size_t listed_before = res_.candidates.size();
+  search_candidates(candidates, impl_.search);
+  assess_best(true);
+  // Prioritized search stops at N_early matches; on repetitive facades they
+  // can all be wrong. Before giving up, search every feature once more.
+  if (!res_.registered && impl_.search.prioritize && options_.full_search_fallback) {
+    CascadeSearchOptions full = impl_.search;
+    full.prioritize = false;
+    res_.candidates.resize(listed_before);  // listed again by the full search
+    res_.full_search_fallback = true;
+    search_candidates(candidates, full);
+    assess_best(true);
+  }
 }
 
 void Localizer::Impl::Search::search_candidates(const std::vector<size_t>& candidates,
@@ -590,19 +616,17 @@ LocalizationResult Localizer::localize_features(const FeatureSet& f, const Pinho
   bool map_codes_ready = false;
   const std::vector<size_t> candidates = impl_->candidate_segments(f, *lease.w, res, map_codes_ready);
   Impl::Search search(*impl_, options_, f, camera, *lease.w, res, map_codes_ready);
-  if (!candidates.empty()) {
+  // The first max_segments candidates; the rest (fallback_segments) only
+  // when those give no registered pose.
+  const size_t first = std::min(candidates.size(), static_cast<size_t>(impl_->max_segments));
+  const std::vector<size_t> primary(candidates.begin(), candidates.begin() + first);
+  const std::vector<size_t> fallback(candidates.begin() + first, candidates.end());
+  if (!primary.empty()) {
     res.candidates.clear();
-    search.search_candidates(candidates, impl_->search);
-    search.assess_best(true);
-    // Prioritized search stops at N_early matches; on repetitive facades they
-    // can all be wrong. Before giving up, search every feature once more.
-    if (!res.registered && impl_->search.prioritize && options_.full_search_fallback) {
-      CascadeSearchOptions full = impl_->search;
-      full.prioritize = false;
-      res.candidates.clear();
-      res.full_search_fallback = true;
-      search.search_candidates(candidates, full);
-      search.assess_best(true);
+    search.search_pass(primary);
+    if (!res.registered && !fallback.empty()) {
+      res.fallback_segments_searched = true;
+      search.search_pass(fallback);
     }
   }
   res.times.total = total.elapsed_ms();

@@ -10,6 +10,9 @@ void add_options(OptionTable& t, LocalizerOptions& o) {
            "The paper's ablation setting: 1, 2, 3 or 3+");
   t.add("--top-images", o.top_images, "Retrieval: images N_t");
   t.add("--max-segments", o.max_segments, "Candidate segments searched");
+  t.add("--fallback-segments", o.fallback_segments,
+        "When the candidate segments give no registered pose, search this many more, the next by votes (0: none)")
+      .range(0, 1000);
   t.choice("--segment-votes", o.segment_votes,
            {{"auto", SegmentVoteSource::kAuto},
             {"images", SegmentVoteSource::kImages},

@@ -2,6 +2,8 @@
 
 #include <cmath>
 #include <filesystem>
+#include <set>
+#include <string>
 
 #include "visloc/colmap/colmap_database.h"
 #include "visloc/geometry/pose_list.h"
@@ -118,13 +120,16 @@ void expect_point_votes_choose_the_segment(const fs::path& dir, const MapBuildOp
   ASSERT_GE(smaller.segments.size(), 2u);
   LocalizerOptions one;
   one.max_segments = 1;
+  one.fallback_segments = 0;
   one.segment_votes = SegmentVoteSource::kPoints;
   Localizer voted(dir / "map", one);
   EXPECT_TRUE(voted.has_point_votes());
   EXPECT_GT(voted.point_vote_bytes(), 0u);
   int voted_accurate = 0;
+  std::set<std::string> registered_in_first;
   for (const auto& [name, pose] : truth) {
     const LocalizationResult r = voted.localize_file(dir / "city" / "queries" / "images" / name, cams.at(name));
+    if (r.registered) registered_in_first.insert(name);
     ASSERT_EQ(r.retrieval_segments.size(), 1u) << name;
     EXPECT_EQ(r.candidates, r.retrieval_segments) << name;
     EXPECT_GT(r.retrieval_votes[0], 0.0f);
@@ -132,6 +137,31 @@ void expect_point_votes_choose_the_segment(const fs::path& dir, const MapBuildOp
     voted_accurate += r.registered && position_error(r.cam_from_segment, pose) < 0.5;
   }
   EXPECT_GE(voted_accurate, 2) << "of " << truth.size() << " queries, searching only the best-voted segment";
+  // With one fallback segment: the two best-voted are candidates, and the
+  // second is searched exactly when the first gives no registered pose
+  // (every query, when nothing can register).
+  LocalizerOptions with_fallback = one;
+  with_fallback.fallback_segments = 1;
+  for (const bool can_register : {true, false}) {
+    if (!can_register) with_fallback.ransac.min_inliers = 1u << 30;
+    Localizer fallback(dir / "map", with_fallback);
+    for (const auto& [name, pose] : truth) {
+      const LocalizationResult r = fallback.localize_file(dir / "city" / "queries" / "images" / name, cams.at(name));
+      ASSERT_GE(r.retrieval_segments.size(), 1u) << name;
+      ASSERT_LE(r.retrieval_segments.size(), 2u) << name;
+      ASSERT_FALSE(r.candidates.empty()) << name;
+      EXPECT_EQ(r.candidates[0], r.retrieval_segments[0]) << name;
+      const bool second_searched = r.candidates.size() == 2;
+      EXPECT_EQ(r.fallback_segments_searched, second_searched) << name;
+      if (r.retrieval_segments.size() == 2 && !r.registered) {
+        EXPECT_TRUE(second_searched) << name;
+        EXPECT_EQ(r.candidates[1], r.retrieval_segments[1]) << name;
+      }
+      if (!can_register) EXPECT_FALSE(r.registered) << name;
+      // Registered in the first candidate without the fallback: not searched.
+      if (can_register && registered_in_first.count(name)) EXPECT_FALSE(second_searched) << name;
+    }
+  }
   // Image votes alone need the retrieval index, which this map has not.
   one.segment_votes = SegmentVoteSource::kImages;
   EXPECT_THROW(Localizer(dir / "map", one), Error);

@@ -230,6 +230,7 @@ void take_localizer_options(Kwargs& k, LocalizerOptions& o) {
   if (k.take_choice("setting", setting, {"1", "2", "3", "3+"})) o.setting = parse_paper_setting(setting);
   k.take("top_images", o.top_images);
   k.take("max_segments", o.max_segments);
+  k.take("fallback_segments", o.fallback_segments);
   std::string segment_votes;
   if (k.take_choice("segment_votes", segment_votes, {"auto", "images", "points", "both"}))
     o.segment_votes = parse_segment_vote_source(segment_votes);
@@ -670,8 +671,8 @@ void bind_localizer(py::module_& m) {
 
 Localizer(map_dir, **options): options are LocalizerOptions fields, named as
 the `visloc localize` flags: setting ('1', '2', '3', '3+'), top_images,
-max_segments, segment_votes ('auto', 'points', 'images', 'both'), vote_points, vote_radius,
-vote_chance_normalization, accept_inliers, early_stop, full_search_fallback, threshold_px,
+max_segments, fallback_segments, segment_votes ('auto', 'points', 'images',
+'both'), vote_points, vote_radius, vote_chance_normalization, accept_inliers, early_stop, full_search_fallback, threshold_px,
 min_inliers, min_confidence, use_exif_focal, seed, cache_mib, max_image_side,
 max_features, contrast_threshold, root_sift, max_pixels. OpenCV's thread count,
 which SIFT uses, is process-wide: see visloc.set_opencv_threads.

@@ -63,6 +63,7 @@ def test_not_a_map_raises_format_error(tmp_path):
     [
         ({"top_images": 0}, ValueError, "top_images"),
         ({"max_segments": -1}, ValueError, "max_segments"),
+        ({"fallback_segments": -1}, ValueError, "fallback_segments"),
         ({"min_confidence": 1.5}, ValueError, "min_confidence"),
         ({"min_confidence": float("nan")}, ValueError, "min_confidence"),
         ({"threshold_px": float("inf")}, ValueError, "threshold_px"),
