@@ -137,6 +137,8 @@ void add_pose_evidence(const LocalizationResult& r, nlohmann::json* entry) {
   if (r.uncertainty.valid) {
     (*entry)["position_sigma"] = r.uncertainty.position_sigma;
     (*entry)["rotation_sigma_deg"] = r.uncertainty.rotation_sigma_deg;
+    if (r.uncertainty.relative_position_sigma > 0)
+      (*entry)["relative_position_sigma"] = r.uncertainty.relative_position_sigma;
   }
 }
 

@@ -254,6 +254,8 @@ nlohmann::json EvaluationReport::to_json(const std::vector<LocalizationResult>& 
       e["position_sigma"] = q.uncertainty.position_sigma;
       e["rotation_sigma_deg"] = q.uncertainty.rotation_sigma_deg;
       if (q.uncertainty.position_sigma_m) e["position_sigma_m"] = *q.uncertainty.position_sigma_m;
+      if (q.uncertainty.relative_position_sigma > 0)
+        e["relative_position_sigma"] = q.uncertainty.relative_position_sigma;
     }
     per.push_back(e);
   }

@@ -19,6 +19,7 @@ nlohmann::json to_json(const LocalizationResult& r) {
       if (u.horizontal_sigma_m) a["horizontal_sigma_m"] = *u.horizontal_sigma_m;
       if (u.vertical_sigma_m) a["vertical_sigma_m"] = *u.vertical_sigma_m;
       if (u.heading_sigma_deg) a["heading_sigma_deg"] = *u.heading_sigma_deg;
+      if (u.relative_position_sigma > 0) a["relative_position_sigma"] = u.relative_position_sigma;
       j["uncertainty"] = a;
     }
     const auto q = r.cam_from_segment.q_wxyz();

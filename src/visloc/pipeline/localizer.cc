@@ -589,10 +589,13 @@ void Localizer::Impl::Search::assess_best(bool final_assessment) {
                                       res.principal_point_offset, best_quality_.inlier_depth_p90, res.inliers);
   res.confidence = model.evaluate(cf);
   res.registered = best_has_enough_inliers_ && res.confidence >= options_.min_confidence;
-  if (best_quality_.covariance.valid)
+  if (best_quality_.covariance.valid) {
     res.uncertainty =
         pose_uncertainty(best_quality_.covariance, res.cam_from_segment,
                          frame.georegistered ? std::optional(frame.enu_from_segment) : std::nullopt, model.sigma_scale);
+    if (best_quality_.inlier_depth_p90 > 0)
+      res.uncertainty.relative_position_sigma = res.uncertainty.position_sigma / best_quality_.inlier_depth_p90;
+  }
   if (frame.georegistered) {
     const Eigen::Vector3d c = frame.enu_from_segment.apply(res.cam_from_segment.center());
     res.center_enu = c;

@@ -131,6 +131,9 @@ struct PoseUncertainty {
   bool valid = false;
   double position_sigma = 0;       // sigma_scale × sqrt(trace Σ_centre), segment units
   double rotation_sigma_deg = 0;   // sqrt(trace Σ_ω)
+  // position_sigma over the inliers' 90th-percentile depth: unit-free, so it
+  // compares across maps of any scale (0 when the depth is unknown).
+  double relative_position_sigma = 0;
   std::optional<double> position_sigma_m, horizontal_sigma_m, vertical_sigma_m, heading_sigma_deg;
 };
 

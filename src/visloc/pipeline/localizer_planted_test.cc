@@ -14,6 +14,7 @@
 #include "visloc/map/map.h"
 #include "visloc/map_building/planted_map.h"
 #include "visloc/map_building/segment_builder.h"
+#include "visloc/pipeline/localization_json.h"
 #include "visloc/pipeline/localizer.h"
 #include "visloc/util/crc32c.h"
 #include "visloc/util/mapped_file.h"
@@ -101,6 +102,19 @@ TEST(LocalizerPlanted, RightSegmentPoseAndGeoRegistration) {
     EXPECT_TRUE(r.uncertainty.valid);
     ASSERT_TRUE(r.uncertainty.position_sigma_m.has_value());
     EXPECT_LT(*r.uncertainty.position_sigma_m, 0.5);
+    // The relative σ divides by the inliers' 90th-percentile depth, which
+    // lies within the depths of the segment's points seen from the truth.
+    ASSERT_GT(r.uncertainty.relative_position_sigma, 0);
+    const double depth = r.uncertainty.position_sigma / r.uncertainty.relative_position_sigma;
+    double nearest = INFINITY, farthest = 0;
+    for (const Eigen::Vector3d& X : (k == 0 ? fx.a : fx.b).xyz) {
+      const double z = truth.transform(X).z();
+      if (z > 0) nearest = std::min(nearest, z), farthest = std::max(farthest, z);
+    }
+    EXPECT_GE(depth, nearest);
+    EXPECT_LE(depth, farthest);
+    EXPECT_DOUBLE_EQ(to_json(r)["uncertainty"]["relative_position_sigma"].get<double>(),
+                     r.uncertainty.relative_position_sigma);
   }
 }
 
