@@ -105,6 +105,10 @@ visloc::LocalizerOptions localizer_options(const visloc_options& o) {
   visloc::LocalizerOptions l;
   l.cache_bytes = o.cache_bytes;
   l.max_segments = o.max_segments;
+  // The fallback segments (4 by default) are not a field of the C options:
+  // fewer when max_segments leaves no room for them.
+  if (o.max_segments > 0)
+    l.fallback_segments = std::min(l.fallback_segments, std::numeric_limits<int>::max() - o.max_segments);
   l.top_images = o.top_images;
   l.setting = paper_setting(o.setting);
   l.sift.max_image_side = o.max_image_side;

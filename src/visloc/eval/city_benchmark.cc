@@ -328,8 +328,8 @@ struct QueryKindTally {
 struct CityLocalizationTally {
   QueryKindTally positives, negatives, between, near_unseen, foreigners;
   std::vector<double> ms_excluding_features, ms_total, ms_retrieval, ms_matching, ms_ransac, ms_registered, ms_missed;
-  size_t retrieval_hits = 0;
-  size_t retrieval_hits_first = 0;        // ... within the first max_segments candidates
+  size_t retrieval_hits = 0;              // the true segment among the first max_segments candidates
+  size_t retrieval_hits_all = 0;          // ... among every candidate, the fallback segments' too
   size_t fallback_segments_searched = 0;  // positives whose first candidates gave no registered pose
   std::vector<double> true_ranks, top_vote_share, voted_segments;
   nlohmann::json per_query = nlohmann::json::array();
@@ -404,8 +404,8 @@ void localize_city_query(const NamedPose& q, const CityQueryContext& ctx, CityLo
       if (std::find(truth_segments.begin(), truth_segments.end(), r.retrieval_segments[i]) != truth_segments.end())
         rank = static_cast<int>(i) + 1;
     if (rank > 0) {
-      ++t.retrieval_hits;
-      t.retrieval_hits_first += rank <= opt.localizer.max_segments;
+      ++t.retrieval_hits_all;
+      t.retrieval_hits += rank <= opt.localizer.max_segments;
       t.true_ranks.push_back(rank);
     }
     if (r.retrieval_total_votes > 0 && !r.retrieval_votes.empty()) {
@@ -420,13 +420,22 @@ void localize_city_query(const NamedPose& q, const CityQueryContext& ctx, CityLo
     t.ms_ransac.push_back(r.times.ransac);
     (r.registered ? t.ms_registered : t.ms_missed).push_back(r.times.total - r.times.features);
   }
-  nlohmann::json entry = {{"image", q.name}, {"kind", kind}, {"distance_to_map_m", nearest},
-                          {"registered", r.registered}, {"wrong", wrong}, {"inliers", r.inliers},
-                          {"position_error_m", pos_err}, {"rotation_error_deg", rot_err},
-                          {"true_segment_rank", rank}, {"true_segments", truth_segments},
-                          {"retrieval_segments", r.retrieval_segments}, {"retrieval_votes", r.retrieval_votes},
+  nlohmann::json entry = {{"image", q.name},
+                          {"kind", kind},
+                          {"distance_to_map_m", nearest},
+                          {"registered", r.registered},
+                          {"wrong", wrong},
+                          {"inliers", r.inliers},
+                          {"position_error_m", pos_err},
+                          {"rotation_error_deg", rot_err},
+                          {"true_segment_rank", rank},
+                          {"true_segments", truth_segments},
+                          {"retrieval_segments", r.retrieval_segments},
+                          {"retrieval_votes", r.retrieval_votes},
                           {"retrieval_voted_segments", r.retrieval_voted_segments},
-                          {"most_visible_points", most_seen}, {"error", r.error}};
+                          {"most_visible_points", most_seen},
+                          {"error", r.error},
+                          {"fallback_segments_searched", r.fallback_segments_searched}};
   add_pose_evidence(r, &entry);
   if (r.segment >= 0) {  // the pose's error whether registered or not (confidence fits)
     entry["pose_position_error_m"] = position_error(r.cam_from_segment, q.cam_from_world);
@@ -572,7 +581,9 @@ nlohmann::json city_report_json(const fs::path& city_dir, const CityBenchmarkOpt
        {{"positives_with_true_segment_among_candidates", t.retrieval_hits},
         {"fraction", t.positives.count ? double(t.retrieval_hits) / double(t.positives.count) : 0.0},
         {"candidates", {{"first", opt.localizer.max_segments}, {"fallback", opt.localizer.fallback_segments}}},
-        {"positives_with_true_segment_among_first_candidates", t.retrieval_hits_first},
+        {"positives_with_true_segment_among_all_candidates", t.retrieval_hits_all},
+        {"fraction_among_all_candidates",
+         t.positives.count ? double(t.retrieval_hits_all) / double(t.positives.count) : 0.0},
         {"positives_that_searched_the_fallback_candidates", t.fallback_segments_searched},
         {"median_rank_of_true_segment",
          t.true_ranks.empty() ? nlohmann::json(nullptr) : nlohmann::json(median(t.true_ranks))},
@@ -641,12 +652,12 @@ std::string city_report_markdown(const nlohmann::json& report, const CityBenchma
      << (t.point_votes ? "; point-vote index " + std::to_string((t.point_vote_bytes + 512 * 1024) / (1024 * 1024)) +
                              " MiB, probe radius " + std::to_string(opt.localizer.point_votes.probe_radius)
                        : std::string())
-     << "): the true segment is among the candidates for " << t.retrieval_hits << "/" << t.positives.count
-     << " positives";
+     << "): the true segment is among the " << opt.localizer.max_segments << " candidates searched first for "
+     << t.retrieval_hits << "/" << t.positives.count << " positives";
   if (!t.true_ranks.empty()) md << " (median rank " << median(t.true_ranks) << ")";
-  md << "; among the first " << opt.localizer.max_segments << ", searched first, for " << t.retrieval_hits_first
-     << "; the next " << opt.localizer.fallback_segments << " were searched for " << t.fallback_segments_searched
-     << " positives, whose first candidates gave no registered pose";
+  md << "; among those and the " << opt.localizer.fallback_segments << " fallback candidates for "
+     << t.retrieval_hits_all << ", which were searched for the " << t.fallback_segments_searched
+     << " positives whose first candidates gave no registered pose";
   md << "; by rank:";
   for (size_t r = 1; r < c.rank_histogram.size(); ++r) md << " " << r << ": " << c.rank_histogram[r] << ",";
   md << " not among them: " << c.rank_histogram[0] << ". A true segment shows the query at least "

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <map>
 #include <mutex>
 #include <optional>
@@ -175,8 +176,14 @@ struct Localizer::Impl {
   // Candidate segments (positions in the manifest), best-voted first; fills
   // the retrieval's fields and time of `res`. Hashes the query with the map's
   // rotation into ws.map_codes when it votes with points (map_codes_ready).
+  // retrieval_fill_pending: the retrieved images are still to fill the
+  // places of the fallback segments that the point votes left
+  // (fill_from_retrieval, only if the fallback segments are searched).
   std::vector<size_t> candidate_segments(const FeatureSet& f, QueryWorkspace& ws, LocalizationResult& res,
-                                         bool& map_codes_ready) const;
+                                         bool& map_codes_ready, bool& retrieval_fill_pending) const;
+  // Appends the retrieved images' segments not yet among the candidates, up
+  // to max_candidates (with 0 votes in res).
+  void fill_from_retrieval(const FeatureSet& f, std::vector<size_t>& candidates, LocalizationResult& res) const;
   void build_point_votes(const SegmentPointVoteOptions& options);
   class Search;
 };
@@ -386,7 +393,8 @@ LocalizationResult Localizer::localize_image(const GrayImage& image,
 }
 
 std::vector<size_t> Localizer::Impl::candidate_segments(const FeatureSet& f, QueryWorkspace& ws,
-                                                        LocalizationResult& res, bool& map_codes_ready) const {
+                                                        LocalizationResult& res, bool& map_codes_ready,
+                                                        bool& retrieval_fill_pending) const {
   Timer t;
   const auto& man = map.manifest();
   std::vector<size_t> candidates;
@@ -444,18 +452,35 @@ std::vector<size_t> Localizer::Impl::candidate_segments(const FeatureSet& f, Que
   res.retrieval_total_votes = sources;
   for (size_t k = 0; k < ranked.size() && static_cast<int>(k) < max_candidates; ++k)
     take(ranked[k].first, ranked[k].second);
-  // auto: the retrieved images fill the places the point votes leave (a
-  // query whose features found few map points), with no point votes.
+  // auto: the retrieved images fill the places the point votes leave: now
+  // when the first max_segments need them, else only before the fallback
+  // segments are searched (most queries never are).
   if (retrieval && !sum_images && static_cast<int>(candidates.size()) < max_candidates) {
-    const RetrievalQueryResult q = retrieval->query(f.descriptors, voting);
-    for (const SegmentCandidate& c : q.candidates) {
-      const auto index = position_of(c.segment);
-      if (static_cast<int>(candidates.size()) == max_candidates) break;
-      if (index && std::find(candidates.begin(), candidates.end(), *index) == candidates.end()) take(*index, 0.0f);
-    }
+    if (static_cast<int>(candidates.size()) < max_segments)
+      fill_from_retrieval(f, candidates, res);
+    else
+      retrieval_fill_pending = true;
   }
   res.times.retrieval = t.elapsed_ms();
   return candidates;
+}
+
+void Localizer::Impl::fill_from_retrieval(const FeatureSet& f, std::vector<size_t>& candidates,
+                                          LocalizationResult& res) const {
+  const auto& man = map.manifest();
+  const RetrievalQueryResult q = retrieval->query(f.descriptors, voting);
+  for (const SegmentCandidate& c : q.candidates) {
+    if (static_cast<int>(candidates.size()) >= max_candidates) break;
+    for (size_t i = 0; i < man.segments.size(); ++i) {
+      if (static_cast<int32_t>(man.segments[i].id) != c.segment) continue;
+      if (std::find(candidates.begin(), candidates.end(), i) == candidates.end()) {
+        candidates.push_back(i);
+        res.retrieval_segments.push_back(static_cast<int>(man.segments[i].id));
+        res.retrieval_votes.push_back(0.0f);  // no point votes
+      }
+      break;
+    }
+  }
 }
 
 void Localizer::Impl::Search::search_pass(const std::vector<size_t>& candidates) {
@@ -616,17 +641,22 @@ LocalizationResult Localizer::localize_features(const FeatureSet& f, const Pinho
     std::unique_ptr<QueryWorkspace> w;
     ~Lease() { pool.give_back(std::move(w)); }
   } lease{impl_->workspaces, impl_->workspaces.take()};
-  bool map_codes_ready = false;
-  const std::vector<size_t> candidates = impl_->candidate_segments(f, *lease.w, res, map_codes_ready);
+  bool map_codes_ready = false, retrieval_fill_pending = false;
+  std::vector<size_t> candidates = impl_->candidate_segments(f, *lease.w, res, map_codes_ready, retrieval_fill_pending);
   Impl::Search search(*impl_, options_, f, camera, *lease.w, res, map_codes_ready);
   // The first max_segments candidates; the rest (fallback_segments) only
   // when those give no registered pose.
   const size_t first = std::min(candidates.size(), static_cast<size_t>(impl_->max_segments));
   const std::vector<size_t> primary(candidates.begin(), candidates.begin() + first);
-  const std::vector<size_t> fallback(candidates.begin() + first, candidates.end());
   if (!primary.empty()) {
     res.candidates.clear();
     search.search_pass(primary);
+    if (!res.registered && retrieval_fill_pending) {
+      Timer t;
+      impl_->fill_from_retrieval(f, candidates, res);
+      res.times.retrieval += t.elapsed_ms();
+    }
+    const std::vector<size_t> fallback(candidates.begin() + first, candidates.end());
     if (!res.registered && !fallback.empty()) {
       res.fallback_segments_searched = true;
       search.search_pass(fallback);

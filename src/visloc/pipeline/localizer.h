@@ -79,7 +79,7 @@ struct LocalizerOptions {
   RansacOptions ransac;             // pose parameters
   PaperSetting setting = PaperSetting::k3Plus;  // overrides search.prioritize and ransac.variant
   int top_images = 20;              // N_t
-  int max_segments = 4;             // candidate segments searched
+  int max_segments = 4;             // candidate segments searched first
   // When the candidate segments give no registered pose, search this many
   // more, the next by votes, the same way (0: none). Only queries that would
   // otherwise fail pay for them. On the city benchmark's 13-segment map the
@@ -171,6 +171,8 @@ struct LocalizationResult {
   // sum, as the paper's voting gives them. With point votes: a segment's
   // share of each source's votes (summed with both; 0 for a segment that
   // only the images filled in), and the total is the number of sources.
+  // Up to max_segments + fallback_segments: the fallback ones are listed
+  // whether or not they were searched (`candidates` has those searched).
   // Empty / 0 when every segment is searched.
   std::vector<int> retrieval_segments;
   std::vector<float> retrieval_votes;

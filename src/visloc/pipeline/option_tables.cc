@@ -9,10 +9,10 @@ void add_options(OptionTable& t, LocalizerOptions& o) {
            {{"1", PaperSetting::k1}, {"2", PaperSetting::k2}, {"3", PaperSetting::k3}, {"3+", PaperSetting::k3Plus}},
            "The paper's ablation setting: 1, 2, 3 or 3+");
   t.add("--top-images", o.top_images, "Retrieval: images N_t");
-  t.add("--max-segments", o.max_segments, "Candidate segments searched");
+  t.add("--max-segments", o.max_segments, "Candidate segments searched first");
   t.add("--fallback-segments", o.fallback_segments,
-        "When the candidate segments give no registered pose, search this many more, the next by votes (0: none)")
-      .range(0, 1000);
+        "When the first --max-segments candidates give no registered pose, search this many more, the next by votes "
+        "(0: none)");
   t.choice("--segment-votes", o.segment_votes,
            {{"auto", SegmentVoteSource::kAuto},
             {"images", SegmentVoteSource::kImages},
@@ -40,7 +40,8 @@ void add_options(OptionTable& t, LocalizerOptions& o) {
   t.add("--early-stop", o.search.early_stop,
         "Settings 3, 3+: the prioritized search stops at this many 1-1 matches (N_early)");
   t.flag("!--no-fallback", o.full_search_fallback,
-         "Settings 3, 3+: do not search all features again when the prioritized search fails");
+         "Settings 3, 3+: do not search all features again when the prioritized search fails (of the same "
+         "segments; --fallback-segments is another fallback)");
   t.add("--threshold", o.ransac.threshold_px, "RANSAC reprojection threshold (px)");
   t.add("--min-inliers", o.ransac.min_inliers, "Registered at this many inliers");
   t.add("--min-confidence", o.min_confidence,

@@ -145,6 +145,7 @@ void expect_point_votes_choose_the_segment(const fs::path& dir, const MapBuildOp
   for (const bool can_register : {true, false}) {
     if (!can_register) with_fallback.ransac.min_inliers = 1u << 30;
     Localizer fallback(dir / "map", with_fallback);
+    int searched = 0;
     for (const auto& [name, pose] : truth) {
       const LocalizationResult r = fallback.localize_file(dir / "city" / "queries" / "images" / name, cams.at(name));
       ASSERT_GE(r.retrieval_segments.size(), 1u) << name;
@@ -152,6 +153,7 @@ void expect_point_votes_choose_the_segment(const fs::path& dir, const MapBuildOp
       ASSERT_FALSE(r.candidates.empty()) << name;
       EXPECT_EQ(r.candidates[0], r.retrieval_segments[0]) << name;
       const bool second_searched = r.candidates.size() == 2;
+      searched += second_searched;
       EXPECT_EQ(r.fallback_segments_searched, second_searched) << name;
       if (r.retrieval_segments.size() == 2 && !r.registered) {
         EXPECT_TRUE(second_searched) << name;
@@ -160,7 +162,10 @@ void expect_point_votes_choose_the_segment(const fs::path& dir, const MapBuildOp
       if (!can_register) EXPECT_FALSE(r.registered) << name;
       // Registered in the first candidate without the fallback: not searched.
       if (can_register && registered_in_first.count(name)) EXPECT_FALSE(second_searched) << name;
+      // Registered through the fallback: its pose is the second segment's.
+      if (r.registered && second_searched) EXPECT_EQ(r.segment, r.candidates[1]) << name;
     }
+    if (!can_register) EXPECT_GT(searched, 0) << "no query searched its fallback segment";
   }
   // Image votes alone need the retrieval index, which this map has not.
   one.segment_votes = SegmentVoteSource::kImages;
