@@ -184,6 +184,11 @@ struct Localizer::Impl {
   // Appends the retrieved images' segments not yet among the candidates, up
   // to max_candidates (with 0 votes in res).
   void fill_from_retrieval(const FeatureSet& f, std::vector<size_t>& candidates, LocalizationResult& res) const;
+  // The manifest position of the segment with this id, if the map has it.
+  std::optional<size_t> manifest_position(int32_t segment_id) const;
+  // Appends the segment at manifest position `index` to the candidates, with
+  // its votes in res's retrieval fields.
+  void take_candidate(size_t index, float votes, std::vector<size_t>& candidates, LocalizationResult& res) const;
   void build_point_votes(const SegmentPointVoteOptions& options);
   class Search;
 };
@@ -403,22 +408,13 @@ std::vector<size_t> Localizer::Impl::candidate_segments(const FeatureSet& f, Que
     res.times.retrieval = t.elapsed_ms();
     return candidates;
   }
-  const auto position_of = [&man](int32_t id) -> std::optional<size_t> {
-    for (size_t i = 0; i < man.segments.size(); ++i)
-      if (static_cast<int32_t>(man.segments[i].id) == id) return i;
-    return std::nullopt;
-  };
-  const auto take = [&](size_t index, float votes) {
-    candidates.push_back(index);
-    res.retrieval_segments.push_back(static_cast<int>(man.segments[index].id));
-    res.retrieval_votes.push_back(votes);
-  };
+  const auto take = [&](size_t index, float votes) { take_candidate(index, votes, candidates, res); };
   if (!point_votes) {  // image votes only: the retrieval's candidates and votes as they are
     const RetrievalQueryResult q = retrieval->query(f.descriptors, voting);
     res.retrieval_voted_segments = q.voted_segments;
     res.retrieval_total_votes = q.total_votes;
     for (const SegmentCandidate& c : q.candidates)
-      if (const auto index = position_of(c.segment)) take(*index, c.votes);
+      if (const auto index = manifest_position(c.segment)) take(*index, c.votes);
     res.times.retrieval = t.elapsed_ms();
     return candidates;
   }
@@ -437,7 +433,7 @@ std::vector<size_t> Localizer::Impl::candidate_segments(const FeatureSet& f, Que
   if (sum_images) {
     const RetrievalQueryResult q = retrieval->query(f.descriptors, voting);
     for (const SegmentCandidate& c : q.candidates) {
-      const auto index = position_of(c.segment);
+      const auto index = manifest_position(c.segment);
       if (!index || q.total_votes <= 0) continue;
       const auto it = std::find_if(ranked.begin(), ranked.end(), [&](const auto& r) { return r.first == *index; });
       if (it != ranked.end())
@@ -467,20 +463,27 @@ std::vector<size_t> Localizer::Impl::candidate_segments(const FeatureSet& f, Que
 
 void Localizer::Impl::fill_from_retrieval(const FeatureSet& f, std::vector<size_t>& candidates,
                                           LocalizationResult& res) const {
-  const auto& man = map.manifest();
   const RetrievalQueryResult q = retrieval->query(f.descriptors, voting);
   for (const SegmentCandidate& c : q.candidates) {
     if (static_cast<int>(candidates.size()) >= max_candidates) break;
-    for (size_t i = 0; i < man.segments.size(); ++i) {
-      if (static_cast<int32_t>(man.segments[i].id) != c.segment) continue;
-      if (std::find(candidates.begin(), candidates.end(), i) == candidates.end()) {
-        candidates.push_back(i);
-        res.retrieval_segments.push_back(static_cast<int>(man.segments[i].id));
-        res.retrieval_votes.push_back(0.0f);  // no point votes
-      }
-      break;
-    }
+    const auto index = manifest_position(c.segment);
+    if (index && std::find(candidates.begin(), candidates.end(), *index) == candidates.end())
+      take_candidate(*index, 0.0f, candidates, res);  // no point votes
   }
+}
+
+std::optional<size_t> Localizer::Impl::manifest_position(int32_t segment_id) const {
+  const auto& segments = map.manifest().segments;
+  for (size_t i = 0; i < segments.size(); ++i)
+    if (static_cast<int32_t>(segments[i].id) == segment_id) return i;
+  return std::nullopt;
+}
+
+void Localizer::Impl::take_candidate(size_t index, float votes, std::vector<size_t>& candidates,
+                                     LocalizationResult& res) const {
+  candidates.push_back(index);
+  res.retrieval_segments.push_back(static_cast<int>(map.manifest().segments[index].id));
+  res.retrieval_votes.push_back(votes);
 }
 
 void Localizer::Impl::Search::search_pass(const std::vector<size_t>& candidates) {
