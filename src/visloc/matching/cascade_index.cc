@@ -101,9 +101,9 @@ void CascadeMatches::clear() {
 }
 
 size_t CascadeWorkspace::capacity_bytes() const {
-  return stamp.capacity() * 4 + query_codes.capacity() * sizeof(HashCode) + sizes.capacity() * 4 +
-         order.capacity() * 8 + candidates.capacity() * 4 + hamming.capacity() + shortlist.capacity() * 4 +
-         ranked_distances.capacity() * 4 + encode.capacity() * 4 + table.capacity() * 4 + counts.capacity() * 4;
+  return seen.capacity() * 8 + query_codes.capacity() * sizeof(HashCode) + sizes.capacity() * 4 + order.capacity() * 8 +
+         candidates.capacity() * 4 + hamming.capacity() + shortlist.capacity() * 4 + ranked_distances.capacity() * 4 +
+         encode.capacity() * 4 + table.capacity() * 4 + counts.capacity() * 4;
 }
 
 CascadeMatcher::CascadeMatcher(CascadeIndexView index, const PqCodebook& codebook)
@@ -176,15 +176,17 @@ void probe_ranges(const CascadeLookup& lookup, const HashCode& code, int probes,
   r.listed = listed;
 }
 
-// Coarse: the union of the probed buckets, deduplicated by a per-point stamp,
+// Coarse: the union of the probed buckets, deduplicated by the `seen` bits,
 // in probe order (within a bucket, increasing point id), into `out` (room for
 // r.listed + 1). A bucket's first id is taken without a branch, since most
 // buckets hold 0 or 1 points: it is read even from an empty bucket (the
 // lookup's padding makes that safe), then counted only if the bucket has it
-// and it is new; the stamp is rewritten unchanged otherwise.
+// and it is new; its bit is rewritten unchanged otherwise. The caller clears
+// the bits of `out` afterwards. (Reading 2 or 4 ids without a branch, or
+// prefetching the next feature's first ids, measured no faster at 100K
+// points: the gather waits on cache misses, not on mispredicted branches.)
 template <typename Id>
-size_t gather_candidates(const Id* const* ids, const ProbeRanges& r, int probes, uint32_t* stamp, uint32_t s,
-                         uint32_t* out) {
+size_t gather_candidates(const Id* const* ids, const ProbeRanges& r, int probes, uint64_t* seen, uint32_t* out) {
   size_t n = 0;
   int c = 0;
   for (int k = 0; k < kHashTables; ++k) {
@@ -192,32 +194,32 @@ size_t gather_candidates(const Id* const* ids, const ProbeRanges& r, int probes,
     for (int b = 0; b < probes; ++b, ++c) {
       const uint32_t begin = r.begin[c], end = r.end[c];
       const uint32_t first = table_ids[begin];
-      const uint32_t old = stamp[first];
+      const uint64_t word = seen[first >> 6], bit = uint64_t(1) << (first & 63);
       const bool non_empty = begin < end;
       out[n] = first;
-      n += static_cast<size_t>(non_empty & (old != s));
-      stamp[first] = non_empty ? s : old;
+      n += static_cast<size_t>(non_empty & ((word & bit) == 0));
+      seen[first >> 6] = word | (non_empty ? bit : 0);
       for (uint32_t i = begin + 1; i < end; ++i) {
         const uint32_t id = table_ids[i];
+        const uint64_t w = seen[id >> 6], m = uint64_t(1) << (id & 63);
         out[n] = id;
-        n += static_cast<size_t>(stamp[id] != s);
-        stamp[id] = s;
+        n += static_cast<size_t>((w & m) == 0);
+        seen[id >> 6] = w | m;
       }
     }
   }
   return n;
 }
 
-size_t collect_all(const CascadeLookup& lookup, const ProbeRanges& r, int probes, uint32_t* stamp, uint32_t s,
-                   uint32_t* out) {
+size_t collect_all(const CascadeLookup& lookup, const ProbeRanges& r, int probes, uint64_t* seen, uint32_t* out) {
   if (lookup.uses_16bit_ids()) {
     const uint16_t* ids[kHashTables];
     for (int k = 0; k < kHashTables; ++k) ids[k] = lookup.ids16(k);
-    return gather_candidates(ids, r, probes, stamp, s, out);
+    return gather_candidates(ids, r, probes, seen, out);
   }
   const uint32_t* ids[kHashTables];
   for (int k = 0; k < kHashTables; ++k) ids[k] = lookup.ids32(k);
-  return gather_candidates(ids, r, probes, stamp, s, out);
+  return gather_candidates(ids, r, probes, seen, out);
 }
 
 // Refined: the `list` nearest of the n candidates (more than `list`) by
@@ -361,7 +363,7 @@ void CascadeMatcher::match_hashed(const DescriptorMatrix& queries, std::span<con
 
   // 2. Per feature: coarse → refined → precise.
   t.reset();
-  if (ws.stamp.size() < np) ws.stamp.resize(np, 0);  // new entries are 0: below every live stamp
+  if (ws.seen.size() < (np + 63) / 64) ws.seen.resize((np + 63) / 64, 0);
   ws.table.resize(kPqTableSize);
   const int keep = std::max(options.max_one_to_many, 1) + 1;  // ranks needed by both rules
   float best_d[65];
@@ -383,13 +385,9 @@ void CascadeMatcher::match_hashed(const DescriptorMatrix& queries, std::span<con
     const HashCode code = codes[f];
     probe_ranges(lookup, code, probes, ranges);
     if (ranges.listed < 2) continue;  // not searched: no ratio test possible
-    if (++ws.stamp_value == 0) {  // wrapped: reset the stamps once every 2^32 features
-      std::fill(ws.stamp.begin(), ws.stamp.end(), 0u);
-      ws.stamp_value = 1;
-    }
     if (ws.candidates.size() < size_t(ranges.listed) + 1) ws.candidates.resize(size_t(ranges.listed) + 1);
-    const size_t n_candidates =
-        collect_all(lookup, ranges, probes, ws.stamp.data(), ws.stamp_value, ws.candidates.data());
+    const size_t n_candidates = collect_all(lookup, ranges, probes, ws.seen.data(), ws.candidates.data());
+    for (size_t j = 0; j < n_candidates; ++j) ws.seen[ws.candidates[j] >> 6] = 0;
     out.stats.coarse_candidates += n_candidates;
     ++out.stats.features_searched;
     if (n_candidates < 2) continue;

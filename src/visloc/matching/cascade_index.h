@@ -165,8 +165,10 @@ struct CascadeMatches {
 // Reusable buffers of the search: grown to the largest segment and query
 // seen, then reused, so a search allocates nothing. One per thread.
 struct CascadeWorkspace {
-  std::vector<uint32_t> stamp;  // per point: the last feature (stamp value) that listed it
-  uint32_t stamp_value = 0;
+  // One bit per point: set while a feature's coarse list is gathered, for the
+  // deduplication, and cleared right after (all zero between features). At
+  // 1/8 byte per point it stays in L1/L2 where a per-point stamp did not.
+  std::vector<uint64_t> seen;
   std::vector<HashCode> query_codes;
   std::vector<uint32_t> sizes;
   std::vector<uint64_t> order;

@@ -487,7 +487,6 @@ TEST(CascadeSearch, EveryKernelLevelAndAReusedWorkspaceGiveTheSameMatches) {
     const CascadeMatches ref = CascadeMatcher(t.view(), t.codebook).match(q, o);
     ASSERT_GT(ref.query.size(), 50u);
     CascadeWorkspace shared;
-    shared.stamp_value = UINT32_MAX - 3;  // the stamps wrap (and are reset) during the first search
     for (SimdLevel level : supported_simd_levels()) {
       o.simd = level;
       CascadeMatches m, other;
@@ -503,6 +502,9 @@ TEST(CascadeSearch, EveryKernelLevelAndAReusedWorkspaceGiveTheSameMatches) {
       EXPECT_EQ(m.many_distances, ref.many_distances) << to_string(level);
       EXPECT_EQ(m.stats.coarse_candidates, ref.stats.coarse_candidates);
       EXPECT_EQ(m.stats.ranked_candidates, ref.stats.ranked_candidates);
+      // The deduplication's bits are all cleared again after every feature.
+      EXPECT_TRUE(std::all_of(shared.seen.begin(), shared.seen.end(), [](uint64_t w) { return w == 0; }));
+      EXPECT_GE(shared.seen.size() * 64, t.view().num_points);
       // (The query codes come from the best kernel at every level: encode_hash
       // does not take a level; the hash kernels' equality is tested on its own.)
       // Codes hashed once by the caller give the same result.
