@@ -106,17 +106,28 @@ size_t CascadeWorkspace::capacity_bytes() const {
          encode.capacity() * 4 + table.capacity() * 4 + counts.capacity() * 4;
 }
 
+namespace {
+
+// The search indexes the lookup's ids into the codes and its workspace by the
+// point count, so a lookup built for another count would read out of bounds.
+void check_searchable(const CascadeIndexView& index, const PqCodebook& codebook) {
+  VISLOC_CHECK(!codebook.empty());
+  VISLOC_CHECK(index.num_points == 0 || index.lookup != nullptr);
+  VISLOC_CHECK(index.lookup == nullptr || index.lookup->num_points() == index.num_points,
+               "(lookup tables built for another point count)");
+}
+
+}  // namespace
+
 CascadeMatcher::CascadeMatcher(CascadeIndexView index, const PqCodebook& codebook)
     : index_(index), codebook_(&codebook), own_workspace_(std::make_unique<CascadeWorkspace>()),
       ws_(own_workspace_.get()) {
-  VISLOC_CHECK(!codebook.empty());
-  VISLOC_CHECK(index.num_points == 0 || index.lookup != nullptr);
+  check_searchable(index, codebook);
 }
 
 CascadeMatcher::CascadeMatcher(CascadeIndexView index, const PqCodebook& codebook, CascadeWorkspace& workspace)
     : index_(index), codebook_(&codebook), ws_(&workspace) {
-  VISLOC_CHECK(!codebook.empty());
-  VISLOC_CHECK(index.num_points == 0 || index.lookup != nullptr);
+  check_searchable(index, codebook);
 }
 
 namespace {
@@ -182,7 +193,7 @@ void probe_ranges(const CascadeLookup& lookup, const HashCode& code, int probes,
 // buckets hold 0 or 1 points: it is read even from an empty bucket (the
 // lookup's padding makes that safe), then counted only if the bucket has it
 // and it is new; its bit is rewritten unchanged otherwise. The caller clears
-// the bits of `out` afterwards. (Reading 2 or 4 ids without a branch, or
+// the words of `out`'s ids afterwards. (Reading 2 or 4 ids without a branch, or
 // prefetching the next feature's first ids, measured no faster at 100K
 // points: the gather waits on cache misses, not on mispredicted branches.)
 template <typename Id>
@@ -387,6 +398,7 @@ void CascadeMatcher::match_hashed(const DescriptorMatrix& queries, std::span<con
     if (ranges.listed < 2) continue;  // not searched: no ratio test possible
     if (ws.candidates.size() < size_t(ranges.listed) + 1) ws.candidates.resize(size_t(ranges.listed) + 1);
     const size_t n_candidates = collect_all(lookup, ranges, probes, ws.seen.data(), ws.candidates.data());
+    // Whole words are cleared: valid since every bit is zero between features.
     for (size_t j = 0; j < n_candidates; ++j) ws.seen[ws.candidates[j] >> 6] = 0;
     out.stats.coarse_candidates += n_candidates;
     ++out.stats.features_searched;

@@ -166,8 +166,8 @@ struct CascadeMatches {
 // seen, then reused, so a search allocates nothing. One per thread.
 struct CascadeWorkspace {
   // One bit per point: set while a feature's coarse list is gathered, for the
-  // deduplication, and cleared right after (all zero between features). At
-  // 1/8 byte per point it stays in L1/L2 where a per-point stamp did not.
+  // deduplication, and cleared right after (all zero between features):
+  // 1/8 byte per point, where a uint32 stamp per point took 4.
   std::vector<uint64_t> seen;
   std::vector<HashCode> query_codes;
   std::vector<uint32_t> sizes;

@@ -211,6 +211,10 @@ TEST(CascadeIndex, TablesAreCsrOfSubcodes) {
   CascadeLookup other(std::span<const HashCode>(t.codes.data(), 10));
   v.lookup = &other;
   EXPECT_THROW(v.validate("test"), Error);
+  // ... and by a matcher given it without validation.
+  EXPECT_THROW(CascadeMatcher(v, t.codebook), Error);
+  CascadeWorkspace workspace;
+  EXPECT_THROW(CascadeMatcher(v, t.codebook, workspace), Error);
 }
 
 TEST(CascadeIndex, LargeSegmentsUse32BitIds) {
@@ -243,7 +247,8 @@ TEST(CascadeSearch, CoarseListsAreTheUnionOfTheProbedBuckets) {
     const CascadeLookup lookup(codes);
     ASSERT_EQ(lookup.uses_16bit_ids(), points <= 65536);
     BinaryHasher unused;
-    CascadeMatcher matcher({points, unused.view(), codes.data(), pq.data(), &lookup}, codebook);
+    CascadeWorkspace workspace;
+    CascadeMatcher matcher({points, unused.view(), codes.data(), pq.data(), &lookup}, codebook, workspace);
     DescriptorMatrix one(1);
     size_t complete_lists = 0;
     for (int q = 0; q < 60; ++q) {
@@ -275,6 +280,8 @@ TEST(CascadeSearch, CoarseListsAreTheUnionOfTheProbedBuckets) {
         EXPECT_EQ(m.stats.features_searched, listed >= 2 ? 1u : 0u);
         EXPECT_EQ(m.stats.coarse_candidates, listed >= 2 ? distinct : 0u);
         EXPECT_EQ(m.stats.ranked_candidates, listed >= 2 && distinct >= 2 ? distinct : 0u);
+        // The deduplication bits are all clear again, whatever the list's size.
+        EXPECT_TRUE(std::all_of(workspace.seen.begin(), workspace.seen.end(), [](uint64_t w) { return w == 0; }));
         std::vector<uint32_t> found = m.many_points;
         std::sort(found.begin(), found.end());
         EXPECT_TRUE(std::includes(expected.begin(), expected.end(), found.begin(), found.end()));
@@ -284,6 +291,36 @@ TEST(CascadeSearch, CoarseListsAreTheUnionOfTheProbedBuckets) {
     }
     EXPECT_GE(complete_lists, 10u) << "too few queries whose whole coarse list is checked";
   }
+}
+
+TEST(CascadeSearch, AFeatureWithOneDistinctCandidateLeavesNoBitSet) {
+  // Two points that differ in every bit: a query equal to one of them lists it
+  // in all 8 tables (8 listed, 1 distinct), so it is searched but not ranked.
+  std::mt19937_64 rng(5);
+  std::vector<float> train(300 * 128);
+  for (auto& x : train) x = float(rng() % 200);
+  const PqCodebook codebook = PqCodebook::train(train.data(), 300, {.iterations = 2});
+  const HashCode a{{rng(), rng()}};
+  const std::vector<HashCode> codes{a, HashCode{{~a.w[0], ~a.w[1]}}};
+  std::vector<uint8_t> pq(codes.size() * kPqCodeBytes, 7);
+  const CascadeLookup lookup(codes);
+  BinaryHasher unused;
+  CascadeWorkspace workspace;
+  CascadeMatcher matcher({codes.size(), unused.view(), codes.data(), pq.data(), &lookup}, codebook, workspace);
+  DescriptorMatrix one(1);
+  for (int radius : {0, 1})
+    for (const HashCode& code : codes) {
+      CascadeSearchOptions o;
+      o.lut_radius = radius;
+      o.prioritize = false;
+      CascadeMatches m;
+      matcher.match_hashed(one, std::span<const HashCode>(&code, 1), o, m);
+      EXPECT_EQ(m.stats.features_searched, 1u);
+      EXPECT_EQ(m.stats.coarse_candidates, 1u);
+      EXPECT_EQ(m.stats.ranked_candidates, 0u);
+      EXPECT_TRUE(std::all_of(workspace.seen.begin(), workspace.seen.end(), [](uint64_t w) { return w == 0; }))
+          << "radius " << radius;
+    }
 }
 
 TEST(CascadeSearch, FindsPlantedMatches) {
