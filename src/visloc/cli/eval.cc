@@ -34,6 +34,8 @@ void add_eval_command(CLI::App& app) {
   cmd->callback([args] {
     EvaluationRunOptions o = args->run;
     read_list_files(args->lists, o);
+    if (const std::string w = unlisted_intrinsics_warning(args->lists, o); !w.empty())
+      std::cerr << "eval: " << w << "\n";
     o.progress = evaluation_progress_printer(std::cerr, ::isatty(STDERR_FILENO));
     const EvaluationRunResult r = run_evaluation(o);
     std::cout << r.report_markdown;

@@ -35,15 +35,15 @@ void add_localize_command(CLI::App& app) {
       .positive()
       .no_default();
   t.add("--intrinsics", args->intrinsics,
-        "Per-image intrinsics: 'name MODEL width height params...' (SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL)");
+        "Per-image intrinsics: 'name MODEL width height params...' (SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL; "
+        "by file name, '*' for every image without a line)");
   add_options(t, args->options);
   bind_options(cmd, t);
   cmd->get_option("--intrinsics")->excludes("--focal");
   cmd->callback([args] {
     Localizer localizer(args->map, args->options);
-    std::map<std::string, PinholeCamera> cameras;
-    if (!args->intrinsics.empty())
-      for (auto& c : read_intrinsics_list(args->intrinsics)) cameras[c.name] = c.camera;
+    CamerasByName cameras;
+    if (!args->intrinsics.empty()) cameras = read_intrinsics_by_name(args->intrinsics);
     std::ostringstream lines;
     const bool tty = ::isatty(STDERR_FILENO);
     size_t registered = 0, failed = 0;
@@ -51,8 +51,9 @@ void add_localize_command(CLI::App& app) {
     for (size_t i = 0; i < args->images.size(); ++i) {
       std::optional<PinholeCamera> intrinsics;
       if (!cameras.empty()) {
-        auto it = cameras.find(std::filesystem::path(args->images[i]).filename().string());
-        if (it != cameras.end()) intrinsics = it->second;
+        const PinholeCamera* listed =
+            find_listed_camera(cameras, std::filesystem::path(args->images[i]).filename().string());
+        if (listed) intrinsics = *listed;
       } else if (args->focal > 0) {
         PinholeCamera c;
         c.focal = args->focal;

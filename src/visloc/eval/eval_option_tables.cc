@@ -46,7 +46,9 @@ void add_options(OptionTable& t, EvaluationRunOptions& o, EvaluationListFiles& l
         "Reference: poses 'name qw qx qy qz tx ty tz' (the map's frame), a COLMAP images.txt or model directory, "
         "or a GPS CSV (.csv: positions); not used with --leave-one-out (the model's poses are the truth)");
   t.add("--out", o.out, "Report directory").require();
-  t.add("--intrinsics", lists.intrinsics, "Per-image intrinsics 'name MODEL w h params...'");
+  t.add("--intrinsics", lists.intrinsics,
+        "Query intrinsics, 'name MODEL width height params...' per line ('*' for every query without a line); a "
+        "query without one takes its EXIF focal, else an estimated one");
   t.choice("--query-features", o.query_features,
            {{"images", QueryFeatureSource::kImages}, {"database", QueryFeatureSource::kDatabase}},
            "Query features: 'images' (our SIFT on the photos) or 'database' (the imported model's own features "

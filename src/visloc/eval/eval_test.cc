@@ -3,6 +3,7 @@
 #include <filesystem>
 
 #include "visloc/eval/evaluation.h"
+#include "visloc/eval/evaluation_run.h"
 #include "visloc/util/error.h"
 #include "visloc/util/file_io.h"
 #include "visloc/util/test_support.h"
@@ -99,6 +100,34 @@ TEST(Protocols, LeaveOneOutWithDatabaseFeatures) {
   } catch (const Error& e) {
     EXPECT_NE(std::string(e.what()).find("nope.jpg"), std::string::npos);
   }
+}
+
+// A '*' line gives every query a camera; without it, an unlisted query is named in a warning.
+TEST(EvaluationLists, StarIntrinsicsCoverEveryQueryAndUnlistedOnesAreWarned) {
+  const fs::path dir = unique_temp_path("visloc_eval_test_lists");
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  write_file_atomic(dir / "queries.txt", "a.png\nb.png\n");
+  EvaluationListFiles lists;
+  lists.queries = dir / "queries.txt";
+  lists.intrinsics = dir / "intrinsics.txt";
+  EvaluationRunOptions o;
+  o.images_dir = dir;
+  o.truth = dir / "truth.txt";
+  write_file_atomic(lists.intrinsics, "a.png PINHOLE 800 600 500 500 400 300\n");
+  read_list_files(lists, o);
+  const std::string warning = unlisted_intrinsics_warning(lists, o);
+  EXPECT_NE(warning.find("1 of 2 queries"), std::string::npos) << warning;
+  EXPECT_NE(warning.find("intrinsics.txt"), std::string::npos) << warning;
+  write_file_atomic(lists.intrinsics, "* PINHOLE 800 600 500 500 400 300\n");
+  o = EvaluationRunOptions{};
+  o.images_dir = dir;
+  o.truth = dir / "truth.txt";
+  read_list_files(lists, o);
+  EXPECT_EQ(unlisted_intrinsics_warning(lists, o), "");
+  for (const std::string& q : o.queries) EXPECT_NE(find_listed_camera(o.intrinsics, q), nullptr) << q;
+  EXPECT_EQ(unlisted_intrinsics_warning(EvaluationListFiles{}, o), "");  // no file, no warning
+  fs::remove_all(dir);
 }
 
 TEST(Protocols, FeatureStoreNeedsAnImportedMap) {

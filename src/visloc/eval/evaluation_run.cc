@@ -162,9 +162,13 @@ QueryRun localize_query_list(const EvaluationRunOptions& o, nlohmann::json& cont
     throw_error(ErrorCode::kInvalidArgument, o.map.string(), ": comparing with COLMAP needs a map imported from COLMAP");
   Localizer localizer(o.map, o.localizer);
   std::vector<PreparedQuery> prepared;
+  size_t listed_cameras = 0;
   for (size_t i = 0; i < o.queries.size(); ++i) {
     std::optional<PinholeCamera> cam;
-    if (auto it = o.intrinsics.find(o.queries[i]); it != o.intrinsics.end()) cam = it->second;
+    if (const PinholeCamera* listed = find_listed_camera(o.intrinsics, o.queries[i])) {
+      cam = *listed;
+      ++listed_cameras;
+    }
     PreparedQuery q = prepare_query(o.queries[i], o.query_features, o.images_dir, o.localizer.sift, store.get(), cam,
                                     o.localizer.use_exif_focal);
     run.results.push_back(localize_prepared(localizer, q));
@@ -172,6 +176,7 @@ QueryRun localize_query_list(const EvaluationRunOptions& o, nlohmann::json& cont
     report_progress(o, i + 1, o.queries.size(), "queries");
   }
   if (o.compare_colmap) run.peer = register_queries_with_colmap(o, *store, prepared);
+  context["queries_with_given_intrinsics"] = listed_cameras;
   context["truth"] = fs::absolute(o.truth).string();
   return run;
 }
@@ -259,13 +264,23 @@ void read_list_files(const EvaluationListFiles& lists, EvaluationRunOptions& o) 
     o.queries = read_name_list(lists.queries);
     if (o.queries.empty()) throw_error(ErrorCode::kInvalidArgument, lists.queries.string(), ": no query names");
   }
-  if (!lists.intrinsics.empty())
-    for (auto& c : read_intrinsics_list(lists.intrinsics)) o.intrinsics[c.name] = c.camera;
+  if (!lists.intrinsics.empty()) o.intrinsics = read_intrinsics_by_name(lists.intrinsics);
   if (!lists.negatives.empty()) {
     o.negatives = read_name_list(lists.negatives);
     if (o.negatives.empty()) throw_error(ErrorCode::kInvalidArgument, lists.negatives.string(), ": no image paths");
     o.negatives_source = lists.negatives.string();
   }
+}
+
+std::string unlisted_intrinsics_warning(const EvaluationListFiles& lists, const EvaluationRunOptions& o) {
+  if (lists.intrinsics.empty()) return {};
+  const auto unlisted = std::count_if(o.queries.begin(), o.queries.end(),
+                                      [&](const std::string& q) { return !find_listed_camera(o.intrinsics, q); });
+  if (unlisted == 0) return {};
+  std::ostringstream s;
+  s << "warning: " << unlisted << " of " << o.queries.size() << " queries have no line in " << lists.intrinsics.string()
+    << " (and it has no '*' line); their focal length comes from EXIF or is estimated";
+  return s.str();
 }
 
 std::function<void(size_t, size_t, const std::string&)> evaluation_progress_printer(std::ostream& log, bool tty) {

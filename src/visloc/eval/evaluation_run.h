@@ -20,6 +20,7 @@
 #include <nlohmann/json.hpp>
 
 #include "visloc/eval/protocols.h"
+#include "visloc/geometry/pose_list.h"
 #include "visloc/pipeline/localizer.h"
 #include "visloc/sfm/colmap_runner.h"
 
@@ -34,7 +35,7 @@ struct EvaluationRunOptions {
   // COLMAP images.txt or model directory, or a GPS CSV (.csv: positions in
   // the map's ENU frame). Not used with leave_one_out.
   std::filesystem::path truth;
-  std::map<std::string, PinholeCamera> intrinsics;  // per query image; else EXIF or an estimated focal
+  CamerasByName intrinsics;  // per query image, or '*' for all (find_listed_camera); else EXIF or an estimated focal
   QueryFeatureSource query_features = QueryFeatureSource::kImages;
   bool leave_one_out = false;                // a map imported from COLMAP: its own images, one by one
   // Images that must not register (other places, foreign photos): paths,
@@ -63,7 +64,7 @@ EvaluationRunResult run_evaluation(const EvaluationRunOptions& options);
 // The lists `visloc eval` names by file, read into EvaluationRunOptions by read_list_files.
 struct EvaluationListFiles {
   std::filesystem::path queries;     // query names, one per line
-  std::filesystem::path intrinsics;  // 'name MODEL width height params...' per query image
+  std::filesystem::path intrinsics;  // 'name MODEL width height params...' per query image, '*' for all
   std::filesystem::path negatives;   // paths of images that must not register, one per line
 };
 
@@ -76,6 +77,10 @@ void add_options(OptionTable& table, EvaluationRunOptions& options, EvaluationLi
 // images; --queries and --truth unless --leave-one-out), then reads the lists
 // into `options`. Throws Error(kInvalidArgument) naming the option or file.
 void read_list_files(const EvaluationListFiles& lists, EvaluationRunOptions& options);
+// After read_list_files: a warning naming the intrinsics file when some
+// queries have no camera in it (no line of their own and no '*' line), or ""
+// (no file given, or every query listed).
+std::string unlisted_intrinsics_warning(const EvaluationListFiles& lists, const EvaluationRunOptions& options);
 
 // An EvaluationRunOptions::progress that writes "eval: 12/40" lines to `log`
 // (one line rewritten in place when `tty`, else every 10th).

@@ -274,7 +274,8 @@ LeaveOneOutResult run_leave_one_out(const fs::path& model_dir, const fs::path& d
 
     // Known intrinsics: the caller's, else the model's camera of that image.
     std::optional<PinholeCamera> intrinsics;
-    if (auto it = options.intrinsics.find(name); it != options.intrinsics.end()) intrinsics = it->second;
+    if (const PinholeCamera* listed = find_listed_camera(options.intrinsics, name))
+      intrinsics = *listed;
     else {
       const ColmapCamera& c = model.cameras[static_cast<size_t>(model.camera_index(im.camera_id))];
       try {

@@ -22,6 +22,7 @@
 #include "visloc/colmap/colmap_model.h"
 #include "visloc/eval/evaluation.h"
 #include "visloc/features/feature_set.h"
+#include "visloc/geometry/pose_list.h"
 #include "visloc/map_building/colmap_import.h"
 #include "visloc/pipeline/localizer.h"
 #include "visloc/sfm/colmap_runner.h"
@@ -81,7 +82,7 @@ struct LeaveOneOutOptions {
   QueryFeatureSource features = QueryFeatureSource::kImages;
   std::filesystem::path images_dir;          // with kImages
   std::vector<std::string> images;           // the images to leave out; empty: every image of the model
-  std::map<std::string, PinholeCamera> intrinsics;  // per image; else the model's camera (known intrinsics)
+  CamerasByName intrinsics;                  // per image, or '*' for all; else the model's camera (known intrinsics)
   std::filesystem::path work_dir;            // scratch maps (removed at the end)
   bool compare_colmap = false;               // also register each image with COLMAP
   ColmapRunnerOptions colmap;

@@ -179,6 +179,25 @@ TEST(IntrinsicsList, ReadsModelsAndRejectsBadLines) {
   }
 }
 
+TEST(IntrinsicsList, AnImageWithoutALineOfItsOwnTakesTheStarLine) {
+  namespace fs = std::filesystem;
+  fs::path p = unique_temp_path("visloc_geometry_test_intrinsics_star.txt");
+  write_file_atomic(p, "* PINHOLE 1226 370 707 707 601 183\nq1.png PINHOLE 800 600 500 500 400 300\n");
+  const CamerasByName cams = read_intrinsics_by_name(p);
+  ASSERT_EQ(cams.size(), 2u);
+  const PinholeCamera* own = find_listed_camera(cams, "q1.png");
+  ASSERT_NE(own, nullptr);
+  EXPECT_EQ(own->width, 800);  // its own line, though '*' comes first
+  const PinholeCamera* star = find_listed_camera(cams, "000100.png");
+  ASSERT_NE(star, nullptr);
+  EXPECT_EQ(star->width, 1226);
+  EXPECT_DOUBLE_EQ(star->focal, 707);
+  write_file_atomic(p, "q1.png PINHOLE 800 600 500 500 400 300\n");
+  EXPECT_EQ(find_listed_camera(read_intrinsics_by_name(p), "000100.png"), nullptr);  // no '*': none
+  write_file_atomic(p, "* PINHOLE 800 600 500 500 400 300\n* PINHOLE 800 600 600 600 400 300\n");
+  EXPECT_THROW(read_intrinsics_by_name(p), Error);  // two '*' lines conflict like any other name
+}
+
 TEST(IntrinsicsList, RejectsConflictingLinesAndPrincipalPointsOutside) {
   namespace fs = std::filesystem;
   fs::path p = unique_temp_path("visloc_geometry_test_intrinsics_conflict.txt");

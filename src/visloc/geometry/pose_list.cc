@@ -130,6 +130,18 @@ std::vector<NamedCamera> read_intrinsics_list(const std::filesystem::path& path)
   return out;
 }
 
+CamerasByName read_intrinsics_by_name(const std::filesystem::path& path) {
+  CamerasByName out;
+  for (NamedCamera& c : read_intrinsics_list(path)) out.emplace(std::move(c.name), c.camera);
+  return out;
+}
+
+const PinholeCamera* find_listed_camera(const CamerasByName& cameras, const std::string& image_name) {
+  auto it = cameras.find(image_name);
+  if (it == cameras.end()) it = cameras.find(kEveryImage);
+  return it == cameras.end() ? nullptr : &it->second;
+}
+
 std::vector<std::string> read_name_list(const std::filesystem::path& path) {
   std::istringstream in(read_file(path));
   std::vector<std::string> out;

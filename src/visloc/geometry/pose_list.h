@@ -4,6 +4,7 @@
 #pragma once
 
 #include <filesystem>
+#include <map>
 #include <string>
 #include <vector>
 
@@ -28,11 +29,21 @@ void write_pose_list(const std::filesystem::path& path, const std::vector<NamedP
 // `name MODEL width height params...` with MODEL SIMPLE_PINHOLE (f cx cy),
 // PINHOLE (fx fy cx cy; fx and fy averaged), SIMPLE_RADIAL (f cx cy k) or
 // RADIAL (f cx cy k1 k2; k2 must be 0). Errors name the file and the line.
+// The name '*' (kEveryImage) gives the camera of every image that has no line
+// of its own.
 struct NamedCamera {
   std::string name;
   PinholeCamera camera;
 };
 std::vector<NamedCamera> read_intrinsics_list(const std::filesystem::path& path);
+
+inline constexpr const char* kEveryImage = "*";
+using CamerasByName = std::map<std::string, PinholeCamera>;
+// The same list keyed by image name ('*' kept as its own key).
+CamerasByName read_intrinsics_by_name(const std::filesystem::path& path);
+// The camera the list gives the image named `image_name` (a file name, no
+// folder): its own entry, else the '*' entry, else null.
+const PinholeCamera* find_listed_camera(const CamerasByName& cameras, const std::string& image_name);
 
 // A list of image names, one per line ('#' comments, blank lines ignored).
 std::vector<std::string> read_name_list(const std::filesystem::path& path);

@@ -201,17 +201,15 @@ ColmapModel load_known_poses(const MapBuildOptions& opt) {
     throw_error(ErrorCode::kInvalidArgument, "map build: ", opt.known_poses.string(),
                 " is a pose list; it needs --known-intrinsics (lines 'name MODEL w h params', '*' for all images)");
   const std::vector<NamedPose> poses = read_pose_list(opt.known_poses);
-  std::map<std::string, PinholeCamera> cams;
-  for (const NamedCamera& c : read_intrinsics_list(opt.known_intrinsics)) cams[c.name] = c.camera;
+  const CamerasByName cams = read_intrinsics_by_name(opt.known_intrinsics);
   ColmapModel model;
   uint32_t id = 0;
   for (const NamedPose& p : poses) {
-    auto it = cams.find(p.name);
-    if (it == cams.end()) it = cams.find("*");
-    if (it == cams.end())
+    const PinholeCamera* listed = find_listed_camera(cams, p.name);
+    if (!listed)
       throw_error(ErrorCode::kNotFound, opt.known_intrinsics.string(), ": no intrinsics for image '", p.name,
                   "' (and no '*' line)");
-    const PinholeCamera& k = it->second;
+    const PinholeCamera& k = *listed;
     ++id;
     ColmapCamera cam;
     cam.camera_id = id;

@@ -1020,9 +1020,7 @@ void bind_evaluate(py::module_& m) {
             }
           } else {
             const fs::path p = path_from(intrinsics, "evaluate: intrinsics");
-            translate_errors([&] {
-              for (auto& c : read_intrinsics_list(p)) o.intrinsics[c.name] = c.camera;
-            });
+            translate_errors([&] { o.intrinsics = read_intrinsics_by_name(p); });
           }
         }
         if (!negatives.is_none()) {

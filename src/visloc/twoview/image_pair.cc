@@ -259,15 +259,10 @@ void draw_pair_inliers(const std::filesystem::path& image1, const std::filesyste
 namespace {
 
 // The camera of `image` in an intrinsics list: its own line, else the '*' line; checked against the image.
-PinholeCamera listed_camera(const std::vector<NamedCamera>& list, const std::filesystem::path& list_file,
+PinholeCamera listed_camera(const CamerasByName& list, const std::filesystem::path& list_file,
                             const std::filesystem::path& image) {
   const std::string name = image.filename().string();
-  std::optional<PinholeCamera> camera;
-  for (const auto& c : list)
-    if (c.name == name) camera = c.camera;
-  if (!camera)
-    for (const auto& c : list)
-      if (c.name == "*") camera = c.camera;
+  const PinholeCamera* camera = find_listed_camera(list, name);
   if (!camera) throw_error(ErrorCode::kInvalidArgument, list_file.string(), ": no line for ", name, " (nor '*')");
   const ImageMetadata m = read_image_metadata(image);
   if (camera->width != m.width || camera->height != m.height)
@@ -300,7 +295,7 @@ ImagePairOptions resolve_image_pair_options(const ImagePairTask& task) {
   const std::filesystem::path images[2] = {task.image1, task.image2};
   std::optional<PinholeCamera> cameras[2];
   if (!task.intrinsics.empty()) {
-    const auto list = read_intrinsics_list(task.intrinsics);
+    const CamerasByName list = read_intrinsics_by_name(task.intrinsics);
     for (int k = 0; k < 2; ++k) cameras[k] = listed_camera(list, task.intrinsics, images[k]);
   } else if (task.focal > 0) {
     for (int k = 0; k < 2; ++k) {
