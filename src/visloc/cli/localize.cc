@@ -43,7 +43,13 @@ void add_localize_command(CLI::App& app) {
   cmd->callback([args] {
     Localizer localizer(args->map, args->options);
     CamerasByName cameras;
-    if (!args->intrinsics.empty()) cameras = read_intrinsics_by_name(args->intrinsics);
+    if (!args->intrinsics.empty()) {
+      cameras = read_intrinsics_by_name(args->intrinsics);
+      std::vector<std::string> names;
+      for (const auto& image : args->images) names.push_back(std::filesystem::path(image).filename().string());
+      if (const std::string w = unlisted_cameras_warning(cameras, args->intrinsics, names, "images"); !w.empty())
+        std::cerr << "localize: " << w << "\n";
+    }
     std::ostringstream lines;
     const bool tty = ::isatty(STDERR_FILENO);
     size_t registered = 0, failed = 0;

@@ -274,13 +274,7 @@ void read_list_files(const EvaluationListFiles& lists, EvaluationRunOptions& o) 
 
 std::string unlisted_intrinsics_warning(const EvaluationListFiles& lists, const EvaluationRunOptions& o) {
   if (lists.intrinsics.empty()) return {};
-  const auto unlisted = std::count_if(o.queries.begin(), o.queries.end(),
-                                      [&](const std::string& q) { return !find_listed_camera(o.intrinsics, q); });
-  if (unlisted == 0) return {};
-  std::ostringstream s;
-  s << "warning: " << unlisted << " of " << o.queries.size() << " queries have no line in " << lists.intrinsics.string()
-    << " (and it has no '*' line); their focal length comes from EXIF or is estimated";
-  return s.str();
+  return unlisted_cameras_warning(o.intrinsics, lists.intrinsics, o.queries, "queries");
 }
 
 std::function<void(size_t, size_t, const std::string&)> evaluation_progress_printer(std::ostream& log, bool tty) {

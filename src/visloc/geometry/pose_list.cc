@@ -142,6 +142,17 @@ const PinholeCamera* find_listed_camera(const CamerasByName& cameras, const std:
   return it == cameras.end() ? nullptr : &it->second;
 }
 
+std::string unlisted_cameras_warning(const CamerasByName& cameras, const std::filesystem::path& list_file,
+                                     const std::vector<std::string>& image_names, const std::string& what) {
+  size_t unlisted = 0;
+  for (const std::string& name : image_names) unlisted += find_listed_camera(cameras, name) == nullptr;
+  if (unlisted == 0) return {};
+  std::ostringstream s;
+  s << "warning: " << unlisted << " of " << image_names.size() << " " << what << " have no line in "
+    << list_file.string() << " (and it has no '*' line); their focal length comes from EXIF or is estimated";
+  return s.str();
+}
+
 std::vector<std::string> read_name_list(const std::filesystem::path& path) {
   std::istringstream in(read_file(path));
   std::vector<std::string> out;

@@ -44,6 +44,11 @@ CamerasByName read_intrinsics_by_name(const std::filesystem::path& path);
 // The camera the list gives the image named `image_name` (a file name, no
 // folder): its own entry, else the '*' entry, else null.
 const PinholeCamera* find_listed_camera(const CamerasByName& cameras, const std::string& image_name);
+// "warning: N of M <what> have no line in FILE (and it has no '*' line); ..."
+// when some of `image_names` (file names, as find_listed_camera takes them)
+// get no camera from the list read from `list_file`; "" when all do.
+std::string unlisted_cameras_warning(const CamerasByName& cameras, const std::filesystem::path& list_file,
+                                     const std::vector<std::string>& image_names, const std::string& what);
 
 // A list of image names, one per line ('#' comments, blank lines ignored).
 std::vector<std::string> read_name_list(const std::filesystem::path& path);
