@@ -36,9 +36,8 @@ std::vector<PreparedQuery> prepare_queries(const EndToEndBenchmarkOptions& o, st
   const auto names = read_name_list(o.queries);
   if (names.empty()) throw_error(ErrorCode::kInvalidArgument, o.queries.string(), ": no query names");
   for (const auto& p : read_pose_list(o.truth)) (*truth)[p.name].cam_from_world = p.cam_from_world;
-  std::map<std::string, PinholeCamera> cameras;
-  if (!o.intrinsics.empty())
-    for (auto& c : read_intrinsics_list(o.intrinsics)) cameras[c.name] = c.camera;
+  CamerasByName cameras;
+  if (!o.intrinsics.empty()) cameras = read_intrinsics_by_name(o.intrinsics);
   std::unique_ptr<SourceFeatureStore> store;
   if (o.query_features == QueryFeatureSource::kDatabase)
     store = std::make_unique<SourceFeatureStore>(o.map, o.images_dir);
@@ -46,7 +45,7 @@ std::vector<PreparedQuery> prepare_queries(const EndToEndBenchmarkOptions& o, st
   for (const auto& n : names) {
     if (!truth->count(n)) throw_error(ErrorCode::kNotFound, o.truth.string(), ": no reference for '", n, "'");
     std::optional<PinholeCamera> cam;
-    if (auto it = cameras.find(n); it != cameras.end()) cam = it->second;
+    if (const PinholeCamera* listed = find_listed_camera(cameras, n)) cam = *listed;
     queries.push_back(prepare_query(n, o.query_features, o.images_dir, o.localizer.sift, store.get(), cam,
                                     o.localizer.use_exif_focal));
     if (progress) progress(queries.size(), names.size());

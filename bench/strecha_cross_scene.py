@@ -12,12 +12,13 @@ ground truth alone. This runner finds out:
    ground-truth frame, fitted on the scene's camera centres (Umeyama); its
    residuals say how well it holds.
 3. Which scene pairs overlap: the joint 3D points seen by both scenes' images.
-4. For each ordered pair (map A, queries B): every image of B that the joint
-   model holds (in A's component) gets a reference pose in A's frame, and is a
-   query; B's images that the joint model could not connect to A are
-   negatives (they must not register). `visloc eval` then scores them against
-   A's map (imported from A's COLMAP model, A's holdouts out), counting a pose
-   more than 5 m or 10 degrees from the reference as wrong.
+4. For each ordered pair (map A, queries B): every photo of B that the joint
+   model holds in A's model gets a reference pose in A's frame and is a
+   query; B's photos identical byte for byte to one of A's are left out (not
+   a cross-scene query), and photos without a reference are unscored.
+   `visloc eval` scores the queries against A's map (imported from A's COLMAP
+   model, A's holdouts out), counting a pose more than 5 m or 10 degrees from
+   the reference as wrong.
 
 With `--focal estimated` the queries get no intrinsics (the localizer
 estimates the focal length). Writes WORK/report-{known,estimated}.md and
@@ -29,6 +30,7 @@ when its output exists). Needs COLMAP and numpy.
       [--focal known|estimated]
 """
 import argparse
+import hashlib
 import json
 import os
 import shutil
@@ -74,12 +76,22 @@ def quat_to_rot(q):
 
 
 def rot_to_quat(R):
-    w = np.sqrt(max(0.0, 1 + R[0, 0] + R[1, 1] + R[2, 2])) / 2
-    x = np.copysign(np.sqrt(max(0.0, 1 + R[0, 0] - R[1, 1] - R[2, 2])) / 2, R[2, 1] - R[1, 2])
-    y = np.copysign(np.sqrt(max(0.0, 1 - R[0, 0] + R[1, 1] - R[2, 2])) / 2, R[0, 2] - R[2, 0])
-    z = np.copysign(np.sqrt(max(0.0, 1 - R[0, 0] - R[1, 1] + R[2, 2])) / 2, R[1, 0] - R[0, 1])
-    q = np.array([w, x, y, z])
-    return q / np.linalg.norm(q)
+    """Unit quaternion (w, x, y, z), w >= 0, by Shepperd's method: from the
+    largest of 4w², 4x², 4y², 4z², so it stays exact at 180° rotations."""
+    tr = np.trace(R)
+    k = int(np.argmax([tr, R[0, 0], R[1, 1], R[2, 2]]))
+    if k == 0:
+        w = np.sqrt(1 + tr) / 2
+        q = np.array([w, (R[2, 1] - R[1, 2]) / (4 * w), (R[0, 2] - R[2, 0]) / (4 * w), (R[1, 0] - R[0, 1]) / (4 * w)])
+    else:
+        i, j, l = k - 1, k % 3, (k + 1) % 3
+        v = np.zeros(3)
+        v[i] = np.sqrt(max(0.0, 1 + R[i, i] - R[j, j] - R[l, l])) / 2
+        v[j] = (R[j, i] + R[i, j]) / (4 * v[i])
+        v[l] = (R[l, i] + R[i, l]) / (4 * v[i])
+        q = np.array([(R[l, j] - R[j, l]) / (4 * v[i]), *v])
+    q /= np.linalg.norm(q)
+    return q if q[0] >= 0 else -q
 
 
 def umeyama(src, dst):
@@ -190,8 +202,8 @@ def align_scenes(args, models):
 
 
 def overlap(models, alignment, a, b):
-    """Joint 3D points seen by an image of scene a and an image of scene b (same model), or None."""
-    if alignment[a]["model"] is None or alignment[a]["model"] != alignment[b]["model"]:
+    """Joint 3D points seen by an image of scene a and an image of scene b in a's model, or None (a not aligned)."""
+    if alignment[a]["model"] is None:
         return None
     images, tracks = models[alignment[a]["model"]]
     ids_a = {v[2] for n, v in images.items() if n.startswith(a + "__")}
@@ -218,72 +230,80 @@ def reference_pose_in_map_frame(R_q, t_q, al):
     return R, al["s"] * t_q - R @ al["t"]
 
 
+def image_digests(args, scene):
+    """File name -> SHA-256 of the scene's images (castle-P19 and castle-P30 share ten photos byte for byte)."""
+    return {img.name: hashlib.sha256(img.read_bytes()).hexdigest()
+            for img in sorted((args.shared_data / "strecha" / scene / "images").glob("*.jpg"))}
+
+
 def write_pair_inputs(args, pair_dir, models, alignment, a, b):
-    """B's queries with references in A's frame, B's unconnected images as negatives, B's intrinsics."""
+    """B's queries with references in A's frame and B's intrinsics. B's photos
+    identical to one of A's are left out (not a cross-scene query), and so are
+    those the joint model does not hold in A's model (no reference: unscored)."""
     pair_dir.mkdir(parents=True, exist_ok=True)
     d = args.shared_data / "strecha" / b
     al = alignment[a]
     images = models[al["model"]][0] if al["model"] is not None else {}
-    queries, truth_lines, negatives, intr = [], [], [], []
+    digests_a = set(image_digests(args, a).values())
+    digests_b = image_digests(args, b)
+    queries, truth_lines, intr, identical, unscored = [], [], [], [], []
     for cam in sorted((d / "cameras").glob("*.camera")):
         name = cam.name[: -len(".camera")]
         K, _, _, w, h = read_strecha_camera(cam)
-        # Strecha's K has pixel centres at integers; visloc's top-left pixel centre is at (0.5, 0.5).
-        intr.append(f"{name} PINHOLE {w} {h} {K[0, 0]} {K[1, 1]} {K[0, 2] + 0.5} {K[1, 2] + 0.5}")
-        joint = images.get(f"{b}__{name}") if alignment[b]["model"] == al["model"] else None
-        if joint is None:
-            negatives.append(str((d / "images" / name).resolve()))
+        if digests_b.get(name) in digests_a:
+            identical.append(name)
+            continue
+        joint = images.get(f"{b}__{name}")
+        if joint is None or al["model"] is None:
+            unscored.append(name)
             continue
         R, t = reference_pose_in_map_frame(joint[0], joint[1], al)
         q = rot_to_quat(R)
         queries.append(name)
         truth_lines.append(f"{name} " + " ".join(f"{x:.9f}" for x in [*q, *t]))
+        # Strecha's K has pixel centres at integers; visloc's top-left pixel centre is at (0.5, 0.5).
+        intr.append(f"{name} PINHOLE {w} {h} {K[0, 0]} {K[1, 1]} {K[0, 2] + 0.5} {K[1, 2] + 0.5}")
     (pair_dir / "queries.txt").write_text("".join(n + "\n" for n in queries))
     (pair_dir / "truth.txt").write_text("".join(l + "\n" for l in truth_lines))
-    (pair_dir / "negatives.txt").write_text("".join(n + "\n" for n in negatives))
     (pair_dir / "intrinsics.txt").write_text("".join(l + "\n" for l in intr))
-    return queries, negatives
+    return queries, identical, unscored
+
+
+def inputs_stamp(args, pair_dir):
+    """What an eval of this pair depends on: its input files and the options."""
+    h = hashlib.sha256(f"max_features={args.max_features} focal={args.focal}\n".encode())
+    for f in ("queries.txt", "truth.txt", "intrinsics.txt"):
+        h.update((pair_dir / f).read_bytes())
+    return h.hexdigest()
 
 
 def evaluate_pair(args, work, models, alignment, a, b, logf):
     pair_dir = work / "pairs" / args.focal / f"{a}__vs__{b}"
-    queries, negatives = write_pair_inputs(args, pair_dir, models, alignment, a, b)
-    out = pair_dir / "eval"
-    if not (out / "report.json").exists() and (queries or negatives):
+    queries, identical, unscored = write_pair_inputs(args, pair_dir, models, alignment, a, b)
+    counts = {"queries": len(queries), "identical_photos_left_out": len(identical), "unscored": len(unscored)}
+    if not queries:
+        return counts
+    out, stamp_file = pair_dir / "eval", pair_dir / "eval.done"
+    stamp = inputs_stamp(args, pair_dir)
+    if not stamp_file.exists() or stamp_file.read_text() != stamp:  # new, changed or interrupted: run again
+        stamp_file.unlink(missing_ok=True)
+        shutil.rmtree(out, ignore_errors=True)
         cmd = [args.visloc, "eval", "--map", work / "maps" / a, "--images", args.shared_data / "strecha" / b / "images",
+               "--queries", pair_dir / "queries.txt", "--truth", pair_dir / "truth.txt",
                "--max-features", str(args.max_features), "--out", out]
-        if args.focal == "known":
-            cmd += ["--intrinsics", pair_dir / "intrinsics.txt"]
-        if queries:
-            cmd += ["--queries", pair_dir / "queries.txt", "--truth", pair_dir / "truth.txt"]
-        if negatives:
-            cmd += ["--negatives", pair_dir / "negatives.txt"]
-        if not queries:  # eval needs queries: judge the negatives with an empty-truth run of one map image
-            return {"queries": 0, "negatives": len(negatives), "note": "no query connected; negatives only"} | \
-                negatives_only(args, pair_dir, a, negatives, logf)
+        cmd += ["--intrinsics", pair_dir / "intrinsics.txt"] if args.focal == "known" else ["--no-exif-focal"]
         run(cmd, logf)
-    if not (out / "report.json").exists():
-        return {"queries": 0, "negatives": 0}
-    return summarize(out, len(queries), len(negatives))
+        stamp_file.write_text(stamp)
+    return counts | summarize(out)
 
 
-def negatives_only(args, pair_dir, a, negatives, logf):
-    """Negatives alone, localized with `visloc localize` (eval needs at least one query)."""
-    out = pair_dir / "localize.jsonl"
-    if not out.exists():
-        tmp = out.with_suffix(".tmp")
-        run([args.visloc, "localize", "--map", args.work / "maps" / a, "--max-features", str(args.max_features),
-             "--out", tmp, *negatives], logf)
-        tmp.rename(out)
-    results = [json.loads(l) for l in out.read_text().splitlines() if l.strip()]
-    return {"registered": 0, "wrong_poses": sum(bool(r.get("registered")) for r in results),
-            "negatives_registered": sum(bool(r.get("registered")) for r in results)}
-
-
-def summarize(out, n_queries, n_negatives):
-    rep = json.loads((out / "report.json").read_text())
-    results = [json.loads(l) for l in (out / "results.jsonl").read_text().splitlines() if l.strip()]
-    by_image = {r["image"]: r for r in results if not r.get("negative")}
+def summarize(out):
+    try:
+        rep = json.loads((out / "report.json").read_text())
+        results = [json.loads(l) for l in (out / "results.jsonl").read_text().splitlines() if l.strip()]
+    except (OSError, ValueError) as e:
+        sys.exit(f"strecha_cross_scene: {out}: cannot read the eval's report ({e}); delete {out} and run again")
+    by_image = {r["image"]: r for r in results}
     pos = rep.get("position_error_m") or {}
     wrong, sigma_ratios = [], []
     for q in rep["per_query"]:
@@ -297,12 +317,8 @@ def summarize(out, n_queries, n_negatives):
             wrong.append({"image": q["image"], "position_error_m": q["position_error_m"],
                           "rotation_error_deg": q["rotation_error_deg"], "inliers": r.get("inliers"),
                           "confidence": r.get("confidence"), "position_sigma": sigma})
-    return {"wrong": wrong, "error_over_sigma": sigma_ratios, "queries": n_queries, "negatives": n_negatives, "registered": rep["registered"],
-            "wrong_poses": rep["wrong_poses"]["total"], "wrong_positives": rep["wrong_poses"]["positives"],
-            "negatives_registered": rep["wrong_poses"]["negatives"],
-            "median_position_error_m": pos.get("median"),
-            "max_confidence_of_negatives": max([r.get("confidence", 0) for r in results if r.get("negative")],
-                                               default=None)}
+    return {"registered": rep["registered"], "wrong_poses": rep["wrong_poses"]["positives"], "wrong": wrong,
+            "error_over_sigma": sigma_ratios, "median_position_error_m": pos.get("median")}
 
 
 def main():
@@ -358,16 +374,17 @@ def write_report(args, models, alignment, pairs):
     for s, a in alignment.items():
         res = "–" if a["model"] is None else f"{a['residual_median_m']:.3f} / {a['residual_max_m']:.3f}"
         md.append(f"| {s} | {a['model']} | {a['images_in_model']}/{a['images']} | {res} |")
-    md += ["", "Queries: the query scene's images the joint model connects to the map's scene, with a reference pose "
-           "in the map's frame; negatives: its images it does not connect. Wrong: registered more than 5 m or "
-           "10° from the reference, or a registered negative.\n",
+    md += ["", "Queries: the query scene's photos that the joint model holds in the map scene's model, with a "
+           "reference pose in the map's frame. Left out: photos identical byte for byte to one of the map scene's "
+           "(castle-P19 and castle-P30 share ten), and photos without a reference (unscored). Wrong: registered "
+           "more than 5 m or 10° from the reference. The references carry the alignment's error (residuals above).\n",
            "| map <- queries | shared 3D points | queries | registered | median error (m) | wrong poses | "
-           "negatives | negatives registered |", "|---|---|---|---|---|---|---|---|"]
+           "identical photos left out | unscored |", "|---|---|---|---|---|---|---|---|"]
     for k, r in pairs.items():
         med = r.get("median_position_error_m")
-        md.append(f"| {k} | {r['shared_points'] if r['shared_points'] is not None else 'not connected'} | "
+        md.append(f"| {k} | {r['shared_points'] if r['shared_points'] is not None else 'not aligned'} | "
                   f"{r.get('queries', 0)} | {r.get('registered', 0)} | {'–' if med is None else f'{med:.3f}'} | "
-                  f"{r.get('wrong_poses', 0)} | {r.get('negatives', 0)} | {r.get('negatives_registered', 0)} |")
+                  f"{r.get('wrong_poses', 0)} | {r.get('identical_photos_left_out', 0)} | {r.get('unscored', 0)} |")
     ratios = [x for r in pairs.values() for x in r.get("error_over_sigma", [])]
     if ratios:
         md.append(f"\nRegistered: {sum(r.get('registered', 0) for r in pairs.values())} of "
@@ -377,7 +394,8 @@ def write_report(args, models, alignment, pairs):
     for k, r in pairs.items():
         for w in r.get("wrong", []):
             md.append(f"- {k}: {w['image']} {w['position_error_m']:.2f} m / {w['rotation_error_deg']:.2f}° off, "
-                      f"{w['inliers']} inliers, confidence {w['confidence']:.3f}, σ {w['position_sigma']:.3f} m")
+                      f"{w['inliers']} inliers, confidence {w['confidence']:.3f}, σ "
+                      f"{'–' if w['position_sigma'] is None else format(w['position_sigma'], '.3f')} m")
     (args.work / f"report-{args.focal}.md").write_text("\n".join(md) + "\n")
     print("\n".join(md))
 

@@ -424,8 +424,8 @@ void write_report(const std::filesystem::path& dir, const EvaluationReport& repo
   md << "excluding features " << num(j["median_ms_excluding_features"], 4) << ".\n\nPeak memory: "
      << j["peak_memory_bytes"].get<uint64_t>() / (1024 * 1024) << " MiB.\n\n";
   if (j.contains("queries_with_given_intrinsics"))
-    md << "Intrinsics given for " << j["queries_with_given_intrinsics"] << " of " << j["queries"]
-       << " queries; the others' focal length came from EXIF or was estimated.\n\n";
+    md << "Intrinsics from the --intrinsics list for " << j["queries_with_given_intrinsics"] << " of " << j["queries"]
+       << " queries.\n\n";
   md << "Wrong poses (registered more than " << num(j["wrong_poses"]["rule"]["position_m"]) << " m or "
      << num(j["wrong_poses"]["rule"]["rotation_deg"]) << "° from the truth, or a registered negative): "
      << j["wrong_poses"]["total"] << " (" << j["wrong_poses"]["positives"] << " of the queries, "

@@ -106,6 +106,9 @@ QueryRun localize_leave_one_out(const EvaluationRunOptions& o, nlohmann::json& c
   run.results = std::move(r.results);
   run.truth = std::move(r.truth);
   run.peer = std::move(r.colmap);
+  size_t listed_cameras = 0;
+  for (const auto& q : run.results) listed_cameras += find_listed_camera(o.intrinsics, q.image) != nullptr;
+  context["queries_with_given_intrinsics"] = listed_cameras;
   context["protocol"] = "leave-one-out";
   context["truth"] = "poses of the model " + store.model_dir().string();
   context["seconds_rebuilding_maps"] = r.seconds_import;

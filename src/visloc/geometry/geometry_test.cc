@@ -192,7 +192,11 @@ TEST(IntrinsicsList, AnImageWithoutALineOfItsOwnTakesTheStarLine) {
   ASSERT_NE(star, nullptr);
   EXPECT_EQ(star->width, 1226);
   EXPECT_DOUBLE_EQ(star->focal, 707);
-  write_file_atomic(p, "q1.png PINHOLE 800 600 500 500 400 300\n");
+  const PinholeCamera* by_file_name = find_listed_camera(cams, "query/day/q1.png");
+  ASSERT_NE(by_file_name, nullptr);
+  EXPECT_EQ(by_file_name->width, 800);  // listed as 'q1.png', asked as a path
+  write_file_atomic(p, "q1.png PINHOLE 800 600 500 500 400 300\nday/q1.png PINHOLE 640 480 400 400 320 240\n");
+  EXPECT_EQ(find_listed_camera(read_intrinsics_by_name(p), "day/q1.png")->width, 640);  // the exact name first
   EXPECT_EQ(find_listed_camera(read_intrinsics_by_name(p), "000100.png"), nullptr);  // no '*': none
   write_file_atomic(p, "* PINHOLE 800 600 500 500 400 300\n* PINHOLE 800 600 600 600 400 300\n");
   EXPECT_THROW(read_intrinsics_by_name(p), Error);  // two '*' lines conflict like any other name

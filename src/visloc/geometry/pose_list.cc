@@ -138,6 +138,10 @@ CamerasByName read_intrinsics_by_name(const std::filesystem::path& path) {
 
 const PinholeCamera* find_listed_camera(const CamerasByName& cameras, const std::string& image_name) {
   auto it = cameras.find(image_name);
+  if (it == cameras.end()) {
+    const std::string file_name = std::filesystem::path(image_name).filename().string();
+    if (file_name != image_name) it = cameras.find(file_name);
+  }
   if (it == cameras.end()) it = cameras.find(kEveryImage);
   return it == cameras.end() ? nullptr : &it->second;
 }
@@ -149,7 +153,8 @@ std::string unlisted_cameras_warning(const CamerasByName& cameras, const std::fi
   if (unlisted == 0) return {};
   std::ostringstream s;
   s << "warning: " << unlisted << " of " << image_names.size() << " " << what << " have no line in "
-    << list_file.string() << " (and it has no '*' line); their focal length comes from EXIF or is estimated";
+    << list_file.string() << " (and it has no '*' line); they are localized without it ('focal_estimated' in "
+    << "their JSON says whether their focal length was estimated)";
   return s.str();
 }
 

@@ -41,12 +41,13 @@ inline constexpr const char* kEveryImage = "*";
 using CamerasByName = std::map<std::string, PinholeCamera>;
 // The same list keyed by image name ('*' kept as its own key).
 CamerasByName read_intrinsics_by_name(const std::filesystem::path& path);
-// The camera the list gives the image named `image_name` (a file name, no
-// folder): its own entry, else the '*' entry, else null.
+// The camera the list gives the image named `image_name` (as the caller lists
+// it, e.g. "query/day/x.jpg", or a bare file name): the entry of that exact
+// name, else of its file name ("x.jpg"), else the '*' entry, else null.
 const PinholeCamera* find_listed_camera(const CamerasByName& cameras, const std::string& image_name);
 // "warning: N of M <what> have no line in FILE (and it has no '*' line); ..."
-// when some of `image_names` (file names, as find_listed_camera takes them)
-// get no camera from the list read from `list_file`; "" when all do.
+// when some of `image_names` get no camera (find_listed_camera) from the list
+// read from `list_file`; "" when all do.
 std::string unlisted_cameras_warning(const CamerasByName& cameras, const std::filesystem::path& list_file,
                                      const std::vector<std::string>& image_names, const std::string& what);
 
