@@ -108,7 +108,7 @@ QueryRun localize_leave_one_out(const EvaluationRunOptions& o, nlohmann::json& c
   run.peer = std::move(r.colmap);
   size_t listed_cameras = 0;
   for (const auto& q : run.results) listed_cameras += find_listed_camera(o.intrinsics, q.image) != nullptr;
-  context["queries_with_given_intrinsics"] = listed_cameras;
+  if (!o.intrinsics.empty()) context["queries_with_given_intrinsics"] = listed_cameras;  // with a list only
   context["protocol"] = "leave-one-out";
   context["truth"] = "poses of the model " + store.model_dir().string();
   context["seconds_rebuilding_maps"] = r.seconds_import;
@@ -179,7 +179,7 @@ QueryRun localize_query_list(const EvaluationRunOptions& o, nlohmann::json& cont
     report_progress(o, i + 1, o.queries.size(), "queries");
   }
   if (o.compare_colmap) run.peer = register_queries_with_colmap(o, *store, prepared);
-  context["queries_with_given_intrinsics"] = listed_cameras;
+  if (!o.intrinsics.empty()) context["queries_with_given_intrinsics"] = listed_cameras;  // with a list only
   context["truth"] = fs::absolute(o.truth).string();
   return run;
 }
