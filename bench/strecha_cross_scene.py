@@ -30,6 +30,7 @@ when its output exists). Needs COLMAP and numpy.
       [--focal known|estimated]
 """
 import argparse
+import functools
 import hashlib
 import json
 import os
@@ -230,10 +231,12 @@ def reference_pose_in_map_frame(R_q, t_q, al):
     return R, al["s"] * t_q - R @ al["t"]
 
 
-def image_digests(args, scene):
-    """File name -> SHA-256 of the scene's images (castle-P19 and castle-P30 share ten photos byte for byte)."""
+@functools.lru_cache(maxsize=None)
+def scene_image_digests(shared_data, scene):
+    """File name -> SHA-256 of the scene's images (castle-P19 and castle-P30
+    share ten photos byte for byte); read once per scene, not once per pair."""
     return {img.name: hashlib.sha256(img.read_bytes()).hexdigest()
-            for img in sorted((args.shared_data / "strecha" / scene / "images").glob("*.jpg"))}
+            for img in sorted((shared_data / "strecha" / scene / "images").glob("*.jpg"))}
 
 
 def write_pair_inputs(args, pair_dir, models, alignment, a, b):
@@ -244,8 +247,8 @@ def write_pair_inputs(args, pair_dir, models, alignment, a, b):
     d = args.shared_data / "strecha" / b
     al = alignment[a]
     images = models[al["model"]][0] if al["model"] is not None else {}
-    digests_a = set(image_digests(args, a).values())
-    digests_b = image_digests(args, b)
+    digests_a = set(scene_image_digests(args.shared_data, a).values())
+    digests_b = scene_image_digests(args.shared_data, b)
     queries, truth_lines, intr, identical, unscored = [], [], [], [], []
     for cam in sorted((d / "cameras").glob("*.camera")):
         name = cam.name[: -len(".camera")]

@@ -456,8 +456,7 @@ CityLocalizationTally localize_city_queries(const fs::path& out, const fs::path&
   const std::vector<SegmentPointSample> point_samples = sample_segment_points(out / "map", 4000);
 
   const Localizer localizer(out / "map", opt.localizer);
-  std::map<std::string, PinholeCamera> intrinsics;
-  for (const auto& c : read_intrinsics_list(city_dir / "queries" / "intrinsics.txt")) intrinsics[c.name] = c.camera;
+  const CamerasByName intrinsics = read_intrinsics_by_name(city_dir / "queries" / "intrinsics.txt");
   const std::vector<NamedPose> truth = read_pose_list(city_dir / "queries" / "truth.txt");
   const std::vector<fs::path> foreign = foreign_photos(opt.shared_data, opt.foreign_photos);
   const size_t total = truth.size() + foreign.size();

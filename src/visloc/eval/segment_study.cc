@@ -50,8 +50,7 @@ StudyDataset city_study_dataset(const fs::path& dir) {
   d.images_dir = dir / "city" / "images";
   d.gps_csv = dir / "map_gps.csv";
   d.known_poses = dir / "city" / "sparse";
-  std::map<std::string, PinholeCamera> cameras;
-  for (const auto& c : read_intrinsics_list(dir / "city" / "queries" / "intrinsics.txt")) cameras[c.name] = c.camera;
+  const CamerasByName cameras = read_intrinsics_by_name(dir / "city" / "queries" / "intrinsics.txt");
   std::map<std::string, CameraPose> truth;
   for (const auto& p : read_pose_list(dir / "city" / "queries" / "truth.txt")) truth[p.name] = p.cam_from_world;
   nlohmann::json report;
