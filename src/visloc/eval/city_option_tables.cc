@@ -19,6 +19,8 @@ void add_city_options(OptionTable& t, synth::CityOptions& o) {
   t.add("--grid-blocks-y", o.layout.grid_blocks_y, "grid: blocks north-south");
   t.add("--block-size", o.layout.block_size_m, "grid: distance between parallel streets (m)");
   t.add("--random-roads", o.layout.random_roads, "random: number of roads");
+  t.add("--building-designs", o.layout.building_designs,
+        "0: every building its own design; N: buildings copy one of N designs (identical facades repeated)");
   t.add("--headings", o.views.headings, "Views around each placemark");
   synth::add_elevations_option(t, o.views, "View elevations in degrees, comma-separated");
   synth::add_size_option(t, o.views, "Map image size WIDTHxHEIGHT");

@@ -162,6 +162,7 @@ void CityLayoutOptions::validate() const {
   require(building_gap_max_m >= 0.0, "building_gap_max_m", "must be >= 0");
   require(setback_max_m >= 0.0, "setback_max_m", "must be >= 0");
   require(wing_probability >= 0.0 && wing_probability <= 1.0, "wing_probability", "must be in [0, 1]");
+  require(building_designs >= 0 && building_designs <= 100000, "building_designs", "must be in [0, 100000]");
   require(placemark_spacing_min_m >= 1.0, "placemark_spacing_min_m", "must be at least 1 metre");
   require(placemark_spacing_max_m >= placemark_spacing_min_m, "placemark_spacing_max_m",
           "must be >= placemark_spacing_min_m");
@@ -263,8 +264,29 @@ void add_roads(const CityLayoutOptions& options, SplitMix64& rng, CityScene& sce
   }
 }
 
+// What a copied building takes from its design (CityLayoutOptions::building_designs).
+struct BuildingDesign {
+  double width = 0, depth = 0;
+  int floors = 1;
+  BuildingStyle style;
+  uint64_t facade_seed = 0;
+};
+
+std::vector<BuildingDesign> random_designs(const CityLayoutOptions& options, SplitMix64& rng) {
+  std::vector<BuildingDesign> designs(static_cast<size_t>(options.building_designs));
+  for (auto& d : designs) {
+    d.width = rng.uniform(options.building_width_min_m, options.building_width_max_m);
+    d.depth = rng.uniform(options.building_depth_min_m, options.building_depth_max_m);
+    d.floors = rng.uniform_int(options.floors_min, options.floors_max);
+    d.style = random_style(rng);
+    d.facade_seed = rng.next();
+  }
+  return designs;
+}
+
 // Buildings along both sides of every road segment, some with a wing behind.
 void add_buildings(const CityLayoutOptions& options, SplitMix64& rng, CityScene& scene) {
+  const std::vector<BuildingDesign> designs = random_designs(options, rng);  // none by default
   const double corridor = options.road_half_width_m + options.sidewalk_width_m;
   std::vector<BoxPrimitive>& boxes = scene.objects.boxes;
   const auto fits = [&](const BoxPrimitive& b, size_t skip) {
@@ -279,13 +301,17 @@ void add_buildings(const CityLayoutOptions& options, SplitMix64& rng, CityScene&
     for (const int side : {1, -1}) {
       double t = rng.uniform(0.0, options.building_gap_max_m);
       while (true) {
-        const double w = rng.uniform(options.building_width_min_m, options.building_width_max_m);
+        const BuildingDesign* design =
+            designs.empty() ? nullptr : &designs[static_cast<size_t>(rng.uniform_int(0, options.building_designs - 1))];
+        const double w =
+            design ? design->width : rng.uniform(options.building_width_min_m, options.building_width_max_m);
         if (t + w > seg.length) break;
-        const double depth = rng.uniform(options.building_depth_min_m, options.building_depth_max_m);
+        const double depth =
+            design ? design->depth : rng.uniform(options.building_depth_min_m, options.building_depth_max_m);
         const double setback = rng.uniform(0.0, options.setback_max_m);
         const Eigen::Vector2d c = seg.a + d * (t + w / 2) + side * n * (corridor + setback + depth / 2);
-        BuildingStyle style = random_style(rng);
-        const int floors = rng.uniform_int(options.floors_min, options.floors_max);
+        BuildingStyle style = design ? design->style : random_style(rng);
+        const int floors = design ? design->floors : rng.uniform_int(options.floors_min, options.floors_max);
         const double height = style.ground_floor_height + (floors - 1) * style.floor_height + 0.6;
         BoxPrimitive box;
         box.cx = c.x();
@@ -299,6 +325,7 @@ void add_buildings(const CityLayoutOptions& options, SplitMix64& rng, CityScene&
         box.z_max = height;
         box.kind = ObjectKind::kBuilding;
         box.seed = rng.next();
+        if (design) box.seed = design->facade_seed;  // the same facades
         const bool wing = rng.bernoulli(options.wing_probability);
         const double wing_frac = rng.uniform(0.35, 0.65), wing_depth = rng.uniform(5.0, 10.0);
         const int wing_floors = rng.uniform_int(options.floors_min, options.floors_max);

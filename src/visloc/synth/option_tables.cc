@@ -68,6 +68,8 @@ void add_layout_options(OptionTable& t, CityLayoutOptions& o) {
   t.add("--spacing-min", o.placemark_spacing_min_m, "Placemark spacing, minimum (m)");
   t.add("--spacing-max", o.placemark_spacing_max_m, "Placemark spacing, maximum (m)");
   t.add("--camera-height", o.camera_height_m, "Street-view camera height (m)");
+  t.add("--building-designs", o.building_designs,
+        "0: every building its own design; N: buildings copy one of N designs (identical facades repeated)");
   t.add("--seed", o.seed, "Seed of everything (same seed, same bytes)");
 }
 

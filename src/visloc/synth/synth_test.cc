@@ -5,14 +5,16 @@
 // relative pose.
 #include <gtest/gtest.h>
 
+#include <unistd.h>
 #include <filesystem>
 #include <fstream>
 #include <iomanip>
 #include <map>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+#include <set>
 #include <sstream>
-#include <unistd.h>
+#include <tuple>
 
 #include "visloc/features/sift_extractor.h"
 #include "visloc/geo/gps_csv.h"
@@ -126,6 +128,42 @@ TEST(CityLayout, GridAndRandomLayoutsKeepBuildingsOffRoads) {
       for (const auto& box : s.objects.boxes)
         EXPECT_GE(footprint_distance(box, pm.position.head<2>()), o.road_half_width_m + o.sidewalk_width_m - 1e-6);
   }
+}
+
+// With building_designs = N, the buildings repeat N designs: identical
+// frontage, height and facade seed (so identical facades); by default every
+// building is its own.
+TEST(CityLayout, BuildingDesignsRepeatIdenticalFacades) {
+  // The main box of each building (a wing follows its main box and copies
+  // its style index): its facade seed, frontage and height.
+  const auto main_boxes = [](const CityScene& s) {
+    std::set<std::tuple<uint64_t, double, double>> designs;
+    size_t count = 0;
+    for (size_t i = 0; i < s.objects.boxes.size(); ++i) {
+      const auto& b = s.objects.boxes[i];
+      if (b.kind != ObjectKind::kBuilding || (i > 0 && s.objects.boxes[i - 1].style == b.style)) continue;
+      designs.insert({b.seed, b.half_x, b.z_max});
+      ++count;
+    }
+    return std::pair(designs.size(), count);
+  };
+  CityLayoutOptions o;
+  o.road_length_m = 300;
+  const auto [unique_designs, unique_count] = main_boxes(generate_city_scene(o));
+  EXPECT_GT(unique_count, 20u);
+  EXPECT_EQ(unique_designs, unique_count);
+  o.building_designs = 3;
+  const auto [designs, count] = main_boxes(generate_city_scene(o));
+  EXPECT_GT(count, 15u);
+  EXPECT_GE(designs, 2u);
+  EXPECT_LE(designs, 3u);
+  expect_rejected(
+      [] {
+        CityLayoutOptions bad;
+        bad.building_designs = -1;
+        bad.validate();
+      },
+      "building_designs");
 }
 
 TEST(Options, BadValuesAreRejectedNamingTheField) {
