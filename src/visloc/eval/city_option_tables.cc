@@ -21,6 +21,8 @@ void add_city_options(OptionTable& t, synth::CityOptions& o) {
   t.add("--random-roads", o.layout.random_roads, "random: number of roads");
   t.add("--building-designs", o.layout.building_designs,
         "0: every building its own design; N: buildings copy one of N designs (identical facades repeated)");
+  t.add("--building-design-share", o.layout.building_design_share,
+        "With --building-designs: the share of buildings that copy a design (the others are their own)");
   t.add("--headings", o.views.headings, "Views around each placemark");
   synth::add_elevations_option(t, o.views, "View elevations in degrees, comma-separated");
   synth::add_size_option(t, o.views, "Map image size WIDTHxHEIGHT");

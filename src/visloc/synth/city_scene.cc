@@ -163,6 +163,7 @@ void CityLayoutOptions::validate() const {
   require(setback_max_m >= 0.0, "setback_max_m", "must be >= 0");
   require(wing_probability >= 0.0 && wing_probability <= 1.0, "wing_probability", "must be in [0, 1]");
   require(building_designs >= 0 && building_designs <= 100000, "building_designs", "must be in [0, 100000]");
+  require(building_design_share >= 0.0 && building_design_share <= 1.0, "building_design_share", "must be in [0, 1]");
   require(placemark_spacing_min_m >= 1.0, "placemark_spacing_min_m", "must be at least 1 metre");
   require(placemark_spacing_max_m >= placemark_spacing_min_m, "placemark_spacing_max_m",
           "must be >= placemark_spacing_min_m");
@@ -301,8 +302,9 @@ void add_buildings(const CityLayoutOptions& options, SplitMix64& rng, CityScene&
     for (const int side : {1, -1}) {
       double t = rng.uniform(0.0, options.building_gap_max_m);
       while (true) {
-        const BuildingDesign* design =
-            designs.empty() ? nullptr : &designs[static_cast<size_t>(rng.uniform_int(0, options.building_designs - 1))];
+        const BuildingDesign* design = nullptr;
+        if (!designs.empty() && rng.bernoulli(options.building_design_share))
+          design = &designs[static_cast<size_t>(rng.uniform_int(0, options.building_designs - 1))];
         const double w =
             design ? design->width : rng.uniform(options.building_width_min_m, options.building_width_max_m);
         if (t + w > seg.length) break;

@@ -45,10 +45,12 @@ struct CityLayoutOptions {
   double building_gap_max_m = 3.0;    // gap between neighbours (0 = terraced rows possible)
   double setback_max_m = 1.5;         // distance from the sidewalk's edge
   double wing_probability = 0.3;      // chance of an L-shaped footprint
-  // 0: every building is its own design. N > 0: every building copies one of
-  // N designs (frontage, depth, floors, style and facade), drawn at random:
-  // rows of identical houses, the repetition that can mislead a localizer.
+  // 0: every building is its own design. N > 0: a building copies one of N
+  // designs (frontage, depth, floors, style and facade), drawn at random,
+  // with probability building_design_share, else it is its own: identical
+  // houses here and there, the repetition that can mislead a localizer.
   int building_designs = 0;
+  double building_design_share = 1.0;
   double placemark_spacing_min_m = 10.0;
   double placemark_spacing_max_m = 12.0;
   double camera_height_m = 2.5;       // street-view camera above the road

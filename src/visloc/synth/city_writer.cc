@@ -83,7 +83,10 @@ nlohmann::json options_to_json(const CityOptions& o) {
                  {"camera_height_m", l.camera_height_m},
                  {"seed", l.seed}};
   // Written only when set, so that cities made before it keep their options.
-  if (l.building_designs > 0) j["layout"]["building_designs"] = l.building_designs;
+  if (l.building_designs > 0) {
+    j["layout"]["building_designs"] = l.building_designs;
+    j["layout"]["building_design_share"] = l.building_design_share;
+  }
   j["views"] = {{"headings", o.views.headings},
                 {"elevations_deg", o.views.elevations_deg},
                 {"fov_deg", o.views.fov_deg},

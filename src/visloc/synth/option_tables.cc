@@ -70,6 +70,8 @@ void add_layout_options(OptionTable& t, CityLayoutOptions& o) {
   t.add("--camera-height", o.camera_height_m, "Street-view camera height (m)");
   t.add("--building-designs", o.building_designs,
         "0: every building its own design; N: buildings copy one of N designs (identical facades repeated)");
+  t.add("--building-design-share", o.building_design_share,
+        "With --building-designs: the share of buildings that copy a design (the others are their own)");
   t.add("--seed", o.seed, "Seed of everything (same seed, same bytes)");
 }
 

@@ -157,13 +157,17 @@ TEST(CityLayout, BuildingDesignsRepeatIdenticalFacades) {
   EXPECT_GT(count, 15u);
   EXPECT_GE(designs, 2u);
   EXPECT_LE(designs, 3u);
-  expect_rejected(
-      [] {
-        CityLayoutOptions bad;
-        bad.building_designs = -1;
-        bad.validate();
-      },
-      "building_designs");
+  // With a share, the others are their own designs.
+  o.building_design_share = 0.3;
+  const auto [some_designs, some_count] = main_boxes(generate_city_scene(o));
+  EXPECT_GT(some_designs, 5u);
+  EXPECT_LT(some_designs, some_count);
+  CityLayoutOptions bad;
+  bad.building_designs = -1;
+  expect_rejected([&] { bad.validate(); }, "building_designs");
+  bad.building_designs = 2;
+  bad.building_design_share = 1.5;
+  expect_rejected([&] { bad.validate(); }, "building_design_share");
 }
 
 TEST(Options, BadValuesAreRejectedNamingTheField) {
