@@ -164,6 +164,8 @@ void CityLayoutOptions::validate() const {
   require(wing_probability >= 0.0 && wing_probability <= 1.0, "wing_probability", "must be in [0, 1]");
   require(building_designs >= 0 && building_designs <= 100000, "building_designs", "must be in [0, 100000]");
   require(building_design_share >= 0.0 && building_design_share <= 1.0, "building_design_share", "must be in [0, 1]");
+  require(building_designs > 0 || building_design_share == 1.0, "building_design_share",
+          "applies only with building_designs > 0 (it would be ignored)");
   require(placemark_spacing_min_m >= 1.0, "placemark_spacing_min_m", "must be at least 1 metre");
   require(placemark_spacing_max_m >= placemark_spacing_min_m, "placemark_spacing_max_m",
           "must be >= placemark_spacing_min_m");

@@ -168,6 +168,9 @@ TEST(CityLayout, BuildingDesignsRepeatIdenticalFacades) {
   bad.building_designs = 2;
   bad.building_design_share = 1.5;
   expect_rejected([&] { bad.validate(); }, "building_design_share");
+  bad.building_designs = 0;
+  bad.building_design_share = 0.3;  // without designs it would do nothing
+  expect_rejected([&] { bad.validate(); }, "building_design_share");
 }
 
 TEST(Options, BadValuesAreRejectedNamingTheField) {
