@@ -543,7 +543,9 @@ nlohmann::json city_report_json(const fs::path& city_dir, const CityBenchmarkOpt
          std::count_if(split.placemarks.begin(), split.placemarks.end(),
                        [&](const CityPlacemark& p) { return split.left_out.count(p.road) > 0; })},
         {"placemarks_mapped", split.mapped_centres.size()},
-        {"images_mapped", split.mapped.size()}}},
+        {"images_mapped", split.mapped.size()},
+        {"building_designs", opt.city.layout.building_designs},
+        {"building_design_share", opt.city.layout.building_designs > 0 ? opt.city.layout.building_design_share : 0.0}}},
       {"map", build_summary},
       {"peak_memory_bytes_of_localizing_process", peak_memory_bytes()},
       {"peak_memory_bytes_city_queries", t.peak_city_queries},
@@ -616,6 +618,9 @@ std::string city_report_markdown(const nlohmann::json& report, const CityBenchma
   if (opt.leave_out_road_end_m > 0)
     md << ", and the last " << opt.leave_out_road_end_m << " m of the others (" << split.road_end_placemarks_left_out
        << " placemarks)";
+  if (opt.city.layout.building_designs > 0)
+    md << "; a share " << opt.city.layout.building_design_share << " of the buildings copy one of "
+       << opt.city.layout.building_designs << " designs (repeated facades)";
   md << "; map: " << build_summary.at("segments") << " segments (" << build_summary.at("segments_failed")
      << " failed), " << points << " points.\n\n"
      << "| queries | count | registered | wrong poses | misses | median position error (m) "

@@ -73,7 +73,8 @@ struct CityBenchmarkOptions {
 CityBenchmarkOptions default_city_benchmark_options();
 
 // The options as command-line options (`bench city`): the city (--layout, --road-length,
-// --grid-blocks-x/-y, --block-size, --random-roads, --headings, --elevations, --size, --queries),
+// --grid-blocks-x/-y, --block-size, --random-roads, --building-designs, --building-design-share,
+// --headings, --elevations, --size, --queries),
 // the split (--leave-out-roads, --positive-distance, --negative-distance, --negatives,
 // --shared-data), the run (--min-placemarks, --max-placemarks, --overlap, --jobs, --executor,
 // --seed) and the localizer's (pipeline/localizer.h: --setting ... --cache-mib).

@@ -273,6 +273,10 @@ struct BuildingDesign {
   int floors = 1;
   BuildingStyle style;
   uint64_t facade_seed = 0;
+  bool wing = false;  // and the wing's shape, as add_buildings draws it
+  double wing_frac = 0.5, wing_depth = 5;
+  int wing_floors = 1;
+  bool wing_left = false;
 };
 
 std::vector<BuildingDesign> random_designs(const CityLayoutOptions& options, SplitMix64& rng) {
@@ -283,6 +287,11 @@ std::vector<BuildingDesign> random_designs(const CityLayoutOptions& options, Spl
     d.floors = rng.uniform_int(options.floors_min, options.floors_max);
     d.style = random_style(rng);
     d.facade_seed = rng.next();
+    d.wing = rng.bernoulli(options.wing_probability);
+    d.wing_frac = rng.uniform(0.35, 0.65);
+    d.wing_depth = rng.uniform(5.0, 10.0);
+    d.wing_floors = rng.uniform_int(options.floors_min, options.floors_max);
+    d.wing_left = rng.bernoulli(0.5);
   }
   return designs;
 }
@@ -330,10 +339,17 @@ void add_buildings(const CityLayoutOptions& options, SplitMix64& rng, CityScene&
         box.kind = ObjectKind::kBuilding;
         box.seed = rng.next();
         if (design) box.seed = design->facade_seed;  // the same facades
-        const bool wing = rng.bernoulli(options.wing_probability);
-        const double wing_frac = rng.uniform(0.35, 0.65), wing_depth = rng.uniform(5.0, 10.0);
-        const int wing_floors = rng.uniform_int(options.floors_min, options.floors_max);
-        const bool wing_left = rng.bernoulli(0.5);
+        bool wing = rng.bernoulli(options.wing_probability);
+        double wing_frac = rng.uniform(0.35, 0.65), wing_depth = rng.uniform(5.0, 10.0);
+        int wing_floors = rng.uniform_int(options.floors_min, options.floors_max);
+        bool wing_left = rng.bernoulli(0.5);
+        if (design) {  // the whole building, wing included
+          wing = design->wing;
+          wing_frac = design->wing_frac;
+          wing_depth = design->wing_depth;
+          wing_floors = design->wing_floors;
+          wing_left = design->wing_left;
+        }
         const double gap = rng.bernoulli(0.4) ? 0.0 : rng.uniform(0.5, std::max(0.5, options.building_gap_max_m));
         if (fits(box, SIZE_MAX)) {
           box.style = static_cast<uint32_t>(scene.styles.size());

@@ -46,9 +46,11 @@ struct CityLayoutOptions {
   double setback_max_m = 1.5;         // distance from the sidewalk's edge
   double wing_probability = 0.3;      // chance of an L-shaped footprint
   // 0: every building is its own design. N > 0: a building copies one of N
-  // designs (frontage, depth, floors, style and facade), drawn at random,
-  // with probability building_design_share, else it is its own: identical
-  // houses here and there, the repetition that can mislead a localizer.
+  // designs (frontage, depth, floors, style, facade and wing), drawn at
+  // random, with probability building_design_share, else it is its own:
+  // identical houses here and there, the repetition that can mislead a
+  // localizer (only the setback from the road, the roof, and a wing that
+  // has no room behind a copy differ).
   int building_designs = 0;
   double building_design_share = 1.0;
   double placemark_spacing_min_m = 10.0;

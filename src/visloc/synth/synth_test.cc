@@ -135,14 +135,19 @@ TEST(CityLayout, GridAndRandomLayoutsKeepBuildingsOffRoads) {
 // building is its own.
 TEST(CityLayout, BuildingDesignsRepeatIdenticalFacades) {
   // The main box of each building (a wing follows its main box and copies
-  // its style index): its facade seed, frontage and height.
+  // its style index): its facade seed, frontage, depth, height, style seed
+  // and its wing's shape (0 without one).
   const auto main_boxes = [](const CityScene& s) {
-    std::set<std::tuple<uint64_t, double, double>> designs;
+    std::set<std::tuple<uint64_t, double, double, double, uint64_t, double, double, double>> designs;
     size_t count = 0;
-    for (size_t i = 0; i < s.objects.boxes.size(); ++i) {
-      const auto& b = s.objects.boxes[i];
-      if (b.kind != ObjectKind::kBuilding || (i > 0 && s.objects.boxes[i - 1].style == b.style)) continue;
-      designs.insert({b.seed, b.half_x, b.z_max});
+    const auto& boxes = s.objects.boxes;
+    for (size_t i = 0; i < boxes.size(); ++i) {
+      const auto& b = boxes[i];
+      if (b.kind != ObjectKind::kBuilding || (i > 0 && boxes[i - 1].style == b.style)) continue;
+      const bool wing = i + 1 < boxes.size() && boxes[i + 1].style == b.style;
+      const BoxPrimitive none{};
+      const BoxPrimitive& w = wing ? boxes[i + 1] : none;
+      designs.insert({b.seed, b.half_x, b.half_y, b.z_max, s.styles[b.style].seed, w.half_x, w.half_y, w.z_max});
       ++count;
     }
     return std::pair(designs.size(), count);
