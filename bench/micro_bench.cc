@@ -244,9 +244,10 @@ struct SyntheticSegment {
   std::vector<visloc::HashCode> codes;
   std::vector<uint8_t> pq;
   visloc::CascadeLookup lookup;
+  visloc::CascadeLookup plain_lookup;  // without the radius-1 neighbourhood sizes: the ordering's baseline
   visloc::DescriptorMatrix queries;
-  visloc::CascadeIndexView view() const {
-    return {codes.size(), hasher.view(), codes.data(), pq.data(), &lookup};
+  visloc::CascadeIndexView view(bool neighbourhood_sizes = true) const {
+    return {codes.size(), hasher.view(), codes.data(), pq.data(), neighbourhood_sizes ? &lookup : &plain_lookup};
   }
   static const SyntheticSegment& get() {
     static const SyntheticSegment s = make();
@@ -272,6 +273,7 @@ struct SyntheticSegment {
     s.pq.resize(kSegmentPoints * visloc::kPqCodeBytes);
     s.codebook.encode(db.data(), kSegmentPoints, s.pq.data());
     s.lookup = visloc::CascadeLookup(s.codes);
+    s.plain_lookup = visloc::CascadeLookup(s.codes, /*neighbourhood_sizes=*/false);
     s.queries = visloc::DescriptorMatrix(kQueryFeatures);
     for (size_t i = 0; i < kQueryFeatures; ++i) {
       const size_t p = rng() % kSegmentPoints;
@@ -282,15 +284,17 @@ struct SyntheticSegment {
   }
 };
 
-// Arguments: LUT radius, prioritized (0/1). Time per query of 10K features,
-// hashing included; one workspace reused across iterations.
+// Arguments: LUT radius, prioritized (0/1), neighbourhood sizes (0/1; the
+// prioritized order at radius 1 from the lookup's stored sums, or from 136
+// probes per feature). Time per query of 10K features, hashing included; one
+// workspace reused across iterations.
 void BM_CascadeSearch100KPoints(benchmark::State& state) {
   const SyntheticSegment& s = SyntheticSegment::get();
   visloc::CascadeSearchOptions o;
   o.lut_radius = static_cast<int>(state.range(0));
   o.prioritize = state.range(1) != 0;
   visloc::CascadeWorkspace ws;
-  visloc::CascadeMatcher matcher(s.view(), s.codebook, ws);
+  visloc::CascadeMatcher matcher(s.view(state.range(2) != 0), s.codebook, ws);
   visloc::CascadeMatches m;
   matcher.match(s.queries, o, m);
   for (auto _ : state) {
@@ -301,15 +305,53 @@ void BM_CascadeSearch100KPoints(benchmark::State& state) {
   state.counters["candidates_per_feature"] =
       double(m.stats.coarse_candidates) / double(std::max<size_t>(1, m.stats.features_searched));
   state.counters["ms_hash"] = m.stats.ms_hash;
-  state.counters["lookup_bytes_per_point"] = double(s.lookup.memory_bytes()) / double(s.codes.size());
+  state.counters["ms_order"] = m.stats.ms_order;
+  state.counters["lookup_bytes_per_point"] =
+      double(s.view(state.range(2) != 0).lookup->memory_bytes()) / double(s.codes.size());
 }
 BENCHMARK(BM_CascadeSearch100KPoints)
-    ->Args({0, 0})
-    ->Args({1, 0})
-    ->Args({0, 1})
-    ->Args({1, 1})
+    ->Args({0, 0, 1})
+    ->Args({1, 0, 1})
+    ->Args({0, 1, 1})
+    ->Args({1, 1, 0})
+    ->Args({1, 1, 1})
     ->Unit(benchmark::kMillisecond)
     ->Iterations(5);
+
+// The prioritized order's key alone: the coarse sizes of 10K features at
+// radius 1, from 136 probes per feature (argument 0) or from the lookup's
+// neighbourhood sizes (1); the same sizes either way.
+void BM_CoarseSizesRadius1(benchmark::State& state) {
+  const SyntheticSegment& s = SyntheticSegment::get();
+  visloc::CascadeMatcher matcher(s.view(state.range(0) != 0), s.codebook);
+  std::vector<visloc::HashCode> codes(s.queries.rows());
+  std::vector<float> encode;
+  visloc::encode_hash(s.hasher.view(), s.queries.data(), s.queries.rows(), codes.data(), encode);
+  std::vector<uint32_t> sizes;
+  for (auto _ : state) {
+    matcher.coarse_sizes(codes, 1, sizes);
+    benchmark::DoNotOptimize(sizes.data());
+  }
+  size_t saturated = 0;
+  for (const auto& c : codes)
+    for (int k = 0; k < visloc::kHashTables; ++k) {
+      const uint32_t key = visloc::hash_subcode(c, k);
+      saturated += s.lookup.neighbourhood_size(k, key) >= visloc::CascadeLookup::kNeighbourhoodSaturated;
+    }
+  state.counters["saturated_share"] = double(saturated) / double(codes.size() * visloc::kHashTables);
+}
+BENCHMARK(BM_CoarseSizesRadius1)->Arg(0)->Arg(1)->Unit(benchmark::kMicrosecond);
+
+// Building a 100K-point segment's lookup tables (done when a segment is
+// opened): without (0) and with (1) the neighbourhood sizes.
+void BM_CascadeLookupBuild100KPoints(benchmark::State& state) {
+  const SyntheticSegment& s = SyntheticSegment::get();
+  for (auto _ : state) {
+    visloc::CascadeLookup lookup(s.codes, state.range(0) != 0);
+    benchmark::DoNotOptimize(&lookup);
+  }
+}
+BENCHMARK(BM_CascadeLookupBuild100KPoints)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond);
 
 // Argument: 0 float32, 1 int16 coordinates. The synthetic segment's codes
 // and rotation, 100K points uniform in a 100 × 20 × 15 m street box

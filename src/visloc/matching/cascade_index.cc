@@ -21,7 +21,33 @@ void CascadeIndexView::validate(const std::string& what) const {
                 " codes");
 }
 
-CascadeLookup::CascadeLookup(std::span<const HashCode> codes) : num_points_(codes.size()) {
+namespace {
+
+// Radius-1 neighbourhood sums of one table's bucket sizes (`sizes`, 65,536),
+// saturated at 255, into `out`. Flipping bit b swaps the halves of every
+// 2^(b+1)-entry block, so the inner loops run over contiguous runs.
+void neighbourhood_sums(const uint32_t* sizes, uint8_t* out) {
+  std::vector<uint32_t> sum(sizes, sizes + kHashBuckets);
+  for (int b = 0; b < kHashTableBits; ++b) {
+    const uint32_t flip = 1u << b;
+    for (uint32_t base = 0; base < kHashBuckets; base += 2 * flip) {
+      uint32_t* low = sum.data() + base;
+      uint32_t* high = low + flip;
+      const uint32_t* size_low = sizes + base;
+      const uint32_t* size_high = size_low + flip;
+      for (uint32_t i = 0; i < flip; ++i) {
+        low[i] += size_high[i];
+        high[i] += size_low[i];
+      }
+    }
+  }
+  for (uint32_t v = 0; v < kHashBuckets; ++v)
+    out[v] = static_cast<uint8_t>(std::min<uint32_t>(sum[v], CascadeLookup::kNeighbourhoodSaturated));
+}
+
+}  // namespace
+
+CascadeLookup::CascadeLookup(std::span<const HashCode> codes, bool neighbourhood_sizes) : num_points_(codes.size()) {
   const size_t n = codes.size();
   if (n > kMaxPoints)
     throw_error(ErrorCode::kInvalidArgument, "a segment holds at most ", kMaxPoints, " points, got ", n);
@@ -33,10 +59,13 @@ CascadeLookup::CascadeLookup(std::span<const HashCode> codes) : num_points_(code
   (small ? ids16_.resize(kHashTables * n + 1) : ids32_.resize(kHashTables * n + 1));
   std::vector<uint32_t> count(kHashBuckets + 1);
   offsets_.clear();
+  if (neighbourhood_sizes) neighbourhood_.resize(size_t(kHashTables) << kHashTableBits);
   for (int k = 0; k < kHashTables; ++k) {
     // Counting sort: bucket sizes, then exclusive prefix sums as fill positions.
     std::fill(count.begin(), count.end(), 0u);
     for (size_t i = 0; i < n; ++i) ++count[hash_subcode(codes[i], k) + 1];
+    if (neighbourhood_sizes)
+      neighbourhood_sums(count.data() + 1, neighbourhood_.data() + (size_t(k) << kHashTableBits));
     table_start_[k] = offsets_.size();
     uint64_t* bits = bitmap_.data() + k * kBitmapWords;
     uint32_t* rank = rank_.data() + k * kBitmapWords;
@@ -65,7 +94,7 @@ CascadeLookup::CascadeLookup(std::span<const HashCode> codes) : num_points_(code
 
 size_t CascadeLookup::memory_bytes() const {
   return bitmap_.size() * sizeof(uint64_t) + rank_.size() * sizeof(uint32_t) + offsets_.size() * sizeof(uint32_t) +
-         ids16_.size() * sizeof(uint16_t) + ids32_.size() * sizeof(uint32_t);
+         ids16_.size() * sizeof(uint16_t) + ids32_.size() * sizeof(uint32_t) + neighbourhood_.size();
 }
 
 void CascadeSearchOptions::validate() const {
@@ -149,17 +178,17 @@ inline uint32_t probe_bucket(uint32_t key, int b) { return b == 0 ? key : key ^ 
 
 VISLOC_POPCNT_CLONES
 void coarse_sizes_impl(const CascadeLookup& lookup, const HashCode* codes, size_t n, int radius, uint32_t* sizes) {
-  const int probes = radius == 1 ? kHashTableBits + 1 : 1;
+  if (radius == 1) {
+    for (size_t f = 0; f < n; ++f) {
+      uint32_t s = 0;
+      for (int k = 0; k < kHashTables; ++k) s += lookup.neighbourhood_size(k, hash_subcode(codes[f], k));
+      sizes[f] = s;
+    }
+    return;
+  }
   for (size_t f = 0; f < n; ++f) {
     uint32_t s = 0;
-    for (int k = 0; k < kHashTables; ++k) {
-      const uint32_t key = hash_subcode(codes[f], k);
-      for (int b = 0; b < probes; ++b) {
-        uint32_t begin, end;
-        lookup.bucket_range(k, probe_bucket(key, b), begin, end);
-        s += end - begin;
-      }
-    }
+    for (int k = 0; k < kHashTables; ++k) s += lookup.bucket_size(k, hash_subcode(codes[f], k));
     sizes[f] = s;
   }
 }

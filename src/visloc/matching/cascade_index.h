@@ -60,13 +60,20 @@ namespace visloc {
 // and the point ids: uint16 when the segment has at most 65,536 points,
 // uint32 otherwise. For a 5K-point segment this is ~250 KiB (against 2 MiB
 // of full offset tables), so a probe of an empty bucket touches one bit.
+//
+// With `neighbourhood_sizes`, also per table and bucket the size of its
+// radius-1 neighbourhood (the bucket and the 16 one bit away), saturated at
+// 255 (512 KiB): the prioritized search at radius 1 orders the features by
+// these sums, one byte read per table where it took 17 probes; a saturated
+// entry is summed from the probes, so the sizes are exact either way.
 class CascadeLookup {
  public:
   static constexpr size_t kMaxPoints = size_t(1) << 28;
   static constexpr size_t kBitmapWords = kHashBuckets / 64;
+  static constexpr uint8_t kNeighbourhoodSaturated = 255;
 
   CascadeLookup() = default;
-  explicit CascadeLookup(std::span<const HashCode> codes);
+  explicit CascadeLookup(std::span<const HashCode> codes, bool neighbourhood_sizes = true);
 
   size_t num_points() const { return num_points_; }
   bool uses_16bit_ids() const { return !ids16_.empty() || num_points_ == 0; }
@@ -91,6 +98,17 @@ class CascadeLookup {
     bucket_range(table, key, b, e);
     return e - b;
   }
+  // Σ of the sizes of bucket `key` and its 16 one-bit neighbours.
+  uint32_t neighbourhood_size(int table, uint32_t key) const {
+    if (!neighbourhood_.empty()) {
+      const uint8_t s = neighbourhood_[(size_t(table) << kHashTableBits) | key];
+      if (s != kNeighbourhoodSaturated) return s;
+    }
+    uint32_t sum = bucket_size(table, key);
+    for (int b = 0; b < kHashTableBits; ++b) sum += bucket_size(table, key ^ (1u << b));
+    return sum;
+  }
+  bool has_neighbourhood_sizes() const { return !neighbourhood_.empty(); }
   const uint16_t* ids16(int table) const { return ids16_.data() + size_t(table) * num_points_; }
   const uint32_t* ids32(int table) const { return ids32_.data() + size_t(table) * num_points_; }
   // Resident bytes of the tables.
@@ -104,6 +122,7 @@ class CascadeLookup {
   size_t table_start_[kHashTables + 1] = {};
   std::vector<uint16_t> ids16_;   // 8 × N (N ≤ 65,536)
   std::vector<uint32_t> ids32_;   // 8 × N otherwise
+  std::vector<uint8_t> neighbourhood_;  // 8 × 65,536 radius-1 sizes, saturated; or empty
 };
 
 struct CascadeIndexView {

@@ -205,8 +205,11 @@ TEST(CascadeIndex, TablesAreCsrOfSubcodes) {
   v.validate("test");
   ASSERT_TRUE(t.lookup.uses_16bit_ids());
   expect_csr_of_subcodes(t.lookup, t.codes, &CascadeLookup::ids16);
-  // The compact tables take far less than the 2 MiB of full offset tables.
-  EXPECT_LT(t.lookup.memory_bytes(), size_t(8 * 65537 * 4) / 4);
+  // The compact tables take far less than the 2 MiB of full offset tables;
+  // the radius-1 neighbourhood sizes add one byte per bucket.
+  const CascadeLookup plain(t.codes, /*neighbourhood_sizes=*/false);
+  EXPECT_LT(plain.memory_bytes(), size_t(8 * 65537 * 4) / 4);
+  EXPECT_EQ(t.lookup.memory_bytes(), plain.memory_bytes() + size_t(8) * kHashBuckets);
   // A lookup of another size is caught.
   CascadeLookup other(std::span<const HashCode>(t.codes.data(), 10));
   v.lookup = &other;
@@ -246,9 +249,17 @@ TEST(CascadeSearch, CoarseListsAreTheUnionOfTheProbedBuckets) {
     for (auto& b : pq) b = static_cast<uint8_t>(rng());
     const CascadeLookup lookup(codes);
     ASSERT_EQ(lookup.uses_16bit_ids(), points <= 65536);
+    ASSERT_TRUE(lookup.has_neighbourhood_sizes());
+    // Table 7 holds every point in bucket 0: its neighbourhood sizes saturate
+    // there, so both the stored sums and the probed fallback are checked.
+    ASSERT_GE(lookup.neighbourhood_size(7, 0), uint32_t(CascadeLookup::kNeighbourhoodSaturated));
+    const CascadeLookup plain(codes, /*neighbourhood_sizes=*/false);
+    ASSERT_FALSE(plain.has_neighbourhood_sizes());
     BinaryHasher unused;
     CascadeWorkspace workspace;
     CascadeMatcher matcher({points, unused.view(), codes.data(), pq.data(), &lookup}, codebook, workspace);
+    CascadeMatcher plain_matcher({points, unused.view(), codes.data(), pq.data(), &plain}, codebook);
+    std::vector<uint32_t> sizes;
     DescriptorMatrix one(1);
     size_t complete_lists = 0;
     for (int q = 0; q < 60; ++q) {
@@ -277,6 +288,12 @@ TEST(CascadeSearch, CoarseListsAreTheUnionOfTheProbedBuckets) {
         CascadeMatches m;
         matcher.match_hashed(one, std::span<const HashCode>(&code, 1), o, m);
         SCOPED_TRACE(::testing::Message() << points << " points, query " << q << ", radius " << radius);
+        // The coarse size (the prioritized order's key) is the listed count,
+        // from the neighbourhood sums and from the probes alike.
+        matcher.coarse_sizes(std::span<const HashCode>(&code, 1), radius, sizes);
+        EXPECT_EQ(sizes[0], listed);
+        plain_matcher.coarse_sizes(std::span<const HashCode>(&code, 1), radius, sizes);
+        EXPECT_EQ(sizes[0], listed);
         EXPECT_EQ(m.stats.features_searched, listed >= 2 ? 1u : 0u);
         EXPECT_EQ(m.stats.coarse_candidates, listed >= 2 ? distinct : 0u);
         EXPECT_EQ(m.stats.ranked_candidates, listed >= 2 && distinct >= 2 ? distinct : 0u);

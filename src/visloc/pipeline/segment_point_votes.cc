@@ -39,7 +39,7 @@ void SegmentPointVotes::add_segment(uint32_t segment, std::span<const HashCode> 
 }
 
 void SegmentPointVotes::finalize(const std::vector<std::vector<uint32_t>>& related) {
-  lookup_ = CascadeLookup(codes_);
+  lookup_ = CascadeLookup(codes_, /*neighbourhood_sizes=*/false);  // votes probe buckets, they do not order by size
   weight_.assign(max_segment_plus_one_, 1.0f);
   if (options_.normalize_by_chance) compute_chance_weights(related);
   finalized_ = true;
