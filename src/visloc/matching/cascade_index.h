@@ -109,6 +109,8 @@ class CascadeLookup {
     return sum;
   }
   bool has_neighbourhood_sizes() const { return !neighbourhood_.empty(); }
+  // The stored sums, table-major (8 × 65,536), saturated; empty without them.
+  std::span<const uint8_t> stored_neighbourhood_sizes() const { return neighbourhood_; }
   const uint16_t* ids16(int table) const { return ids16_.data() + size_t(table) * num_points_; }
   const uint32_t* ids32(int table) const { return ids32_.data() + size_t(table) * num_points_; }
   // Resident bytes of the tables.

@@ -210,6 +210,24 @@ TEST(CascadeIndex, TablesAreCsrOfSubcodes) {
   const CascadeLookup plain(t.codes, /*neighbourhood_sizes=*/false);
   EXPECT_LT(plain.memory_bytes(), size_t(8 * 65537 * 4) / 4);
   EXPECT_EQ(t.lookup.memory_bytes(), plain.memory_bytes() + size_t(8) * kHashBuckets);
+  // Every stored neighbourhood size is the saturated sum of the 17 buckets'
+  // sizes, counted from the codes.
+  const std::span<const uint8_t> stored = t.lookup.stored_neighbourhood_sizes();
+  ASSERT_EQ(stored.size(), size_t(kHashTables) * kHashBuckets);
+  EXPECT_TRUE(plain.stored_neighbourhood_sizes().empty());
+  size_t non_empty = 0;
+  for (int k = 0; k < kHashTables; ++k) {
+    std::vector<uint32_t> size(kHashBuckets, 0);
+    for (const HashCode& c : t.codes) ++size[hash_subcode(c, k)];
+    for (uint32_t key = 0; key < kHashBuckets; ++key) {
+      uint32_t sum = size[key];
+      for (int b = 0; b < kHashTableBits; ++b) sum += size[key ^ (1u << b)];
+      ASSERT_EQ(stored[size_t(k) * kHashBuckets + key], std::min<uint32_t>(sum, 255))
+          << "table " << k << " key " << key;
+      non_empty += sum > 0;
+    }
+  }
+  EXPECT_GT(non_empty, 10000u);
   // A lookup of another size is caught.
   CascadeLookup other(std::span<const HashCode>(t.codes.data(), 10));
   v.lookup = &other;
