@@ -24,7 +24,7 @@
 // Bytes per point on disk: XYZ 12 (XYZ16 6) + CODE 16 + PQ 16 = 44 (38), plus META and
 // IMAGES (and 64.5 KiB of ITQ with a segment rotation). The lookup tables of
 // the cascade are a function of the codes: Segment::open builds them in
-// memory (CascadeLookup: ~8 × (2 B id + bucket) per point + 96 KiB, and 512 KiB of
+// memory (CascadeLookup: ~8 × (2 B id + bucket) per point + 96 KiB, and 1 MiB of
 // radius-1 neighbourhood sizes).
 // Version 1 also stored them (LUTOFF 8 × 65537 uint32, LUTIDS 8 × N uint32)
 // and always an ITQ rotation; its tables are ignored and rebuilt.

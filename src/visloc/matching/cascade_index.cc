@@ -24,9 +24,9 @@ void CascadeIndexView::validate(const std::string& what) const {
 namespace {
 
 // Radius-1 neighbourhood sums of one table's bucket sizes (`sizes`, 65,536),
-// saturated at 255, into `out`. Flipping bit b swaps the halves of every
+// saturated at 65,535, into `out`. Flipping bit b swaps the halves of every
 // 2^(b+1)-entry block, so the inner loops run over contiguous runs.
-void neighbourhood_sums(const uint32_t* sizes, uint8_t* out) {
+void neighbourhood_sums(const uint32_t* sizes, uint16_t* out) {
   std::vector<uint32_t> sum(sizes, sizes + kHashBuckets);
   for (int b = 0; b < kHashTableBits; ++b) {
     const uint32_t flip = 1u << b;
@@ -42,7 +42,7 @@ void neighbourhood_sums(const uint32_t* sizes, uint8_t* out) {
     }
   }
   for (uint32_t v = 0; v < kHashBuckets; ++v)
-    out[v] = static_cast<uint8_t>(std::min<uint32_t>(sum[v], CascadeLookup::kNeighbourhoodSaturated));
+    out[v] = static_cast<uint16_t>(std::min<uint32_t>(sum[v], CascadeLookup::kNeighbourhoodSaturated));
 }
 
 }  // namespace
@@ -94,7 +94,7 @@ CascadeLookup::CascadeLookup(std::span<const HashCode> codes, bool neighbourhood
 
 size_t CascadeLookup::memory_bytes() const {
   return bitmap_.size() * sizeof(uint64_t) + rank_.size() * sizeof(uint32_t) + offsets_.size() * sizeof(uint32_t) +
-         ids16_.size() * sizeof(uint16_t) + ids32_.size() * sizeof(uint32_t) + neighbourhood_.size();
+         ids16_.size() * sizeof(uint16_t) + ids32_.size() * sizeof(uint32_t) + neighbourhood_.size() * sizeof(uint16_t);
 }
 
 void CascadeSearchOptions::validate() const {
