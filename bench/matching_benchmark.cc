@@ -397,7 +397,7 @@ void run_cascades(const SceneQueries& s, const LoadedMap& m, const std::function
   const size_t np = m.points;
   BinaryHasher lsh = make_lsh_hasher(m.descriptors_float.data(), np, 1);
   std::vector<HashCode> lsh_codes(np);
-  std::vector<float> ws;
+  HashWorkspace ws;
   encode_hash(lsh.view(), m.descriptors_float.data(), np, lsh_codes.data(), ws);
   CascadeLookup lsh_lookup(lsh_codes);
   CascadeIndexView lsh_view = m.segment->index();

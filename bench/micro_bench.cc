@@ -235,6 +235,43 @@ void BM_KernelHashCodes(benchmark::State& state) {
 }
 BENCHMARK(BM_KernelHashCodes)->DenseRange(0, 2);
 
+// The same 1024 rows as uint8 descriptors through the integer kernel (the
+// query path: W rounded to int16, exact int32 sums), against the float one above.
+void BM_KernelHashCodesU8(benchmark::State& state) {
+  const auto* k = kernels_or_skip(state);
+  if (!k) return;
+  constexpr size_t kRows = 1024;
+  std::mt19937 rng(6);
+  std::normal_distribution<float> g(0, 30);
+  std::vector<float> w(128 * 128), mean(128, 40.f);
+  for (auto& v : w) v = g(rng) / 300;
+  std::vector<uint8_t> x(kRows * 128);
+  for (auto& v : x) v = static_cast<uint8_t>(std::clamp(40.f + g(rng), 0.f, 255.f));
+  visloc::QuantizedHashProjection q;
+  visloc::quantize_hash_projection({mean.data(), w.data()}, q);
+  std::vector<visloc::HashCode> codes(kRows);
+  for (auto _ : state) {
+    k->hash_codes_u8(q.weight_pairs.data(), q.thresholds.data(), x.data(), kRows, codes.data());
+    benchmark::DoNotOptimize(codes.data());
+  }
+  state.SetItemsProcessed(state.iterations() * kRows);
+}
+BENCHMARK(BM_KernelHashCodesU8)->DenseRange(0, 2);
+
+// The integer form of a projection, made once per encode_hash call of uint8 rows.
+void BM_QuantizeHashProjection(benchmark::State& state) {
+  std::mt19937 rng(6);
+  std::normal_distribution<float> g(0, 30);
+  std::vector<float> w(128 * 128), mean(128, 40.f);
+  for (auto& v : w) v = g(rng) / 300;
+  visloc::QuantizedHashProjection q;
+  for (auto _ : state) {
+    visloc::quantize_hash_projection({mean.data(), w.data()}, q);
+    benchmark::DoNotOptimize(q.thresholds.data());
+  }
+}
+BENCHMARK(BM_QuantizeHashProjection)->Unit(benchmark::kMicrosecond);
+
 // A synthetic 100K-point segment: SIFT-like descriptors around 3000 centres;
 // 10K query features, each a noisy copy of a segment point.
 struct SyntheticSegment {
@@ -268,7 +305,7 @@ struct SyntheticSegment {
     s.hasher = visloc::train_itq(db.data(), kSegmentPoints, {.iterations = 20}).hasher;
     s.codebook = visloc::PqCodebook::train(db.data(), kSegmentPoints, {.iterations = 10});
     s.codes.resize(kSegmentPoints);
-    std::vector<float> ws;
+    visloc::HashWorkspace ws;
     visloc::encode_hash(s.hasher.view(), db.data(), kSegmentPoints, s.codes.data(), ws);
     s.pq.resize(kSegmentPoints * visloc::kPqCodeBytes);
     s.codebook.encode(db.data(), kSegmentPoints, s.pq.data());
@@ -325,7 +362,7 @@ void BM_CoarseSizesRadius1(benchmark::State& state) {
   const SyntheticSegment& s = SyntheticSegment::get();
   visloc::CascadeMatcher matcher(s.view(state.range(0) != 0), s.codebook);
   std::vector<visloc::HashCode> codes(s.queries.rows());
-  std::vector<float> encode;
+  visloc::HashWorkspace encode;
   visloc::encode_hash(s.hasher.view(), s.queries.data(), s.queries.rows(), codes.data(), encode);
   std::vector<uint32_t> sizes;
   for (auto _ : state) {

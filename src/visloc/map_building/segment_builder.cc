@@ -25,7 +25,7 @@ SegmentData make_segment_data(const ColmapModel& model, const PointDescriptors& 
   for (size_t p = 0; p < model.points.size(); ++p)
     for (int k = 0; k < 3; ++k) seg.xyz[3 * p + k] = static_cast<float>(model.points[p].xyz[k]);
   seg.codes.resize(desc.num_points);
-  std::vector<float> workspace;
+  HashWorkspace workspace;
   if (map_hasher) {
     encode_hash(map_hasher->view(), desc.mean.data(), desc.num_points, seg.codes.data(), workspace);
     seg.extra_meta["hash_rotation_crc32c"] = hash_rotation_fingerprint(*map_hasher);

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <numeric>
 
 #include "visloc/matching/search_kernels.h"
@@ -20,22 +21,22 @@ using ConstRowMapF = Eigen::Map<const RowMatrixF>;
 
 // Centres a block of rows, then the kernel (search_kernels.h; the best SIMD
 // level, bit-identical to the scalar reference) takes the projection's signs.
-template <typename T>
-void encode_impl(BinaryHasherView h, const T* x, size_t n, HashCode* codes, std::vector<float>& ws) {
+void encode_float(BinaryHasherView h, const float* x, size_t n, HashCode* codes, HashWorkspace& ws) {
   if (n == 0) return;
   constexpr size_t kBlock = 256;  // rows per block: bounded workspace
-  ws.resize(kHashBits * kDescriptorDim + kBlock * kDescriptorDim);
-  float* wt = ws.data();
+  ws.projection_transposed.resize(kHashBits * kDescriptorDim);
+  ws.centred.resize(kBlock * kDescriptorDim);
+  float* wt = ws.projection_transposed.data();
   for (int i = 0; i < kHashBits; ++i)
     for (int j = 0; j < kDescriptorDim; ++j) wt[j * kHashBits + i] = h.projection[i * kDescriptorDim + j];
-  float* centred = ws.data() + kHashBits * kDescriptorDim;
+  float* centred = ws.centred.data();
   const SearchKernels& kernels = search_kernels();
   for (size_t start = 0; start < n; start += kBlock) {
     const size_t rows = std::min(kBlock, n - start);
     for (size_t i = 0; i < rows; ++i) {
-      const T* r = x + (start + i) * kDescriptorDim;
+      const float* r = x + (start + i) * kDescriptorDim;
       float* c = centred + i * kDescriptorDim;
-      for (int j = 0; j < kDescriptorDim; ++j) c[j] = static_cast<float>(r[j]) - h.mean[j];
+      for (int j = 0; j < kDescriptorDim; ++j) c[j] = r[j] - h.mean[j];
     }
     kernels.hash_codes(wt, centred, rows, codes + start);
   }
@@ -92,11 +93,58 @@ double objective(const Eigen::MatrixXd& v) {
 
 }  // namespace
 
-void encode_hash(BinaryHasherView h, const uint8_t* x, size_t n, HashCode* codes, std::vector<float>& ws) {
-  encode_impl(h, x, n, codes, ws);
+namespace {
+
+// round(w) half away from zero, for |w| ≤ 32,767: truncation and the fraction
+// are exact in float, so this is lround without its library call.
+inline int16_t round_to_int16(float w) {
+  const int32_t t = static_cast<int32_t>(w);
+  const float fraction = w - static_cast<float>(t);
+  return static_cast<int16_t>(t + (fraction >= 0.5f) - (fraction <= -0.5f));
 }
-void encode_hash(BinaryHasherView h, const float* x, size_t n, HashCode* codes, std::vector<float>& ws) {
-  encode_impl(h, x, n, codes, ws);
+
+}  // namespace
+
+void quantize_hash_projection(BinaryHasherView h, QuantizedHashProjection& out) {
+  constexpr int kEntries = kHashBits * kDescriptorDim;
+  float largest = 0;
+  bool finite = true;
+  for (int k = 0; k < kEntries; ++k) {
+    largest = std::max(largest, std::abs(h.projection[k]));
+    finite &= std::isfinite(h.projection[k]);
+  }
+  // A zero projection keeps scale 1 (every bit from the threshold alone);
+  // a non-finite entry counts as 0.
+  out.scale = largest > 0 ? 32767.0f / largest : 1.0f;
+  out.weight_pairs.resize(kEntries);
+  out.thresholds.resize(kHashBits);
+  // Column by column, so that the 128 threshold sums are independent chains.
+  double c[kHashBits] = {};
+  for (int j = 0; j < kDescriptorDim; ++j) {
+    const double mean = h.mean[j];
+    int16_t* pairs = out.weight_pairs.data() + (j / 2) * 2 * kHashBits + (j & 1);
+    for (int i = 0; i < kHashBits; ++i) {
+      const float p = h.projection[i * kDescriptorDim + j];
+      const float w = std::min(32767.0f, std::max(-32767.0f, p * out.scale));  // NaN → −32,767
+      const int16_t q = finite || std::isfinite(p) ? round_to_int16(w) : int16_t{0};
+      pairs[2 * i] = q;
+      c[i] += double(q) * mean;
+    }
+  }
+  for (int i = 0; i < kHashBits; ++i) {
+    const double t = std::floor(c[i]);
+    // NaN (a non-finite mean) or above every sum: the bit is never set.
+    out.thresholds[i] = !(t < 2147483647.0) ? INT32_MAX : t < -2147483648.0 ? INT32_MIN : static_cast<int32_t>(t);
+  }
+}
+
+void encode_hash(BinaryHasherView h, const uint8_t* x, size_t n, HashCode* codes, HashWorkspace& ws) {
+  if (n == 0) return;
+  quantize_hash_projection(h, ws.quantized);
+  search_kernels().hash_codes_u8(ws.quantized.weight_pairs.data(), ws.quantized.thresholds.data(), x, n, codes);
+}
+void encode_hash(BinaryHasherView h, const float* x, size_t n, HashCode* codes, HashWorkspace& ws) {
+  encode_float(h, x, n, codes, ws);
 }
 
 void ItqOptions::validate() const {

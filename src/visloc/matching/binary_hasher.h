@@ -61,13 +61,37 @@ struct BinaryHasher {
   BinaryHasherView view() const { return {mean.data(), projection.data()}; }
 };
 
-// Encodes n descriptors (uint8 or float rows of 128) into codes with the best
-// kernel for this CPU (search_kernels.h). `workspace` is reused between calls
-// (48K floats).
+// The integer form of a hasher, for uint8 descriptors:
+//   Wq[i][j] = round(scale · W[i][j]), scale = 32,767 / max|W| (int16),
+//   threshold_i = ⌊Σ_j Wq[i][j] · μ_j⌋ (in double, clamped to int32),
+//   bit i = [Σ_j Wq[i][j] · x_j > threshold_i], summed exactly in int32.
+// For integer sums P, P > c ⇔ P > ⌊c⌋, so this is the sign of Wq(x − μ)
+// exactly; it differs from the sign of W(x − μ) only where
+// |W(x − μ)| ≤ (Σ_j x_j + Σ_j |μ_j|) / (2 · scale) + 1 / scale (the rounding of
+// W), about 1e-3 of a typical projection's spread on SIFT.
+struct QuantizedHashProjection {
+  float scale = 1;
+  std::vector<int16_t> weight_pairs;  // [p][i][e] = Wq[i][2p + e]: 64 × 128 × 2 (search_kernels.h)
+  std::vector<int32_t> thresholds;    // 128
+};
+void quantize_hash_projection(BinaryHasherView hasher, QuantizedHashProjection& out);
+
+// Reusable buffers of encode_hash (~130 KiB once grown).
+struct HashWorkspace {
+  std::vector<float> projection_transposed;  // float descriptors: Wᵀ
+  std::vector<float> centred;                // and a block of centred rows
+  QuantizedHashProjection quantized;         // uint8 descriptors
+};
+
+// Encodes n descriptors (rows of 128) into codes with the best kernel for this
+// CPU (search_kernels.h): uint8 rows (query features) in exact integer
+// arithmetic with the QuantizedHashProjection, float rows (e.g. a map point's
+// mean descriptor) in float. The two agree except where a projection is
+// within the rounding bound above of 0.
 void encode_hash(BinaryHasherView hasher, const uint8_t* descriptors, size_t n, HashCode* codes,
-                 std::vector<float>& workspace);
+                 HashWorkspace& workspace);
 void encode_hash(BinaryHasherView hasher, const float* descriptors, size_t n, HashCode* codes,
-                 std::vector<float>& workspace);
+                 HashWorkspace& workspace);
 
 struct ItqOptions {
   int iterations = 50;     // Gong & Lazebnik use 50

@@ -200,7 +200,7 @@ struct CascadeWorkspace {
   std::vector<uint8_t> hamming;
   std::vector<uint32_t> shortlist;
   std::vector<float> ranked_distances;
-  std::vector<float> encode;
+  HashWorkspace encode;
   std::vector<float> table;
   size_t capacity_bytes() const;
 };

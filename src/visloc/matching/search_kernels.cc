@@ -1,6 +1,7 @@
 #include "visloc/matching/search_kernels.h"
 
 #include <bit>
+#include <cstring>
 
 #include "visloc/features/feature_set.h"
 #include "visloc/matching/pq_codebook.h"
@@ -80,6 +81,24 @@ void hash_codes_scalar(const float* wt, const float* x, size_t n, HashCode* code
     }
     HashCode c{{0, 0}};
     for (int i = 0; i < kHashBits; ++i) c.w[i >> 6] |= static_cast<uint64_t>(p[i] > 0.0f) << (i & 63);
+    codes[r] = c;
+  }
+}
+
+// Exact int32 sums: |Wq| ≤ 32,767 and x ≤ 255 bound any sum of 128 products by
+// 1.07e9 < 2^31, so the order of the additions does not matter.
+void hash_codes_u8_scalar(const int16_t* wp, const int32_t* t, const uint8_t* x, size_t n, HashCode* codes) {
+  int32_t p[kHashBits];
+  for (size_t r = 0; r < n; ++r) {
+    const uint8_t* xr = x + r * kDescriptorDim;
+    for (int i = 0; i < kHashBits; ++i) p[i] = 0;
+    for (int pair = 0; pair < kDescriptorDim / 2; ++pair) {
+      const int32_t x0 = xr[2 * pair], x1 = xr[2 * pair + 1];
+      const int16_t* w = wp + pair * 2 * kHashBits;
+      for (int i = 0; i < kHashBits; ++i) p[i] += w[2 * i] * x0 + w[2 * i + 1] * x1;
+    }
+    HashCode c{{0, 0}};
+    for (int i = 0; i < kHashBits; ++i) c.w[i >> 6] |= static_cast<uint64_t>(p[i] > t[i]) << (i & 63);
     codes[r] = c;
   }
 }
@@ -226,6 +245,52 @@ __attribute__((target("avx2"))) void adc_direct_avx2(const float* c, const float
   }
 }
 
+// Blocks of 4 rows × 16 outputs (8 accumulators of 8 int32): per pair of
+// dimensions, one multiply-add of int16 pairs (vpmaddwd) and one add per
+// accumulator. The rows are widened to int16 once, so that a pair (x_2p,
+// x_2p+1) is one 32-bit broadcast. Exact, so equal to the reference.
+__attribute__((target("avx2"))) void hash_codes_u8_avx2(const int16_t* wp, const int32_t* t, const uint8_t* x, size_t n,
+                                                        HashCode* codes) {
+  constexpr int kRows = 4;
+  alignas(32) int16_t widened[kRows][kDescriptorDim];
+  size_t r0 = 0;
+  for (; r0 + kRows <= n; r0 += kRows) {
+    for (int r = 0; r < kRows; ++r)
+      for (int j = 0; j < kDescriptorDim; j += 16)
+        _mm256_store_si256(
+            reinterpret_cast<__m256i*>(&widened[r][j]),
+            _mm256_cvtepu8_epi16(_mm_loadu_si128(reinterpret_cast<const __m128i*>(x + (r0 + r) * kDescriptorDim + j))));
+    HashCode c[kRows] = {};
+    for (int ib = 0; ib < kHashBits / 16; ++ib) {
+      __m256i acc[kRows][2];
+      for (auto& a : acc) a[0] = a[1] = _mm256_setzero_si256();
+      for (int pair = 0; pair < kDescriptorDim / 2; ++pair) {
+        const int16_t* w = wp + (pair * kHashBits + 16 * ib) * 2;
+        const __m256i w0 = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(w));
+        const __m256i w1 = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(w + 16));
+        for (int r = 0; r < kRows; ++r) {
+          int32_t xx;
+          std::memcpy(&xx, &widened[r][2 * pair], 4);
+          const __m256i b = _mm256_set1_epi32(xx);
+          acc[r][0] = _mm256_add_epi32(acc[r][0], _mm256_madd_epi16(w0, b));
+          acc[r][1] = _mm256_add_epi32(acc[r][1], _mm256_madd_epi16(w1, b));
+        }
+      }
+      const __m256i t0 = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(t + 16 * ib));
+      const __m256i t1 = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(t + 16 * ib + 8));
+      for (int r = 0; r < kRows; ++r) {
+        const uint64_t lo =
+            static_cast<uint32_t>(_mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpgt_epi32(acc[r][0], t0))));
+        const uint64_t hi =
+            static_cast<uint32_t>(_mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpgt_epi32(acc[r][1], t1))));
+        c[r].w[ib >> 2] |= (lo | (hi << 8)) << (16 * (ib & 3));
+      }
+    }
+    for (int r = 0; r < kRows; ++r) codes[r0 + r] = c[r];
+  }
+  hash_codes_u8_scalar(wp, t, x + r0 * kDescriptorDim, n - r0, codes + r0);
+}
+
 // ---- x86-64: AVX-512F ------------------------------------------------------------
 
 __attribute__((target("avx512f"))) void adc_table_avx512(const float* ct, const float* q, float* table) {
@@ -301,15 +366,56 @@ __attribute__((target("avx512f"))) void hash_codes_avx512(const float* wt, const
   hash_codes_avx2(wt, x + r0 * kDescriptorDim, n - r0, codes + r0);
 }
 
+// Blocks of 8 rows × 32 outputs (16 accumulators of 16 int32), as
+// hash_codes_u8_avx2 with twice the lanes; exact, so equal to the reference.
+__attribute__((target("avx512f,avx512bw"))) void hash_codes_u8_avx512(const int16_t* wp, const int32_t* t,
+                                                                      const uint8_t* x, size_t n, HashCode* codes) {
+  constexpr int kRows = 8;
+  alignas(64) int16_t widened[kRows][kDescriptorDim];
+  size_t r0 = 0;
+  for (; r0 + kRows <= n; r0 += kRows) {
+    for (int r = 0; r < kRows; ++r)
+      for (int j = 0; j < kDescriptorDim; j += 32)
+        _mm512_store_si512(&widened[r][j], _mm512_cvtepu8_epi16(_mm256_loadu_si256(
+                                               reinterpret_cast<const __m256i*>(x + (r0 + r) * kDescriptorDim + j))));
+    HashCode c[kRows] = {};
+    for (int ib = 0; ib < kHashBits / 32; ++ib) {
+      __m512i acc[kRows][2];
+      for (auto& a : acc) a[0] = a[1] = _mm512_setzero_si512();
+      for (int pair = 0; pair < kDescriptorDim / 2; ++pair) {
+        const int16_t* w = wp + (pair * kHashBits + 32 * ib) * 2;
+        const __m512i w0 = _mm512_loadu_si512(w);
+        const __m512i w1 = _mm512_loadu_si512(w + 32);
+        for (int r = 0; r < kRows; ++r) {
+          int32_t xx;
+          std::memcpy(&xx, &widened[r][2 * pair], 4);
+          const __m512i b = _mm512_set1_epi32(xx);
+          acc[r][0] = _mm512_add_epi32(acc[r][0], _mm512_madd_epi16(w0, b));
+          acc[r][1] = _mm512_add_epi32(acc[r][1], _mm512_madd_epi16(w1, b));
+        }
+      }
+      const __m512i t0 = _mm512_loadu_si512(t + 32 * ib);
+      const __m512i t1 = _mm512_loadu_si512(t + 32 * ib + 16);
+      for (int r = 0; r < kRows; ++r) {
+        const uint64_t lo = _mm512_cmpgt_epi32_mask(acc[r][0], t0);
+        const uint64_t hi = _mm512_cmpgt_epi32_mask(acc[r][1], t1);
+        c[r].w[ib >> 1] |= (lo | (hi << 16)) << (32 * (ib & 1));
+      }
+    }
+    for (int r = 0; r < kRows; ++r) codes[r0 + r] = c[r];
+  }
+  hash_codes_u8_avx2(wp, t, x + r0 * kDescriptorDim, n - r0, codes + r0);
+}
+
 #endif  // VISLOC_X86_KERNELS
 
-constexpr SearchKernels kScalarKernels{SimdLevel::kScalar, hamming_scalar,    adc_table_scalar,
-                                       adc_distances_scalar, adc_direct_scalar, hash_codes_scalar};
+constexpr SearchKernels kScalarKernels{SimdLevel::kScalar, hamming_scalar,    adc_table_scalar,    adc_distances_scalar,
+                                       adc_direct_scalar,  hash_codes_scalar, hash_codes_u8_scalar};
 #ifdef VISLOC_X86_KERNELS
-constexpr SearchKernels kAvx2Kernels{SimdLevel::kAvx2,   hamming_popcnt,  adc_table_avx2,
-                                     adc_distances_avx2, adc_direct_avx2, hash_codes_avx2};
-constexpr SearchKernels kAvx512Kernels{SimdLevel::kAvx512,   hamming_popcnt,  adc_table_avx512,
-                                       adc_distances_avx512, adc_direct_avx2, hash_codes_avx512};
+constexpr SearchKernels kAvx2Kernels{SimdLevel::kAvx2, hamming_popcnt,  adc_table_avx2,    adc_distances_avx2,
+                                     adc_direct_avx2,  hash_codes_avx2, hash_codes_u8_avx2};
+constexpr SearchKernels kAvx512Kernels{SimdLevel::kAvx512, hamming_popcnt,    adc_table_avx512,    adc_distances_avx512,
+                                       adc_direct_avx2,    hash_codes_avx512, hash_codes_u8_avx512};
 #endif
 
 SimdLevel best_level() {
@@ -343,7 +449,8 @@ bool cpu_supports(SimdLevel level) {
 #ifdef VISLOC_X86_KERNELS
     case SimdLevel::kAvx2: return __builtin_cpu_supports("popcnt") && __builtin_cpu_supports("avx2");
     case SimdLevel::kAvx512:
-      return __builtin_cpu_supports("popcnt") && __builtin_cpu_supports("avx2") && __builtin_cpu_supports("avx512f");
+      return __builtin_cpu_supports("popcnt") && __builtin_cpu_supports("avx2") && __builtin_cpu_supports("avx512f") &&
+             __builtin_cpu_supports("avx512bw");
 #else
     default: return false;
 #endif

@@ -1,6 +1,6 @@
 // The per-candidate kernels of the cascade search, each in a portable scalar
 // reference and in SIMD variants chosen at run time from what the CPU has
-// (x86-64: POPCNT + AVX2, AVX-512F; any other CPU, e.g. aarch64: the
+// (x86-64: POPCNT + AVX2, AVX-512F + BW; any other CPU, e.g. aarch64: the
 // reference, whose std::popcount is already a hardware instruction there).
 // The default build targets baseline x86-64, so only the variant functions
 // are compiled for the newer instruction sets (GCC target attributes).
@@ -24,6 +24,13 @@
 //                      when a feature ranks fewer than ~100 candidates.
 //   hash_codes         bit i of row r = [Σ_j Wᵀ[j][i] · x_rj > 0] over j = 0..127
 //                      in order (x centred): the ITQ/LSH projection's signs
+//   hash_codes_u8      the same signs for uint8 descriptors in exact integer
+//                      arithmetic: bit i of row r = [Σ_j Wq[i][j] · x_rj > t_i]
+//                      in int32, with Wq the projection rounded to int16 and
+//                      t_i the integer threshold of the mean (binary_hasher.cc).
+//                      No rounding in the sums, so every level agrees by
+//                      construction, and a multiply-add of int16 pairs does
+//                      twice the work of a float multiply and add per lane.
 #pragma once
 
 #include <cstddef>
@@ -39,7 +46,7 @@ enum class SimdLevel {
   kBest,    // the best level this CPU supports (chosen once, at first use)
   kScalar,  // portable reference
   kAvx2,    // x86-64 with POPCNT, AVX2
-  kAvx512,  // x86-64 with POPCNT, AVX-512F
+  kAvx512,  // x86-64 with POPCNT, AVX-512F and AVX-512BW
 };
 const char* to_string(SimdLevel level);
 // Parses "best", "scalar", "avx2", "avx512"; throws kInvalidArgument.
@@ -59,6 +66,9 @@ struct SearchKernels {
                      const uint32_t* ids, size_t n, float* distances) = nullptr;
   void (*hash_codes)(const float* projection_transposed /* [j][i], 128 × 128 */, const float* centred /* n × 128 */,
                      size_t n, HashCode* codes) = nullptr;
+  void (*hash_codes_u8)(const int16_t* weight_pairs /* [p][i][e] = Wq[i][2p + e], 64 × 128 × 2 */,
+                        const int32_t* thresholds /* 128 */, const uint8_t* descriptors /* n × 128 */, size_t n,
+                        HashCode* codes) = nullptr;
 };
 
 // The kernels of one level; throws kInvalidArgument when the CPU lacks it.

@@ -162,6 +162,51 @@ TEST(SearchKernels, HashCodesMatchTheReference) {
     }
 }
 
+// The integer hash: the reference is checked against an independent int64
+// sum, with weights and descriptors at their extremes (±32,767, 255: the
+// largest sums) and thresholds at both ends of int32; every level equals it.
+TEST(SearchKernels, HashCodesU8MatchTheReference) {
+  std::mt19937 rng(9);
+  constexpr size_t kRows = 41;  // blocks of 8 and 4 rows, and a tail
+  std::vector<int16_t> wp(64 * 128 * 2);
+  for (auto& w : wp) w = static_cast<int16_t>(int(rng() % 65535) - 32767);
+  for (int e = 0; e < 2; ++e)
+    for (int p = 0; p < 64; ++p) wp[(p * 128 + 3) * 2 + e] = 32767, wp[(p * 128 + 70) * 2 + e] = -32767;
+  std::vector<int32_t> t(128);
+  for (auto& v : t) v = static_cast<int32_t>(int(rng() % 2000001) - 1000000);
+  t[5] = INT32_MIN, t[6] = INT32_MAX, t[7] = 0;
+  std::vector<uint8_t> x(kRows * 128);
+  for (auto& v : x) v = static_cast<uint8_t>(rng());
+  for (int j = 0; j < 128; ++j) x[2 * 128 + j] = 255, x[4 * 128 + j] = 0;
+  const SearchKernels& ref = search_kernels(SimdLevel::kScalar);
+  std::vector<HashCode> a(kRows), b(kRows + 1);
+  ref.hash_codes_u8(wp.data(), t.data(), x.data(), kRows, a.data());
+  int set = 0;
+  for (size_t r = 0; r < kRows; ++r)
+    for (int i = 0; i < 128; ++i) {
+      int64_t p = 0;
+      for (int j = 0; j < 128; ++j) p += int64_t(wp[(j / 2) * 256 + 2 * i + (j & 1)]) * x[r * 128 + j];
+      const bool bit = (a[r].w[i / 64] >> (i % 64)) & 1;
+      ASSERT_EQ(bit, p > t[i]) << "row " << r << " bit " << i;
+      set += bit;
+    }
+  EXPECT_GT(set, 1000);  // both values occur
+  EXPECT_LT(set, int(kRows * 128) - 1000);
+  EXPECT_EQ((a[2].w[0] >> 3) & 1, 1u);  // 128 × 32,767 × 255: no overflow
+  EXPECT_EQ((a[2].w[1] >> 6) & 1, 0u);  // -128 × 32,767 × 255
+  for (SimdLevel level : supported_simd_levels())
+    for (size_t n : kLengths) {
+      n = std::min(n, kRows);
+      std::fill(b.begin(), b.end(), HashCode{{7, 7}});
+      search_kernels(level).hash_codes_u8(wp.data(), t.data(), x.data(), n, b.data());
+      for (size_t r = 0; r < n; ++r) {
+        ASSERT_EQ(a[r].w[0], b[r].w[0]) << to_string(level) << " n=" << n << " row " << r;
+        ASSERT_EQ(a[r].w[1], b[r].w[1]) << to_string(level) << " n=" << n << " row " << r;
+      }
+      EXPECT_EQ(b[n].w[0], 7u) << "wrote past the end";
+    }
+}
+
 // The direct distances: every level equals the scalar reference bit for bit;
 // they are the table's distances summed in another order, so equal to them
 // within float rounding (relative 1e-5).

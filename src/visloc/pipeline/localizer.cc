@@ -132,7 +132,7 @@ PoseUncertainty pose_uncertainty(const PoseCovariance& cov, const CameraPose& ca
 struct QueryWorkspace {
   CascadeWorkspace cascade;
   std::vector<HashCode> map_codes;  // the query hashed once with the map's rotation
-  std::vector<float> encode;
+  HashWorkspace encode;
   std::vector<float> vote_scratch;  // point votes per segment
   SegmentPointVoteResult point_votes;
   CascadeMatches matches;             // of the segment being searched
