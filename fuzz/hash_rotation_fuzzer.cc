@@ -14,7 +14,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     const BinaryHasher hasher = read_hash_rotation_file(path);
     const DescriptorMatrix descriptors = fuzz::sample_descriptors(4);
     std::vector<HashCode> codes(descriptors.rows());
-    std::vector<float> workspace;
+    HashWorkspace workspace;
     encode_hash(hasher.view(), descriptors.data(), descriptors.rows(), codes.data(), workspace);
     (void)hash_rotation_fingerprint(hasher);
   });

@@ -96,10 +96,10 @@ double objective(const Eigen::MatrixXd& v) {
 namespace {
 
 // round(w) half away from zero, for |w| ≤ 32,767: truncation and the fraction
-// are exact in float, so this is lround without its library call.
-inline int16_t round_to_int16(float w) {
+// are exact, so this is lround without its library call.
+inline int16_t round_to_int16(double w) {
   const int32_t t = static_cast<int32_t>(w);
-  const float fraction = w - static_cast<float>(t);
+  const double fraction = w - static_cast<double>(t);
   return static_cast<int16_t>(t + (fraction >= 0.5f) - (fraction <= -0.5f));
 }
 
@@ -110,23 +110,29 @@ void quantize_hash_projection(BinaryHasherView h, QuantizedHashProjection& out) 
   float largest = 0;
   bool finite = true;
   for (int k = 0; k < kEntries; ++k) {
-    largest = std::max(largest, std::abs(h.projection[k]));
-    finite &= std::isfinite(h.projection[k]);
+    const float p = h.projection[k];
+    const bool ok = std::isfinite(p);
+    finite &= ok;
+    largest = std::max(largest, ok ? std::abs(p) : 0.0f);
   }
-  // A zero projection keeps scale 1 (every bit from the threshold alone);
-  // a non-finite entry counts as 0.
-  out.scale = largest > 0 ? 32767.0f / largest : 1.0f;
+  // Non-finite entries count as 0; an all-zero projection, or one so small
+  // that the scale overflows, keeps scale 1 (every bit from its threshold).
+  const double scale = 32767.0 / double(largest);
+  out.scale = largest > 0 && scale <= 3.0e38 ? static_cast<float>(scale) : 1.0f;
   out.weight_pairs.resize(kEntries);
   out.thresholds.resize(kHashBits);
   // Column by column, so that the 128 threshold sums are independent chains.
+  // The products p · scale are exact in double (24 × 24 bits), so each entry
+  // is rounded once: |Wq − scale · W| ≤ 1/2.
+  const double s = out.scale;
   double c[kHashBits] = {};
   for (int j = 0; j < kDescriptorDim; ++j) {
     const double mean = h.mean[j];
     int16_t* pairs = out.weight_pairs.data() + (j / 2) * 2 * kHashBits + (j & 1);
     for (int i = 0; i < kHashBits; ++i) {
       const float p = h.projection[i * kDescriptorDim + j];
-      const float w = std::min(32767.0f, std::max(-32767.0f, p * out.scale));  // NaN → −32,767
-      const int16_t q = finite || std::isfinite(p) ? round_to_int16(w) : int16_t{0};
+      const double w = finite || std::isfinite(p) ? std::min(32767.0, std::max(-32767.0, double(p) * s)) : 0.0;
+      const int16_t q = round_to_int16(w);
       pairs[2 * i] = q;
       c[i] += double(q) * mean;
     }

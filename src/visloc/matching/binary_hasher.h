@@ -62,13 +62,15 @@ struct BinaryHasher {
 };
 
 // The integer form of a hasher, for uint8 descriptors:
-//   Wq[i][j] = round(scale · W[i][j]), scale = 32,767 / max|W| (int16),
-//   threshold_i = ⌊Σ_j Wq[i][j] · μ_j⌋ (in double, clamped to int32),
+//   Wq[i][j] = round(scale · W[i][j]), scale = 32,767 / max|W| (int16; the
+//              product in double, so |Wq − scale · W| ≤ 1/2),
+//   threshold_i = ⌊Σ_j Wq[i][j] · μ_j⌋ (summed in double, clamped to int32),
 //   bit i = [Σ_j Wq[i][j] · x_j > threshold_i], summed exactly in int32.
-// For integer sums P, P > c ⇔ P > ⌊c⌋, so this is the sign of Wq(x − μ)
-// exactly; it differs from the sign of W(x − μ) only where
-// |W(x − μ)| ≤ (Σ_j x_j + Σ_j |μ_j|) / (2 · scale) + 1 / scale (the rounding of
-// W), about 1e-3 of a typical projection's spread on SIFT.
+// For an integer sum P, P > c ⇔ P > ⌊c⌋, so this is the sign of Wq(x − μ)
+// (up to the double rounding of the threshold's sum, exact for SIFT-range
+// means). It differs from the sign of W(x − μ) only where
+// |W(x − μ)| ≤ (Σ_j x_j + Σ_j |μ_j|) / (2 · scale) + 1 / scale, about 1e-3 of
+// a typical projection's spread on SIFT. Non-finite weights count as 0.
 struct QuantizedHashProjection {
   float scale = 1;
   std::vector<int16_t> weight_pairs;  // [p][i][e] = Wq[i][2p + e]: 64 × 128 × 2 (search_kernels.h)
@@ -76,7 +78,8 @@ struct QuantizedHashProjection {
 };
 void quantize_hash_projection(BinaryHasherView hasher, QuantizedHashProjection& out);
 
-// Reusable buffers of encode_hash (~130 KiB once grown).
+// Reusable buffers of encode_hash, once grown: 192 KiB for float rows (Wᵀ and
+// a block of 256 centred rows), 32.5 KiB for uint8 rows.
 struct HashWorkspace {
   std::vector<float> projection_transposed;  // float descriptors: Wᵀ
   std::vector<float> centred;                // and a block of centred rows

@@ -156,10 +156,18 @@ TEST(Itq, QuantizedProjectionOfDegenerateHashers) {
   for (int32_t t : q.thresholds) ASSERT_EQ(t, 0);  // no sum exceeds it: every bit 0
   for (int i = 0; i < 128; ++i) w[i * 128 + i] = 0.5f;
   w[3 * 128 + 7] = std::numeric_limits<float>::quiet_NaN();
+  w[5 * 128 + 9] = -std::numeric_limits<float>::infinity();
   quantize_hash_projection({mean.data(), w.data()}, q);
+  EXPECT_EQ(q.scale, 65534.f);                                  // from the finite entries
   EXPECT_EQ(q.weight_pairs[(7 / 2) * 256 + 2 * 3 + 1], 0);      // the NaN weight
+  EXPECT_EQ(q.weight_pairs[(9 / 2) * 256 + 2 * 5 + 1], 0);      // the infinite one
   EXPECT_EQ(q.weight_pairs[(3 / 2) * 256 + 2 * 3 + 1], 32767);  // the largest weight
   EXPECT_EQ(q.thresholds[3], 327670);                           // ⌊32,767 · 10⌋
+  std::fill(w.begin(), w.end(), 1e-44f);                        // subnormal: the scale would overflow
+  quantize_hash_projection({mean.data(), w.data()}, q);
+  EXPECT_EQ(q.scale, 1.f);
+  for (int16_t v : q.weight_pairs) ASSERT_EQ(v, 0);
+  for (int i = 0; i < 128; ++i) w[i * 128 + i] = 0.5f;
   mean[0] = std::numeric_limits<float>::quiet_NaN();
   quantize_hash_projection({mean.data(), w.data()}, q);
   for (int32_t t : q.thresholds) ASSERT_EQ(t, INT32_MAX);  // never set
