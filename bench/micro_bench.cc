@@ -251,7 +251,7 @@ void BM_KernelHashCodesU8(benchmark::State& state) {
   visloc::quantize_hash_projection({mean.data(), w.data()}, q);
   std::vector<visloc::HashCode> codes(kRows);
   for (auto _ : state) {
-    k->hash_codes_u8(q.weight_pairs.data(), q.thresholds.data(), x.data(), kRows, codes.data());
+    k->hash_codes_u8(q, x.data(), kRows, codes.data());
     benchmark::DoNotOptimize(codes.data());
   }
   state.SetItemsProcessed(state.iterations() * kRows);

@@ -120,6 +120,7 @@ void quantize_hash_projection(BinaryHasherView h, QuantizedHashProjection& out) 
   const double scale = 32767.0 / double(largest);
   out.scale = largest > 0 && scale <= 3.0e38 ? static_cast<float>(scale) : 1.0f;
   out.weight_pairs.resize(kEntries);
+  out.weights_transposed.resize(kEntries);
   out.thresholds.resize(kHashBits);
   // Column by column, so that the 128 threshold sums are independent chains.
   // The products p · scale are exact in double (24 × 24 bits), so each entry
@@ -129,11 +130,13 @@ void quantize_hash_projection(BinaryHasherView h, QuantizedHashProjection& out) 
   for (int j = 0; j < kDescriptorDim; ++j) {
     const double mean = h.mean[j];
     int16_t* pairs = out.weight_pairs.data() + (j / 2) * 2 * kHashBits + (j & 1);
+    int16_t* column = out.weights_transposed.data() + j * kHashBits;
     for (int i = 0; i < kHashBits; ++i) {
       const float p = h.projection[i * kDescriptorDim + j];
       const double w = finite || std::isfinite(p) ? std::min(32767.0, std::max(-32767.0, double(p) * s)) : 0.0;
       const int16_t q = round_to_int16(w);
       pairs[2 * i] = q;
+      column[i] = q;
       c[i] += double(q) * mean;
     }
   }
@@ -147,7 +150,7 @@ void quantize_hash_projection(BinaryHasherView h, QuantizedHashProjection& out) 
 void encode_hash(BinaryHasherView h, const uint8_t* x, size_t n, HashCode* codes, HashWorkspace& ws) {
   if (n == 0) return;
   quantize_hash_projection(h, ws.quantized);
-  search_kernels().hash_codes_u8(ws.quantized.weight_pairs.data(), ws.quantized.thresholds.data(), x, n, codes);
+  search_kernels().hash_codes_u8(ws.quantized, x, n, codes);
 }
 void encode_hash(BinaryHasherView h, const float* x, size_t n, HashCode* codes, HashWorkspace& ws) {
   encode_float(h, x, n, codes, ws);

@@ -73,13 +73,14 @@ struct BinaryHasher {
 // a typical projection's spread on SIFT. Non-finite weights count as 0.
 struct QuantizedHashProjection {
   float scale = 1;
-  std::vector<int16_t> weight_pairs;  // [p][i][e] = Wq[i][2p + e]: 64 × 128 × 2 (search_kernels.h)
+  std::vector<int16_t> weight_pairs;        // [p][i][e] = Wq[i][2p + e]: 64 × 128 × 2 (the SIMD kernels)
+  std::vector<int16_t> weights_transposed;  // [j][i] = Wq[i][j]: 128 × 128 (the scalar reference)
   std::vector<int32_t> thresholds;    // 128
 };
 void quantize_hash_projection(BinaryHasherView hasher, QuantizedHashProjection& out);
 
 // Reusable buffers of encode_hash, once grown: 192 KiB for float rows (Wᵀ and
-// a block of 256 centred rows), 32.5 KiB for uint8 rows.
+// a block of 256 centred rows), 64.5 KiB for uint8 rows.
 struct HashWorkspace {
   std::vector<float> projection_transposed;  // float descriptors: Wᵀ
   std::vector<float> centred;                // and a block of centred rows

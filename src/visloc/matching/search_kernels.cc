@@ -86,16 +86,20 @@ void hash_codes_scalar(const float* wt, const float* x, size_t n, HashCode* code
 }
 
 // Exact int32 sums: |Wq| ≤ 32,767 and x ≤ 255 bound any sum of 128 products by
-// 1.07e9 < 2^31, so the order of the additions does not matter.
-void hash_codes_u8_scalar(const int16_t* wp, const int32_t* t, const uint8_t* x, size_t n, HashCode* codes) {
+// 1.07e9 < 2^31, so the order of the additions does not matter. Wq is read
+// transposed: per dimension j, a contiguous row of 128 int16 times one x_j,
+// which compilers turn into widening multiply-adds (SSE2, NEON).
+void hash_codes_u8_scalar(const QuantizedHashProjection& q, const uint8_t* x, size_t n, HashCode* codes) {
+  const int16_t* wt = q.weights_transposed.data();
+  const int32_t* t = q.thresholds.data();
   int32_t p[kHashBits];
   for (size_t r = 0; r < n; ++r) {
     const uint8_t* xr = x + r * kDescriptorDim;
     for (int i = 0; i < kHashBits; ++i) p[i] = 0;
-    for (int pair = 0; pair < kDescriptorDim / 2; ++pair) {
-      const int32_t x0 = xr[2 * pair], x1 = xr[2 * pair + 1];
-      const int16_t* w = wp + pair * 2 * kHashBits;
-      for (int i = 0; i < kHashBits; ++i) p[i] += w[2 * i] * x0 + w[2 * i + 1] * x1;
+    for (int j = 0; j < kDescriptorDim; ++j) {
+      const int32_t xj = xr[j];
+      const int16_t* w = wt + j * kHashBits;
+      for (int i = 0; i < kHashBits; ++i) p[i] += w[i] * xj;
     }
     HashCode c{{0, 0}};
     for (int i = 0; i < kHashBits; ++i) c.w[i >> 6] |= static_cast<uint64_t>(p[i] > t[i]) << (i & 63);
@@ -249,8 +253,10 @@ __attribute__((target("avx2"))) void adc_direct_avx2(const float* c, const float
 // dimensions, one multiply-add of int16 pairs (vpmaddwd) and one add per
 // accumulator. The rows are widened to int16 once, so that a pair (x_2p,
 // x_2p+1) is one 32-bit broadcast. Exact, so equal to the reference.
-__attribute__((target("avx2"))) void hash_codes_u8_avx2(const int16_t* wp, const int32_t* t, const uint8_t* x, size_t n,
+__attribute__((target("avx2"))) void hash_codes_u8_avx2(const QuantizedHashProjection& q, const uint8_t* x, size_t n,
                                                         HashCode* codes) {
+  const int16_t* wp = q.weight_pairs.data();
+  const int32_t* t = q.thresholds.data();
   constexpr int kRows = 4;
   alignas(32) int16_t widened[kRows][kDescriptorDim];
   size_t r0 = 0;
@@ -288,7 +294,7 @@ __attribute__((target("avx2"))) void hash_codes_u8_avx2(const int16_t* wp, const
     }
     for (int r = 0; r < kRows; ++r) codes[r0 + r] = c[r];
   }
-  hash_codes_u8_scalar(wp, t, x + r0 * kDescriptorDim, n - r0, codes + r0);
+  hash_codes_u8_scalar(q, x + r0 * kDescriptorDim, n - r0, codes + r0);
 }
 
 // ---- x86-64: AVX-512F ------------------------------------------------------------
@@ -368,8 +374,10 @@ __attribute__((target("avx512f"))) void hash_codes_avx512(const float* wt, const
 
 // Blocks of 8 rows × 32 outputs (16 accumulators of 16 int32), as
 // hash_codes_u8_avx2 with twice the lanes; exact, so equal to the reference.
-__attribute__((target("avx512f,avx512bw"))) void hash_codes_u8_avx512(const int16_t* wp, const int32_t* t,
+__attribute__((target("avx512f,avx512bw"))) void hash_codes_u8_avx512(const QuantizedHashProjection& q,
                                                                       const uint8_t* x, size_t n, HashCode* codes) {
+  const int16_t* wp = q.weight_pairs.data();
+  const int32_t* t = q.thresholds.data();
   constexpr int kRows = 8;
   alignas(64) int16_t widened[kRows][kDescriptorDim];
   size_t r0 = 0;
@@ -404,7 +412,7 @@ __attribute__((target("avx512f,avx512bw"))) void hash_codes_u8_avx512(const int1
     }
     for (int r = 0; r < kRows; ++r) codes[r0 + r] = c[r];
   }
-  hash_codes_u8_avx2(wp, t, x + r0 * kDescriptorDim, n - r0, codes + r0);
+  hash_codes_u8_avx2(q, x + r0 * kDescriptorDim, n - r0, codes + r0);
 }
 
 #endif  // VISLOC_X86_KERNELS

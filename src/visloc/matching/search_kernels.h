@@ -27,7 +27,10 @@
 //   hash_codes_u8      the same signs for uint8 descriptors in exact integer
 //                      arithmetic: bit i of row r = [Σ_j Wq[i][j] · x_rj > t_i]
 //                      in int32, with Wq the projection rounded to int16 and
-//                      t_i the integer threshold of the mean (binary_hasher.cc).
+//                      t_i the integer threshold of the mean (binary_hasher.h).
+//                      The reference reads Wq transposed ([j][i]), a loop a
+//                      compiler vectorizes well (SSE2, NEON: as fast as the
+//                      float reference); the SIMD variants read it in pairs.
 //                      No rounding in the sums, so every level agrees by
 //                      construction, and a multiply-add of int16 pairs does
 //                      twice the work of a float multiply and add per lane.
@@ -66,8 +69,7 @@ struct SearchKernels {
                      const uint32_t* ids, size_t n, float* distances) = nullptr;
   void (*hash_codes)(const float* projection_transposed /* [j][i], 128 × 128 */, const float* centred /* n × 128 */,
                      size_t n, HashCode* codes) = nullptr;
-  void (*hash_codes_u8)(const int16_t* weight_pairs /* [p][i][e] = Wq[i][2p + e], 64 × 128 × 2 */,
-                        const int32_t* thresholds /* 128 */, const uint8_t* descriptors /* n × 128 */, size_t n,
+  void (*hash_codes_u8)(const QuantizedHashProjection& projection, const uint8_t* descriptors /* n × 128 */, size_t n,
                         HashCode* codes) = nullptr;
 };
 

@@ -168,11 +168,20 @@ TEST(SearchKernels, HashCodesMatchTheReference) {
 TEST(SearchKernels, HashCodesU8MatchTheReference) {
   std::mt19937 rng(9);
   constexpr size_t kRows = 41;  // blocks of 8 and 4 rows, and a tail
-  std::vector<int16_t> wp(64 * 128 * 2);
-  for (auto& w : wp) w = static_cast<int16_t>(int(rng() % 65535) - 32767);
-  for (int e = 0; e < 2; ++e)
-    for (int p = 0; p < 64; ++p) wp[(p * 128 + 3) * 2 + e] = 32767, wp[(p * 128 + 70) * 2 + e] = -32767;
-  std::vector<int32_t> t(128);
+  // Wq[i][j] in both layouts of QuantizedHashProjection.
+  std::vector<int16_t> wq(128 * 128);
+  for (auto& w : wq) w = static_cast<int16_t>(int(rng() % 65535) - 32767);
+  for (int j = 0; j < 128; ++j) wq[3 * 128 + j] = 32767, wq[70 * 128 + j] = -32767;
+  QuantizedHashProjection q;
+  q.weight_pairs.resize(128 * 128);
+  q.weights_transposed.resize(128 * 128);
+  for (int i = 0; i < 128; ++i)
+    for (int j = 0; j < 128; ++j) {
+      q.weight_pairs[(j / 2) * 256 + 2 * i + (j & 1)] = wq[i * 128 + j];
+      q.weights_transposed[j * 128 + i] = wq[i * 128 + j];
+    }
+  std::vector<int32_t>& t = q.thresholds;
+  t.resize(128);
   for (auto& v : t) v = static_cast<int32_t>(int(rng() % 2000001) - 1000000);
   t[5] = INT32_MIN, t[6] = INT32_MAX, t[7] = 0;
   std::vector<uint8_t> x(kRows * 128);
@@ -180,12 +189,12 @@ TEST(SearchKernels, HashCodesU8MatchTheReference) {
   for (int j = 0; j < 128; ++j) x[2 * 128 + j] = 255, x[4 * 128 + j] = 0;
   const SearchKernels& ref = search_kernels(SimdLevel::kScalar);
   std::vector<HashCode> a(kRows), b(kRows + 1);
-  ref.hash_codes_u8(wp.data(), t.data(), x.data(), kRows, a.data());
+  ref.hash_codes_u8(q, x.data(), kRows, a.data());
   int set = 0;
   for (size_t r = 0; r < kRows; ++r)
     for (int i = 0; i < 128; ++i) {
       int64_t p = 0;
-      for (int j = 0; j < 128; ++j) p += int64_t(wp[(j / 2) * 256 + 2 * i + (j & 1)]) * x[r * 128 + j];
+      for (int j = 0; j < 128; ++j) p += int64_t(wq[i * 128 + j]) * x[r * 128 + j];
       const bool bit = (a[r].w[i / 64] >> (i % 64)) & 1;
       ASSERT_EQ(bit, p > t[i]) << "row " << r << " bit " << i;
       set += bit;
@@ -198,7 +207,7 @@ TEST(SearchKernels, HashCodesU8MatchTheReference) {
     for (size_t n : kLengths) {
       n = std::min(n, kRows);
       std::fill(b.begin(), b.end(), HashCode{{7, 7}});
-      search_kernels(level).hash_codes_u8(wp.data(), t.data(), x.data(), n, b.data());
+      search_kernels(level).hash_codes_u8(q, x.data(), n, b.data());
       for (size_t r = 0; r < n; ++r) {
         ASSERT_EQ(a[r].w[0], b[r].w[0]) << to_string(level) << " n=" << n << " row " << r;
         ASSERT_EQ(a[r].w[1], b[r].w[1]) << to_string(level) << " n=" << n << " row " << r;
