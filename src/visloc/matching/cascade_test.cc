@@ -8,12 +8,13 @@
 #include <filesystem>
 #include <random>
 
-#include "visloc/matching/binary_hasher.h"
-#include "visloc/matching/cascade_index.h"
-#include "visloc/matching/cascade_correspondences.h"
-#include "visloc/matching/exact_matcher.h"
 #include "visloc/baselines/faiss_baselines.h"
+#include "visloc/matching/binary_hasher.h"
+#include "visloc/matching/cascade_correspondences.h"
+#include "visloc/matching/cascade_index.h"
+#include "visloc/matching/exact_matcher.h"
 #include "visloc/matching/pq_codebook.h"
+#include "visloc/matching/search_kernels.h"
 #include "visloc/util/error.h"
 #include "visloc/util/file_io.h"
 #include "visloc/util/test_support.h"
@@ -115,6 +116,18 @@ TEST(Itq, EncodeMatchesTheProjectionsSign) {
     encode_hash(h.view(), f.data(), d.rows(), codes_f.data(), ws);
     const float scale = ws.quantized.scale;
     ASSERT_GT(scale, 0.f);
+    // The SIMD kernels read the pairs layout, the scalar reference (and every
+    // tail) the transposed one: both must hold the same Wq.
+    const QuantizedHashProjection& q = ws.quantized;
+    for (int i = 0; i < 128; ++i)
+      for (int j = 0; j < 128; ++j)
+        ASSERT_EQ(q.weights_transposed[j * 128 + i], q.weight_pairs[(j / 2) * 256 + 2 * i + (j & 1)]) << i << " " << j;
+    std::vector<HashCode> scalar_codes(d.rows());
+    search_kernels(SimdLevel::kScalar).hash_codes_u8(q, d.data(), d.rows(), scalar_codes.data());
+    for (size_t i = 0; i < d.rows(); ++i) {
+      ASSERT_EQ(scalar_codes[i].w[0], codes[i].w[0]) << i;
+      ASSERT_EQ(scalar_codes[i].w[1], codes[i].w[1]) << i;
+    }
     double mean_l1 = 0;
     for (int j = 0; j < 128; ++j) mean_l1 += std::abs(h.mean[j]);
     int near_zero = 0, disagreements = 0, float_near_zero = 0;
