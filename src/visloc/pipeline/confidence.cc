@@ -12,11 +12,11 @@ namespace visloc {
 
 namespace {
 constexpr std::array<const char*, kConfidenceInputs> kNames = {
-    "log_inliers",     "inlier_ratio",  "coverage",
-    "residual",        "margin",        "vote_share",
-    "camera_distance", "height_excess", "tilt_excess_beyond_10deg",
-    "log_explained"};
-constexpr std::array<int, kConfidenceInputs> kSigns = {+1, +1, +1, -1, -1, +1, -1, -1, -1, +1};
+    "log_inliers",     "inlier_ratio",   "coverage",
+    "residual",        "margin",         "vote_share",
+    "camera_distance", "height_excess",  "tilt_excess_beyond_10deg",
+    "log_explained",   "ambiguous_share"};
+constexpr std::array<int, kConfidenceInputs> kSigns = {+1, +1, +1, -1, -1, +1, -1, -1, -1, +1, -1};
 
 double number(const nlohmann::json& j, const char* key) {
   const auto it = j.find(key);
@@ -38,7 +38,8 @@ nlohmann::json ConfidenceFeatures::to_json() const {
           {"camera_distance", camera_distance},
           {"height_excess", height_excess},
           {"tilt_excess_deg", tilt_excess_deg},
-          {"explained", explained}};
+          {"explained", explained},
+          {"ambiguous", ambiguous}};
 }
 
 ConfidenceFeatures ConfidenceFeatures::from_json(const nlohmann::json& j) {
@@ -56,6 +57,7 @@ ConfidenceFeatures ConfidenceFeatures::from_json(const nlohmann::json& j) {
   // Reports written before the input existed lack it: they get the value
   // that neither raises nor lowers a confidence against a typical right pose.
   f.explained = j.contains("explained") ? number(j, "explained") : kExplainedWhenUnknown;
+  f.ambiguous = j.contains("ambiguous") ? number(j, "ambiguous") : 0.0;
   return f;
 }
 
@@ -65,10 +67,12 @@ std::array<double, kConfidenceInputs> confidence_inputs(const ConfidenceFeatures
           std::clamp(f.camera_distance, 0.0, 10.0), std::clamp(f.height_excess, 0.0, 10.0),
           // Phones tilt more than street-view rigs: 10° beyond the map's
           // cameras is tolerated, the rest counts (per 10°).
-          std::clamp(f.tilt_excess_deg - 10.0, 0.0, 80.0) / 10.0, std::log(std::clamp(f.explained, 1e-3, 1.0))};
+          std::clamp(f.tilt_excess_deg - 10.0, 0.0, 80.0) / 10.0, std::log(std::clamp(f.explained, 1e-3, 1.0)),
+          std::clamp(f.ambiguous, 0.0, 1.0)};
 }
 
 static_assert(std::string_view(kNames[kExplainedInput]) == "log_explained");
+static_assert(std::string_view(kNames[kAmbiguousInput]) == "ambiguous_share");
 
 const std::array<const char*, kConfidenceInputs>& confidence_input_names() { return kNames; }
 const std::array<int, kConfidenceInputs>& confidence_input_signs() { return kSigns; }
@@ -101,8 +105,9 @@ ConfidenceModel ConfidenceModel::from_json(const nlohmann::json& j) {
       throw_error(ErrorCode::kFormat, "confidence model: sigma_scale must be a positive number, got ", m.sigma_scale);
   }
   for (int k = 0; k < kConfidenceInputs; ++k) {
-    // A model written before log_explained existed did not weigh it.
-    if (k == kExplainedInput && !j["weights"].contains(kNames[k])) continue;
+    // A model written before log_explained or ambiguous_share existed did
+    // not weigh it.
+    if ((k == kExplainedInput || k == kAmbiguousInput) && !j["weights"].contains(kNames[k])) continue;
     m.weights[k] = number(j["weights"], kNames[k]);
   }
   return m;
@@ -194,6 +199,32 @@ double explained_fraction(std::span<const float> xyz, const CameraPose& cam_from
   return std::min(1.0, static_cast<double>(inliers) / static_cast<double>(in_view));
 }
 
+double ambiguous_inlier_share(std::span<const uint32_t> candidate_offsets, std::span<const Eigen::Vector3d> candidates,
+                              std::span<const float> distances, std::span<const int32_t> chosen, double min_separation,
+                              double ratio) {
+  VISLOC_CHECK(!candidate_offsets.empty() && chosen.size() + 1 == candidate_offsets.size() &&
+               candidate_offsets.back() == candidates.size() && distances.size() == candidates.size());
+  VISLOC_CHECK(ratio > 0 && min_separation >= 0);
+  const double min_separation_sq = min_separation * min_separation;
+  size_t inliers = 0, ambiguous = 0;
+  for (size_t i = 0; i < chosen.size(); ++i) {
+    if (chosen[i] < 0) continue;
+    const uint32_t begin = candidate_offsets[i], end = candidate_offsets[i + 1];
+    const uint32_t c = begin + static_cast<uint32_t>(chosen[i]);
+    VISLOC_CHECK(c < end, "chosen candidate out of its feature's list");
+    ++inliers;
+    const double bound = double(distances[c]) / ratio;
+    for (uint32_t k = begin; k < end; ++k) {
+      if (k == c || !(double(distances[k]) <= bound)) continue;
+      if ((candidates[k] - candidates[c]).squaredNorm() > min_separation_sq) {
+        ++ambiguous;
+        break;
+      }
+    }
+  }
+  return inliers ? double(ambiguous) / double(inliers) : 0.0;
+}
+
 const ConfidenceModel& ConfidenceModel::builtin() {
   static const ConfidenceModel model = [] {
     ConfidenceModel m;
@@ -223,6 +254,7 @@ const ConfidenceModel& ConfidenceModel::builtin() {
     m.weights[7] = -18.571942447523945;  // height_excess
     m.weights[8] = -4.0486852615759856;  // tilt_excess_beyond_10deg
     m.weights[9] = 0.84207998546062945;  // log_explained
+    m.weights[10] = 0;                   // ambiguous_share (reported, not yet fitted)
     m.sigma_scale = 1.4366960119136487;
     m.threshold = kDefaultMinConfidence;
     return m;

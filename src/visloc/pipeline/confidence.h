@@ -22,6 +22,11 @@
 //     ones up to 0.17), so the builtin model, fitted on cities whose queries
 //     include ones past a mapped street's end (confidence.cc), weighs it
 //     0.84: not enough alone for the KITTI hard split's wrong poses.
+//   * the share of ambiguous inliers: those whose query feature matched
+//     another map point, far from the inlier's, about as well (a repeated
+//     facade's windows). Measured (session 27, KITTI hard split, every pose
+//     with >= 12 inliers): 0.48-0.56 for the 4 wrong poses (the facade's
+//     twin 40 m back), 0.19-0.52 for the 30 right ones.
 // A logistic model, confidence = σ(b + Σ_k w_k x_k), on transformed inputs
 // x_k (confidence_inputs). Its coefficients are fitted once, on synthetic
 // positives and negatives, by `visloc bench confidence` (eval/
@@ -56,12 +61,14 @@ struct ConfidenceFeatures {
   double height_excess = 0;      // above or below the map cameras' heights / extent (0 within)
   double tilt_excess_deg = 0;    // |tilt| beyond the map cameras' largest |tilt| (0 within)
   double explained = 0;          // inliers / map points predicted in view (explained_fraction), ≤ 1
+  double ambiguous = 0;          // inliers with a distant rival candidate / inliers (ambiguous_inlier_share)
   nlohmann::json to_json() const;
   static ConfidenceFeatures from_json(const nlohmann::json& j);  // throws Error(kFormat) on a bad object
 };
 
-inline constexpr int kConfidenceInputs = 10;
-inline constexpr int kExplainedInput = 9;  // log_explained, the last input
+inline constexpr int kConfidenceInputs = 11;
+inline constexpr int kExplainedInput = 9;   // log_explained
+inline constexpr int kAmbiguousInput = 10;  // ambiguous_share, the last input
 // ConfidenceFeatures::from_json of a report written before `explained`
 // existed: the median of the right poses (>= 12 inliers) on the training
 // cities (0.093), as kVoteShareWithoutRetrieval does for votes.
@@ -77,7 +84,7 @@ extern const double kDefaultMinConfidence;
 // The model's inputs: log inliers, the ratios as they are, plausibility
 // terms clamped (a pose 100 extents away is as implausible as one at 10),
 // the tilt beyond a tolerance of 10°, the log of the explained fraction
-// (clamped at 1/1000: it spans two decades).
+// (clamped at 1/1000: it spans two decades), the ambiguous share as it is.
 std::array<double, kConfidenceInputs> confidence_inputs(const ConfidenceFeatures& f);
 const std::array<const char*, kConfidenceInputs>& confidence_input_names();
 // The sign each weight must have (+1: more is more confident, −1: less):
@@ -113,6 +120,19 @@ struct ConfidenceModel {
 double explained_fraction(std::span<const float> xyz, const CameraPose& cam_from_segment, const PinholeCamera& camera,
                           double focal, const Eigen::Vector2d& principal_point_offset, double max_depth,
                           size_t inliers);
+
+// The share of a pose's inliers that are ambiguous: the query feature's
+// 1-M candidate list (`candidate_offsets`, `candidates` and their descriptor
+// `distances`, as the localizer's CorrespondenceSet and CascadeMatches hold
+// them) has another map point, farther than `min_separation` from the chosen
+// one, whose distance is at most the chosen candidate's / `ratio` (the 1-1
+// ratio test would not have told them apart). An inlier on a repeated
+// facade's window has one; a pose held up mostly by such inliers may be the
+// facade's twin metres away. `chosen[i]`: the index into feature i's list of
+// its inlier candidate, or −1. 0 without inliers.
+double ambiguous_inlier_share(std::span<const uint32_t> candidate_offsets, std::span<const Eigen::Vector3d> candidates,
+                              std::span<const float> distances, std::span<const int32_t> chosen, double min_separation,
+                              double ratio);
 
 // The map's own cameras in one segment, for the plausibility terms: their
 // centres, the up direction (the ENU up through enu_from_segment, else the

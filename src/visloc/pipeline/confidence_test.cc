@@ -106,6 +106,27 @@ TEST(ConfidenceModel, JsonFromBeforeTheExplainedInputStillReads) {
   EXPECT_EQ(ConfidenceModel::from_json(j).weights[0], m.weights[0]);
 }
 
+TEST(ConfidenceModel, JsonFromBeforeTheAmbiguousInputStillReads) {
+  nlohmann::json f = strong_pose().to_json();
+  f["ambiguous"] = 0.25;
+  EXPECT_EQ(ConfidenceFeatures::from_json(f).ambiguous, 0.25);
+  f.erase("ambiguous");
+  EXPECT_EQ(ConfidenceFeatures::from_json(f).ambiguous, 0.0);
+  f["ambiguous"] = "x";
+  EXPECT_THROW(ConfidenceFeatures::from_json(f), Error);
+  ConfidenceModel m = ConfidenceModel::builtin();
+  m.weights[kAmbiguousInput] = -3;
+  nlohmann::json j = m.to_json();
+  EXPECT_EQ(ConfidenceModel::from_json(j).weights[kAmbiguousInput], -3);
+  j["weights"].erase("ambiguous_share");
+  EXPECT_EQ(ConfidenceModel::from_json(j).weights[kAmbiguousInput], 0);
+  // More ambiguous inliers never raise a confidence (the input's sign).
+  ConfidenceFeatures a = strong_pose(), b = strong_pose();
+  a.ambiguous = 0.1;
+  b.ambiguous = 0.9;
+  EXPECT_LT(ConfidenceModel::from_json(m.to_json()).evaluate(b), ConfidenceModel::from_json(m.to_json()).evaluate(a));
+}
+
 TEST(ConfidenceModel, SigmaScaleRoundTripsDefaultsToOneAndIsChecked) {
   ConfidenceModel m;
   m.sigma_scale = 1.7;
@@ -268,6 +289,35 @@ TEST(ExplainedFraction, CountsTheMapPointsInViewUpToTheInliersDepth) {
   // Nothing in view, or no depth: 0.
   EXPECT_EQ(explained_fraction({}, identity, camera, 500, no_offset, 20.0, 10), 0.0);
   EXPECT_EQ(explained_fraction(xyz, identity, camera, 500, no_offset, 0.0, 10), 0.0);
+}
+
+TEST(AmbiguousInlierShare, CountsInliersWithADistantRivalAsCloseInDescriptor) {
+  // Five features with two or three candidates each (nearest first), ratio
+  // 0.8 (a rival counts at distance <= chosen / 0.8), separation 1.
+  const std::vector<uint32_t> offsets = {0, 2, 4, 6, 9, 11};
+  const Eigen::Vector3d o(0, 0, 0), near(0.5, 0, 0), far(5, 0, 0);
+  const std::vector<Eigen::Vector3d> candidates = {
+      o,   far,         // 0: rival far and as close (100 vs 110): ambiguous
+      o,   far,         // 1: rival far but distinct (100 vs 200): not
+      o,   near,        // 2: rival as close but 0.5 away (the same place): not
+      far, o,    near,  // 3: chosen the second (o); the first, closer, is far: ambiguous
+      o,   far};        // 4: not an inlier
+  const std::vector<float> distances = {100, 110, 100, 200, 100, 101, 90, 100, 100, 100, 100};
+  const std::vector<int32_t> chosen = {0, 0, 0, 1, -1};
+  EXPECT_DOUBLE_EQ(ambiguous_inlier_share(offsets, candidates, distances, chosen, 1.0, 0.8), 2.0 / 4.0);
+  // At the bound exactly (125 = 100 / 0.8) a rival counts; just beyond, not.
+  std::vector<float> at_bound = distances;
+  at_bound[1] = 125;
+  EXPECT_DOUBLE_EQ(ambiguous_inlier_share(offsets, candidates, at_bound, chosen, 1.0, 0.8), 2.0 / 4.0);
+  at_bound[1] = 125.5f;
+  EXPECT_DOUBLE_EQ(ambiguous_inlier_share(offsets, candidates, at_bound, chosen, 1.0, 0.8), 1.0 / 4.0);
+  // A larger separation: 5 m away is no longer distant.
+  EXPECT_DOUBLE_EQ(ambiguous_inlier_share(offsets, candidates, distances, chosen, 6.0, 0.8), 0.0);
+  // No inliers: 0; inconsistent spans and an out-of-list choice: an error.
+  EXPECT_EQ(ambiguous_inlier_share(offsets, candidates, distances, std::vector<int32_t>(5, -1), 1.0, 0.8), 0.0);
+  EXPECT_THROW(ambiguous_inlier_share(offsets, candidates, distances, std::vector<int32_t>(4, 0), 1.0, 0.8), Error);
+  EXPECT_THROW(ambiguous_inlier_share(offsets, candidates, distances, std::vector<int32_t>{0, 0, 0, 3, -1}, 1.0, 0.8),
+               Error);
 }
 
 }  // namespace

@@ -232,6 +232,7 @@ class Localizer::Impl::Search {
   size_t best_inliers_ = 0;
   bool best_has_enough_inliers_ = false;
   PoseQuality best_quality_;
+  double best_ambiguous_share_ = 0;  // ConfidenceFeatures::ambiguous of the best pose
   std::shared_ptr<const Segment> best_segment_;
   std::map<int, size_t> inliers_per_segment_;  // best inliers of each segment searched (the margin)
 };
@@ -559,6 +560,13 @@ void Localizer::Impl::Search::keep_if_best(const std::shared_ptr<const Segment>&
   best_inliers_ = pose.num_inliers;
   best_has_enough_inliers_ = pose.registered;
   best_quality_ = pose.quality;
+  // Measured now: the workspace's matches are the next segment's after this.
+  // Rival candidates farther apart than the rival poses' 10% of the median
+  // depth (PoseQuality), as close in descriptor as the 1-1 ratio test's ν_h.
+  const CorrespondenceSet& set = ws_.correspondences;
+  best_ambiguous_share_ =
+      ambiguous_inlier_share(set.candidate_offsets, set.candidates, ws_.matches.many_distances, pose.chosen_candidate,
+                             0.1 * pose.quality.inlier_depth_median, impl_.search.ratio_one_to_one);
   best_segment_ = seg;
   res_.segment = static_cast<int>(seg->id());
   res_.inliers = pose.num_inliers;
@@ -577,6 +585,7 @@ ConfidenceFeatures Localizer::Impl::Search::confidence_features() const {
                         ? double(best_quality_.hypothesis_inliers) / double(best_quality_.hypothesis_features)
                         : 0.0;
   cf.coverage = best_quality_.coverage;
+  cf.ambiguous = best_ambiguous_share_;
   cf.residual = best_quality_.median_residual_px / impl_.ransac.threshold_px;
   size_t other = 0;
   for (const auto& [id, n] : inliers_per_segment_)
