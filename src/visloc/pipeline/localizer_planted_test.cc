@@ -90,6 +90,8 @@ TEST(LocalizerPlanted, RightSegmentPoseAndGeoRegistration) {
     EXPECT_GE(r.inliers, 90u);  // the prioritized search stops at N_early = 100 matches
     EXPECT_LT(position_error(r.cam_from_segment, truth), 0.02);
     EXPECT_LT(rotation_error_deg(r.cam_from_segment, truth), 0.1);
+    // Random descriptors: no inlier's feature matched a distant point as well.
+    EXPECT_LT(r.confidence_features.ambiguous, 0.05);
     // ENU: the segment's similarity applied to the camera centre; heading:
     // north (the segment's +z) turned 4° clockwise.
     ASSERT_TRUE(r.center_enu.has_value());
