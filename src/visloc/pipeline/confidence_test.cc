@@ -106,6 +106,20 @@ TEST(ConfidenceModel, JsonFromBeforeTheExplainedInputStillReads) {
   EXPECT_EQ(ConfidenceModel::from_json(j).weights[0], m.weights[0]);
 }
 
+TEST(ConfidenceModel, JsonFromBeforeTheElsewhereInputStillReads) {
+  nlohmann::json f = strong_pose().to_json();
+  f["elsewhere"] = 0.4;
+  EXPECT_EQ(ConfidenceFeatures::from_json(f).elsewhere, 0.4);
+  f.erase("elsewhere");
+  EXPECT_EQ(ConfidenceFeatures::from_json(f).elsewhere, kElsewhereWhenUnknown);
+  ConfidenceModel m = ConfidenceModel::builtin();
+  m.weights[kElsewhereInput] = -2;
+  nlohmann::json j = m.to_json();
+  EXPECT_EQ(ConfidenceModel::from_json(j).weights[kElsewhereInput], -2);
+  j["weights"].erase("elsewhere_share");
+  EXPECT_EQ(ConfidenceModel::from_json(j).weights[kElsewhereInput], 0);
+}
+
 TEST(ConfidenceModel, JsonFromBeforeTheAmbiguousInputStillReads) {
   nlohmann::json f = strong_pose().to_json();
   f["ambiguous"] = 0.25;
@@ -318,6 +332,32 @@ TEST(AmbiguousInlierShare, CountsInliersWithADistantRivalAsCloseInDescriptor) {
   EXPECT_THROW(ambiguous_inlier_share(offsets, candidates, distances, std::vector<int32_t>(4, 0), 1.0, 0.8), Error);
   EXPECT_THROW(ambiguous_inlier_share(offsets, candidates, distances, std::vector<int32_t>{0, 0, 0, 3, -1}, 1.0, 0.8),
                Error);
+}
+
+TEST(ElsewhereInlierShare, CountsInliersWhoseNearestMapPointIsInAnUnrelatedSegment) {
+  // Votes of 6 query features: 0 → segment 2 (the pose's), 1 → 5 (related
+  // to 2), 2 → 9 (unrelated), 3 → ties 9 and 2 (here, through the tie), 4 →
+  // no vote, 5 → 9 (but not an inlier).
+  SegmentPointVoteResult votes;
+  votes.feature_offsets = {0, 1, 2, 3, 5, 5, 6};
+  votes.feature_segments = {2, 5, 9, 9, 2, 9};
+  const std::vector<uint32_t> related = {5, 7};
+  // Correspondences in another order than the features, as the search gives them.
+  const std::vector<uint32_t> query_feature = {3, 0, 2, 4, 1, 5};
+  const std::vector<int32_t> chosen = {0, 1, 0, 2, 0, -1};
+  // Inliers that voted: features 3, 0, 2, 1; elsewhere: feature 2.
+  const std::optional<double> share = elsewhere_inlier_share(votes, query_feature, chosen, 2, related);
+  ASSERT_TRUE(share.has_value());
+  EXPECT_DOUBLE_EQ(*share, 1.0 / 4.0);
+  // Without the relation, segment 5 is elsewhere too.
+  EXPECT_DOUBLE_EQ(*elsewhere_inlier_share(votes, query_feature, chosen, 2, {}), 2.0 / 4.0);
+  // Seen from segment 9, features 0 and 1 are elsewhere; 3 and 2 are not.
+  EXPECT_DOUBLE_EQ(*elsewhere_inlier_share(votes, query_feature, chosen, 9, {}), 2.0 / 4.0);
+  // No inlier voted: no evidence.
+  EXPECT_FALSE(elsewhere_inlier_share(votes, query_feature, std::vector<int32_t>{-1, -1, -1, 0, -1, -1}, 2, related));
+  // Inconsistent inputs: an error, not a read out of range.
+  EXPECT_THROW(elsewhere_inlier_share(votes, std::vector<uint32_t>{3, 0, 6, 4, 1, 5}, chosen, 2, related), Error);
+  EXPECT_THROW(elsewhere_inlier_share(votes, query_feature, std::vector<int32_t>{0}, 2, related), Error);
 }
 
 }  // namespace

@@ -164,6 +164,8 @@ struct Localizer::Impl {
   std::unique_ptr<SegmentCache> cache;
   std::unique_ptr<RetrievalMap> retrieval;  // null when the map has none
   std::unique_ptr<SegmentPointVotes> point_votes;  // null without a map rotation or when not asked for
+  // With point votes: per manifest position, the segments that share an image with it.
+  std::vector<std::vector<uint32_t>> related_segments;
   SegmentVoterOptions voting;
   int max_segments = 4;    // candidates searched first (options' max_segments)
   int max_candidates = 8;  // max_segments + fallback_segments
@@ -218,7 +220,8 @@ class Localizer::Impl::Search {
   // One-many RANSAC on ws_.correspondences (no pose when the segment cannot win).
   PoseEstimate estimate_segment_pose() const;
   // Records the segment's pose; makes it the result when it has the most inliers.
-  void keep_if_best(const std::shared_ptr<const Segment>& seg, const PoseEstimate& pose);
+  // `index`: the segment's manifest position.
+  void keep_if_best(size_t index, const std::shared_ptr<const Segment>& seg, const PoseEstimate& pose);
   ConfidenceFeatures confidence_features() const;
 
   Impl& impl_;
@@ -233,6 +236,7 @@ class Localizer::Impl::Search {
   bool best_has_enough_inliers_ = false;
   PoseQuality best_quality_;
   double best_ambiguous_share_ = 0;  // ConfidenceFeatures::ambiguous of the best pose
+  double best_elsewhere_share_ = 0;  // ConfidenceFeatures::elsewhere of the best pose
   std::shared_ptr<const Segment> best_segment_;
   std::map<int, size_t> inliers_per_segment_;  // best inliers of each segment searched (the margin)
 };
@@ -319,6 +323,7 @@ void Localizer::Impl::build_point_votes(const SegmentPointVoteOptions& options) 
         if (a != b) related[a].push_back(b);
   votes->finalize(related);
   point_votes = std::move(votes);
+  related_segments = std::move(related);
 }
 
 size_t Localizer::num_segments() const { return impl_->map.manifest().segments.size(); }
@@ -520,7 +525,7 @@ void Localizer::Impl::Search::search_candidates(const std::vector<size_t>& candi
     t.reset();
     const PoseEstimate pose = estimate_segment_pose();
     res_.times.ransac += t.elapsed_ms();
-    keep_if_best(seg, pose);
+    keep_if_best(index, seg, pose);
   }
 }
 
@@ -552,7 +557,8 @@ PoseEstimate Localizer::Impl::Search::estimate_segment_pose() const {
   return pose;
 }
 
-void Localizer::Impl::Search::keep_if_best(const std::shared_ptr<const Segment>& seg, const PoseEstimate& pose) {
+void Localizer::Impl::Search::keep_if_best(size_t index, const std::shared_ptr<const Segment>& seg,
+                                           const PoseEstimate& pose) {
   if (!pose.has_pose) return;
   size_t& seen = inliers_per_segment_[static_cast<int>(seg->id())];
   seen = std::max(seen, pose.num_inliers);
@@ -567,6 +573,13 @@ void Localizer::Impl::Search::keep_if_best(const std::shared_ptr<const Segment>&
   best_ambiguous_share_ =
       ambiguous_inlier_share(set.candidate_offsets, set.candidates, ws_.matches.many_distances, pose.chosen_candidate,
                              0.1 * pose.quality.inlier_depth_median, impl_.search.ratio_one_to_one);
+  best_elsewhere_share_ = kElsewhereWhenUnknown;
+  if (impl_.point_votes && !ws_.point_votes.feature_offsets.empty()) {
+    const auto position = static_cast<uint32_t>(index);
+    const std::optional<double> share = elsewhere_inlier_share(
+        ws_.point_votes, set.query_feature, pose.chosen_candidate, position, impl_.related_segments.at(position));
+    if (share) best_elsewhere_share_ = *share;
+  }
   best_segment_ = seg;
   res_.segment = static_cast<int>(seg->id());
   res_.inliers = pose.num_inliers;
@@ -586,6 +599,7 @@ ConfidenceFeatures Localizer::Impl::Search::confidence_features() const {
                         : 0.0;
   cf.coverage = best_quality_.coverage;
   cf.ambiguous = best_ambiguous_share_;
+  cf.elsewhere = best_elsewhere_share_;
   cf.residual = best_quality_.median_residual_px / impl_.ransac.threshold_px;
   size_t other = 0;
   for (const auto& [id, n] : inliers_per_segment_)

@@ -92,6 +92,8 @@ TEST(LocalizerPlanted, RightSegmentPoseAndGeoRegistration) {
     EXPECT_LT(rotation_error_deg(r.cam_from_segment, truth), 0.1);
     // Random descriptors: no inlier's feature matched a distant point as well.
     EXPECT_LT(r.confidence_features.ambiguous, 0.05);
+    // Two segments, all searched: no point votes, no evidence of elsewhere.
+    EXPECT_EQ(r.confidence_features.elsewhere, kElsewhereWhenUnknown);
     // ENU: the segment's similarity applied to the camera centre; heading:
     // north (the segment's +z) turned 4° clockwise.
     ASSERT_TRUE(r.center_enu.has_value());

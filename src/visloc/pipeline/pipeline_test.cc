@@ -135,6 +135,10 @@ void expect_point_votes_choose_the_segment(const fs::path& dir, const MapBuildOp
     EXPECT_GT(r.retrieval_votes[0], 0.0f);
     EXPECT_FLOAT_EQ(r.retrieval_total_votes, 1.0f);  // the point votes' shares
     voted_accurate += r.registered && position_error(r.cam_from_segment, pose) < 0.5;
+    // A street of buildings of their own: a right pose's inliers are seen
+    // in its segment or a neighbour sharing images with it, rarely elsewhere.
+    if (r.registered && position_error(r.cam_from_segment, pose) < 0.5)
+      EXPECT_LT(r.confidence_features.elsewhere, 0.5) << name;
   }
   EXPECT_GE(voted_accurate, 2) << "of " << truth.size() << " queries, searching only the best-voted segment";
   // With one fallback segment: the two best-voted are candidates, and the

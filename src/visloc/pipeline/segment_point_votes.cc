@@ -176,14 +176,21 @@ void SegmentPointVotes::vote(std::span<const HashCode> query, std::vector<float>
   out.segments.clear();
   out.total_votes = 0;
   out.candidates_compared = 0;
+  out.feature_offsets.clear();
+  out.feature_offsets.reserve(query.size() + 1);
+  out.feature_offsets.push_back(0);
+  out.feature_segments.clear();
   scratch.assign(max_segment_plus_one_, 0.0f);
   size_t compared = 0;
   Nearest best;
   for (const HashCode& q : query) {
-    if (!nearest(q, nullptr, best, compared)) continue;
-    const float share = 1.0f / static_cast<float>(best.count);
-    for (int i = 0; i < best.count; ++i) scratch[best.segments[i]] += share;
-    out.total_votes += 1.0f;
+    if (nearest(q, nullptr, best, compared)) {
+      const float share = 1.0f / static_cast<float>(best.count);
+      for (int i = 0; i < best.count; ++i) scratch[best.segments[i]] += share;
+      out.total_votes += 1.0f;
+      out.feature_segments.insert(out.feature_segments.end(), best.segments, best.segments + best.count);
+    }
+    out.feature_offsets.push_back(static_cast<uint32_t>(out.feature_segments.size()));
   }
   out.candidates_compared = compared;
   for (uint32_t s = 0; s < max_segment_plus_one_; ++s)

@@ -74,6 +74,16 @@ struct SegmentPointVoteResult {
   std::vector<SegmentPointVote> segments;  // every segment with a vote, most votes first (ties: lower id)
   float total_votes = 0;                   // query features that voted
   size_t candidates_compared = 0;          // Hamming distances computed
+  // Per query feature i, the segments its vote went to (the ties at the
+  // nearest distance): feature_segments[feature_offsets[i] ..
+  // feature_offsets[i + 1]), empty when it did not vote. For the confidence's
+  // "elsewhere" input (confidence.h): a pose's inlier whose feature's nearest
+  // map point lies in an unrelated segment.
+  std::vector<uint32_t> feature_offsets;
+  std::vector<uint32_t> feature_segments;
+  std::span<const uint32_t> segments_of_feature(size_t i) const {
+    return {feature_segments.data() + feature_offsets[i], feature_segments.data() + feature_offsets[i + 1]};
+  }
 };
 
 class SegmentPointVotes {

@@ -64,6 +64,20 @@ TEST(SegmentPointVotes, QueryFeaturesVoteForTheSegmentOfTheirNearestPoint) {
   EXPECT_FLOAT_EQ(r.segments[1].votes, 100);
   EXPECT_FLOAT_EQ(r.total_votes, 400);
   EXPECT_GT(r.candidates_compared, 0u);
+  // Per feature, the segment its vote went to; none for the 200 unmatched.
+  ASSERT_EQ(r.feature_offsets.size(), query.size() + 1);
+  for (size_t i = 0; i < query.size(); ++i) {
+    const std::span<const uint32_t> s = r.segments_of_feature(i);
+    if (i < 300) {
+      ASSERT_EQ(s.size(), 1u) << i;
+      EXPECT_EQ(s[0], 3u);
+    } else if (i < 400) {
+      ASSERT_EQ(s.size(), 1u) << i;
+      EXPECT_EQ(s[0], 7u);
+    } else {
+      EXPECT_TRUE(s.empty()) << i;
+    }
+  }
 
   // The same call again gives the same votes (the scratch is reset).
   SegmentPointVoteResult again;
