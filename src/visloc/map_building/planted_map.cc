@@ -1,6 +1,7 @@
 #include "visloc/map_building/planted_map.h"
 
 #include <nlohmann/json.hpp>
+#include <optional>
 
 #include "visloc/colmap/colmap_model.h"
 #include "visloc/map/map.h"
@@ -32,7 +33,7 @@ Similarity3d planted_enu_from_segment(int k) {
 }
 
 PlantedMap::PlantedMap(const std::string& name, const std::vector<PlantedSegment>& segments, PlantedCamera camera,
-                       int cameras_per_segment) {
+                       int cameras_per_segment, const PlantedMapOptions& options) {
   dir_ = unique_temp_path("visloc_planted_" + name);
   fs::remove_all(dir_);
   fs::create_directories(dir_ / "segments");
@@ -45,6 +46,14 @@ PlantedMap::PlantedMap(const std::string& name, const std::vector<PlantedSegment
   MapManifest man;
   man.enu_origin_lat_lon_alt = std::array<double, 3>{55.7, 13.19, 20.0};
   codebook.write(dir_ / man.pq_codebook_file, "{}");
+  ItqOptions itq;
+  itq.iterations = 10;
+  std::optional<BinaryHasher> map_hasher;
+  if (options.map_hash_rotation) {
+    map_hasher = train_itq(all.data(), all.size() / kDescriptorDim, itq).hasher;
+    man.hash_rotation_file = kHashRotationFileName;
+    write_hash_rotation_file(dir_ / man.hash_rotation_file, *map_hasher, "{}");
+  }
   for (size_t k = 0; k < segments.size(); ++k) {
     const PlantedSegment& s = segments[k];
     ColmapModel model;
@@ -68,9 +77,8 @@ PlantedMap::PlantedMap(const std::string& name, const std::vector<PlantedSegment
       desc.mean.insert(desc.mean.end(), s.descriptors[i].begin(), s.descriptors[i].end());
       desc.track_size.push_back(3);
     }
-    ItqOptions itq;
-    itq.iterations = 10;
-    SegmentData data = make_segment_data(model, desc, codebook, itq, static_cast<uint32_t>(k));
+    const auto id = static_cast<uint32_t>(options.first_segment_id + k);
+    SegmentData data = make_segment_data(model, desc, codebook, itq, id, nullptr, map_hasher ? &*map_hasher : nullptr);
     const Similarity3d e = planted_enu_from_segment(static_cast<int>(k));
     nlohmann::json r = nlohmann::json::array();
     for (int i = 0; i < 3; ++i)
@@ -82,8 +90,8 @@ PlantedMap::PlantedMap(const std::string& name, const std::vector<PlantedSegment
     // float32: the tests compare what they read with the planted points exactly.
     write_segment_file(dir_ / file, data, {.coordinates = PointCoordinates::kFloat32});
     const MappedFile mapped(dir_ / file);
-    man.segments.push_back({static_cast<uint32_t>(k), file, "", s.xyz.size(), model.images.size(),
-                            static_cast<uint64_t>(mapped.size()), crc32c(mapped.data(), mapped.size())});
+    man.segments.push_back({id, file, "", s.xyz.size(), model.images.size(), static_cast<uint64_t>(mapped.size()),
+                            crc32c(mapped.data(), mapped.size())});
   }
   write_manifest(dir_, man);
 }

@@ -34,6 +34,15 @@ struct PlantedCamera {
   double focal = 500;
 };
 
+struct PlantedMapOptions {
+  // One ITQ rotation for the whole map (learned on every segment's
+  // descriptors, as `map build --hash-rotation map`), else one per segment.
+  bool map_hash_rotation = false;
+  // Segment k's id in the manifest: first_segment_id + k (ids that differ
+  // from manifest positions).
+  uint32_t first_segment_id = 0;
+};
+
 class PlantedMap {
  public:
   // Segments in manifest order, segment k geo-registered by
@@ -41,7 +50,7 @@ class PlantedMap {
   // 2 m apart along x, looking along +z. The map is written under a unique
   // temporary folder, removed by the destructor.
   PlantedMap(const std::string& name, const std::vector<PlantedSegment>& segments, PlantedCamera camera = {},
-             int cameras_per_segment = 4);
+             int cameras_per_segment = 4, const PlantedMapOptions& options = {});
   ~PlantedMap();
   PlantedMap(const PlantedMap&) = delete;
   PlantedMap& operator=(const PlantedMap&) = delete;

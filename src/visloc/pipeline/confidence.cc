@@ -58,7 +58,7 @@ ConfidenceFeatures ConfidenceFeatures::from_json(const nlohmann::json& j) {
   // Reports written before the input existed lack it: they get the value
   // that neither raises nor lowers a confidence against a typical right pose.
   f.explained = j.contains("explained") ? number(j, "explained") : kExplainedWhenUnknown;
-  f.ambiguous = j.contains("ambiguous") ? number(j, "ambiguous") : 0.0;
+  f.ambiguous = j.contains("ambiguous") ? number(j, "ambiguous") : kAmbiguousWhenUnknown;
   f.elsewhere = j.contains("elsewhere") ? number(j, "elsewhere") : kElsewhereWhenUnknown;
   return f;
 }
@@ -250,14 +250,6 @@ std::optional<double> elsewhere_inlier_share(const SegmentPointVoteResult& votes
   if (voted == 0) return std::nullopt;
   return double(elsewhere) / double(voted);
 }
-
-// The median over the 619 right poses (>= 12 inliers) of two cities with
-// point votes (8 segments) and copied buildings (confidence.h): `visloc bench
-// city --out D7 --seed 7 --layout random --random-roads 8 --road-length 180
-// --leave-out-roads 2 --leave-out-road-end 60 --building-designs 4
-// --building-design-share 0.3 --queries 500 --negatives 0 --min-confidence
-// 0`, and D11 the same with --seed 11.
-const double kElsewhereWhenUnknown = 0.2653061224489796;
 
 const ConfidenceModel& ConfidenceModel::builtin() {
   static const ConfidenceModel model = [] {

@@ -65,6 +65,18 @@
 
 namespace visloc {
 
+// Reports written before `ambiguous` existed, and poses without the
+// evidence, get the median of the right poses (>= 12 inliers) of the
+// training cities (confidence.cc), so that the term neither raises nor
+// lowers their confidence against a typical right pose: 919 right poses of
+// T5, D7 and D11.
+inline constexpr double kAmbiguousWhenUnknown = 0.21568627450980393;
+// A map without point votes (at most max_segments segments, a hash rotation
+// per segment, or --segment-votes images), or a pose none of whose inliers'
+// features voted, gives no evidence of elsewhere: the median of the 619 right
+// poses (>= 12 inliers) of the training cities with point votes, D7 and D11.
+inline constexpr double kElsewhereWhenUnknown = 0.2653061224489796;
+
 struct ConfidenceFeatures {
   double inliers = 0;
   double inlier_ratio = 0;       // 1-1 matches that fit the pose / 1-1 matches
@@ -77,10 +89,12 @@ struct ConfidenceFeatures {
   double height_excess = 0;      // above or below the map cameras' heights / extent (0 within)
   double tilt_excess_deg = 0;    // |tilt| beyond the map cameras' largest |tilt| (0 within)
   double explained = 0;          // inliers / map points predicted in view (explained_fraction), ≤ 1
-  double ambiguous = 0;          // inliers with a distant rival candidate / inliers (ambiguous_inlier_share)
-  double elsewhere = 0;          // inliers whose map-wide nearest point is in an unrelated segment
-                                 // / inliers that voted (elsewhere_inlier_share; kElsewhereWhenUnknown
-                                 // without point votes)
+  // Inliers with a distant rival candidate / inliers (ambiguous_inlier_share).
+  double ambiguous = kAmbiguousWhenUnknown;
+  // Inliers whose map-wide nearest indexed point is in an unrelated segment /
+  // inliers that voted (elsewhere_inlier_share; kElsewhereWhenUnknown without
+  // point votes).
+  double elsewhere = kElsewhereWhenUnknown;
   nlohmann::json to_json() const;
   static ConfidenceFeatures from_json(const nlohmann::json& j);  // throws Error(kFormat) on a bad object
 };
@@ -93,11 +107,6 @@ inline constexpr int kElsewhereInput = 11;  // elsewhere_share, the last input
 // existed: the median of the right poses (>= 12 inliers) on the training
 // cities (0.093), as kVoteShareWithoutRetrieval does for votes.
 inline constexpr double kExplainedWhenUnknown = 0.093;
-// A map without point votes (at most max_segments segments, or a hash
-// rotation per segment), or a pose none of whose inliers' features voted,
-// gives no evidence of elsewhere: the median of the right poses (>= 12
-// inliers) of the fit's data on maps with point votes.
-extern const double kElsewhereWhenUnknown;
 // A map without retrieval gives no evidence through votes: its poses get the
 // median share of the right poses of the fit's data, so that the term
 // neither raises nor lowers their confidence against a typical right pose
@@ -152,7 +161,11 @@ double explained_fraction(std::span<const float> xyz, const CameraPose& cam_from
 // `distances`, as the localizer's CorrespondenceSet and CascadeMatches hold
 // them) has another map point, farther than `min_separation` from the chosen
 // one, whose distance is at most the chosen candidate's / `ratio` (the 1-1
-// ratio test would not have told them apart). An inlier on a repeated
+// ratio test would not have told them apart). With the default 1-M rule (top
+// M when d0/d1 < ν), an inlier that passed the 1-1 test (d0 < ν_h d1) on its
+// first candidate is never ambiguous at ratio ν_h: the share counts the
+// inliers among the 1-M-only features (ν_h d1 ≤ d0 < ν d1) with a distant
+// rival, and those that chose a later candidate. An inlier on a repeated
 // facade's window has one; a pose held up mostly by such inliers may be the
 // facade's twin metres away. `chosen[i]`: the index into feature i's list of
 // its inlier candidate, or −1. 0 without inliers.
@@ -161,9 +174,11 @@ double ambiguous_inlier_share(std::span<const uint32_t> candidate_offsets, std::
                               double ratio);
 
 // The share of a pose's inliers seen elsewhere in the map: of the inliers
-// whose query feature voted (SegmentPointVoteResult: its nearest map point
-// over every segment, by the map-wide hash codes), those whose nearest points
-// (ties) lie in neither the pose's segment `segment` nor one of `related`
+// whose query feature voted (SegmentPointVoteResult: its nearest indexed map
+// point over every segment, by the map-wide hash codes; the index holds up
+// to points_per_segment evenly strided points of each segment, so a right
+// inlier's own point is often not in it, and keeps at most 16 tied
+// segments), those whose nearest points (ties) lie in neither the pose's segment `segment` nor one of `related`
 // (segments sharing an image with it, which may hold the same points). A pose
 // on a copy of a building elsewhere in the map (a chain store's facade, a row
 // of identical houses) has many; so has the right pose on such a building.

@@ -125,7 +125,7 @@ TEST(ConfidenceModel, JsonFromBeforeTheAmbiguousInputStillReads) {
   f["ambiguous"] = 0.25;
   EXPECT_EQ(ConfidenceFeatures::from_json(f).ambiguous, 0.25);
   f.erase("ambiguous");
-  EXPECT_EQ(ConfidenceFeatures::from_json(f).ambiguous, 0.0);
+  EXPECT_EQ(ConfidenceFeatures::from_json(f).ambiguous, kAmbiguousWhenUnknown);
   f["ambiguous"] = "x";
   EXPECT_THROW(ConfidenceFeatures::from_json(f), Error);
   ConfidenceModel m = ConfidenceModel::builtin();

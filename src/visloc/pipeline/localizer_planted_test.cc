@@ -204,3 +204,55 @@ TEST(LocalizerPlanted, ASegmentThatCannotWinIsSkipped) {
   EXPECT_GT(estimated.confidence_features.margin, 0.2);
   EXPECT_LT(skipped.confidence_features.margin, 0.2);
 }
+
+// The `elsewhere` input on a map with point votes (one hash rotation, more
+// segments than are searched first). The query views segment a; its first
+// 300 features are copied exactly into an unrelated segment c, at other
+// places (a building copied elsewhere in the map), and the query carries more
+// descriptor noise than view_of's, so that a's own points are a few bits
+// from those features' codes and c's copies none: about half the inliers of
+// a's pose have their nearest map point in c. Without the copy, almost none.
+// Segment ids start at 10, so ids and manifest positions differ.
+TEST(LocalizerPlanted, InliersWhoseNearestMapPointIsInAnUnrelatedSegmentAreElsewhere) {
+  RandomGenerator rng(11);
+  const PlantedSegment a = random_planted_segment(600, rng);
+  const PlantedSegment b = random_planted_segment(600, rng);
+  const CameraPose truth = query_pose();
+  FeatureSet query = view_of(a, truth, rng);
+  for (size_t i = 0; i < query.descriptors.rows(); ++i)
+    for (int j = 0; j < kDescriptorDim; ++j) {
+      uint8_t& v = query.descriptors.row(i)[j];
+      v = static_cast<uint8_t>(std::clamp<int>(v + int(rng.below(21)) - 10, 0, 255));
+    }
+  ASSERT_GE(query.size(), 400u);
+  PlantedSegment copy = random_planted_segment(300, rng);
+  for (size_t i = 0; i < copy.descriptors.size(); ++i)
+    std::copy_n(query.descriptors.row(i), kDescriptorDim, copy.descriptors[i].begin());
+  LocalizerOptions o = options();
+  o.max_segments = 2;  // of 3: point votes choose them
+  o.fallback_segments = 1;
+  o.accept_inliers = 0;
+  o.segment_votes = SegmentVoteSource::kPoints;
+  const PlantedMapOptions layout{.map_hash_rotation = true, .first_segment_id = 10};
+  double elsewhere_with_copy = -1;
+  for (const bool with_copy : {true, false}) {
+    SCOPED_TRACE(with_copy ? "a copy in c" : "no copy");
+    PlantedMap map(with_copy ? "elsewhere" : "nowhere_else",
+                   {a, b, with_copy ? copy : random_planted_segment(300, rng)}, {}, 4, layout);
+    Localizer loc(map.dir(), o);
+    ASSERT_TRUE(loc.has_point_votes());
+    const LocalizationResult r = loc.localize_features(query, query_camera());
+    ASSERT_EQ(r.segment, 10);
+    EXPECT_LT(position_error(r.cam_from_segment, truth), 0.05);
+    ASSERT_GE(r.inliers, 60u);
+    const double elsewhere = r.confidence_features.elsewhere;
+    if (with_copy) {
+      elsewhere_with_copy = elsewhere;
+      EXPECT_GT(elsewhere, 0.2);
+      EXPECT_LT(elsewhere, 0.8);
+    } else {
+      EXPECT_LT(elsewhere, 0.05);
+    }
+  }
+  EXPECT_NE(elsewhere_with_copy, kElsewhereWhenUnknown);
+}

@@ -125,7 +125,7 @@ void expect_point_votes_choose_the_segment(const fs::path& dir, const MapBuildOp
   Localizer voted(dir / "map", one);
   EXPECT_TRUE(voted.has_point_votes());
   EXPECT_GT(voted.point_vote_bytes(), 0u);
-  int voted_accurate = 0;
+  int voted_accurate = 0, elsewhere_measured = 0;
   std::set<std::string> registered_in_first;
   for (const auto& [name, pose] : truth) {
     const LocalizationResult r = voted.localize_file(dir / "city" / "queries" / "images" / name, cams.at(name));
@@ -139,7 +139,9 @@ void expect_point_votes_choose_the_segment(const fs::path& dir, const MapBuildOp
     // in its segment or a neighbour sharing images with it, rarely elsewhere.
     if (r.registered && position_error(r.cam_from_segment, pose) < 0.5)
       EXPECT_LT(r.confidence_features.elsewhere, 0.5) << name;
+    elsewhere_measured += r.registered && r.confidence_features.elsewhere != kElsewhereWhenUnknown;
   }
+  EXPECT_GE(elsewhere_measured, 1) << "no registered pose had its inliers' votes";
   EXPECT_GE(voted_accurate, 2) << "of " << truth.size() << " queries, searching only the best-voted segment";
   // With one fallback segment: the two best-voted are candidates, and the
   // second is searched exactly when the first gives no registered pose
