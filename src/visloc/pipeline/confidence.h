@@ -26,7 +26,7 @@
 //     another map point, far from the inlier's, about as well (a repeated
 //     facade's windows). Measured (session 27, KITTI hard split, every pose
 //     with >= 12 inliers): 0.48-0.56 for the 4 wrong poses (the facade's
-//     twin 40 m back), 0.19-0.52 for the 30 right ones;
+//     twin 40 m back), 0-0.52 for the 30 right ones;
 //   * the share of inliers seen elsewhere in the map: whose query feature's
 //     nearest map point over all segments (the point votes) lies in a
 //     segment unrelated to the pose's (a copied building).
