@@ -137,7 +137,13 @@ std::pair<double, Eigen::VectorXd> fit_logistic(const Eigen::MatrixXd& X, const 
     mean[k] = c.mean();
     const double sd = std::sqrt((c.array() - mean[k]).square().mean());
     scale[k] = sd > 1e-12 ? sd : 1.0;
-    Z.col(k + 1) = (c.array() - mean[k]) / scale[k];
+    // A constant input (e.g. one that reports older than it give its
+    // default): a zero column, so that rounding in the mean cannot give it a
+    // tiny weight of either sign.
+    if (sd > 1e-12)
+      Z.col(k + 1) = (c.array() - mean[k]) / scale[k];
+    else
+      Z.col(k + 1).setZero();
   }
   Eigen::VectorXd beta = Eigen::VectorXd::Zero(d + 1);
   for (int it = 0; it < 100; ++it) {

@@ -31,13 +31,14 @@
 //     nearest map point over all segments (the point votes) lies in a
 //     segment unrelated to the pose's (a copied building).
 // The last two are reported but weigh 0 in the builtin model. Measured
-// (session 27) on training cities where 30% of the buildings copy one of 4
+// (session 27) on two cities where 30% of the buildings copy one of 4
 // designs (`bench city --building-designs 4 --building-design-share 0.3`,
 // seeds 7 and 11, 8 random roads): the right poses' median ambiguous /
 // elsewhere shares 0.21 / 0.30 and 0.23 / 0.25, the wrong ones' 0.28 / 0.45
 // and 0.31 / 0.31. Most of those wrong poses (120 of 147, 46 of 49) are
-// queries on unmapped streets that see a copy of a mapped building: nothing
-// in the pose tells them apart. Refitted with them, the model turns away 616
+// queries whose place no segment maps (94 and 28 on unmapped streets, the
+// rest between or near unmapped placemarks) that see a copy of a mapped
+// building: nothing in the pose tells them apart. Refitted with them, the model turns away 616
 // of 919 right training poses at 99.5% precision, and fitted on one copied
 // city it gains on the other (at 5% of right poses lost, 83 wrong poses
 // against the builtin's 115) but loses the KITTI hard split's separation
@@ -65,16 +66,23 @@
 
 namespace visloc {
 
-// Reports written before `ambiguous` existed, and poses without the
-// evidence, get the median of the right poses (>= 12 inliers) of the
-// training cities (confidence.cc), so that the term neither raises nor
-// lowers their confidence against a typical right pose: 919 right poses of
-// T5, D7 and D11.
+// Reports written before `ambiguous` existed (and a pose whose inliers' depth
+// is not finite) get the median of the right poses (>= 12 inliers) of three
+// cities, so that the term neither raises nor lowers their confidence against
+// a typical right pose: 919 right poses of T5, D7 and D11 (session 27). T5:
+// `visloc bench city --out T5 --seed 7 --layout random --random-roads 5
+// --road-length 180 --leave-out-roads 2 --leave-out-road-end 60 --queries 500
+// --negatives 0 --min-confidence 0` (the builtin model's first training
+// city, confidence.cc); D7: the same with --random-roads 8
+// --building-designs 4 --building-design-share 0.3 (30% of the buildings
+// copy one of 4 designs); D11: D7 with --seed 11. The builtin model was not
+// fitted on D7 and D11.
 inline constexpr double kAmbiguousWhenUnknown = 0.21568627450980393;
 // A map without point votes (at most max_segments segments, a hash rotation
 // per segment, or --segment-votes images), or a pose none of whose inliers'
 // features voted, gives no evidence of elsewhere: the median of the 619 right
-// poses (>= 12 inliers) of the training cities with point votes, D7 and D11.
+// poses (>= 12 inliers) of the two cities with point votes (8 segments), D7
+// and D11 (above).
 inline constexpr double kElsewhereWhenUnknown = 0.2653061224489796;
 
 struct ConfidenceFeatures {

@@ -570,10 +570,11 @@ void Localizer::Impl::Search::keep_if_best(size_t index, const std::shared_ptr<c
   // Rival candidates farther apart than the rival poses' 10% of the median
   // depth (PoseQuality), as close in descriptor as the 1-1 ratio test's ν_h.
   const CorrespondenceSet& set = ws_.correspondences;
-  best_ambiguous_share_ = ambiguous_inlier_share(
-      set.candidate_offsets, set.candidates, ws_.matches.many_distances, pose.chosen_candidate,
-      std::isfinite(pose.quality.inlier_depth_median) ? 0.1 * pose.quality.inlier_depth_median : 0.0,
-      impl_.search.ratio_one_to_one);
+  best_ambiguous_share_ = kAmbiguousWhenUnknown;
+  if (std::isfinite(pose.quality.inlier_depth_median))
+    best_ambiguous_share_ =
+        ambiguous_inlier_share(set.candidate_offsets, set.candidates, ws_.matches.many_distances, pose.chosen_candidate,
+                               0.1 * pose.quality.inlier_depth_median, impl_.search.ratio_one_to_one);
   best_elsewhere_share_ = kElsewhereWhenUnknown;
   if (impl_.point_votes && !ws_.point_votes.feature_offsets.empty()) {
     const auto position = static_cast<uint32_t>(index);
