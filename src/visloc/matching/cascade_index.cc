@@ -54,9 +54,9 @@ CascadeLookup::CascadeLookup(std::span<const HashCode> codes, bool neighbourhood
   bitmap_.assign(kHashTables * kBitmapWords, 0);
   rank_.assign(kHashTables * kBitmapWords, 0);
   const bool small = n <= 65536;
-  // One id of padding: an empty bucket at a table's end starts at N, and the
-  // search reads a bucket's first id before it knows whether the bucket is empty.
-  (small ? ids16_.resize(kHashTables * n + 1) : ids32_.resize(kHashTables * n + 1));
+  // Two ids of padding: an empty bucket at a table's end starts at N, and the
+  // search reads a bucket's first two ids before it knows the bucket's size.
+  (small ? ids16_.resize(kHashTables * n + 2) : ids32_.resize(kHashTables * n + 2));
   std::vector<uint32_t> count(kHashBuckets + 1);
   offsets_.clear();
   if (neighbourhood_sizes) neighbourhood_.resize(size_t(kHashTables) << kHashTableBits);
@@ -130,7 +130,7 @@ void CascadeMatches::clear() {
 }
 
 size_t CascadeWorkspace::capacity_bytes() const {
-  return seen.capacity() * 8 + query_codes.capacity() * sizeof(HashCode) + sizes.capacity() * 4 + order.capacity() * 8 +
+  return seen.capacity() + query_codes.capacity() * sizeof(HashCode) + sizes.capacity() * 4 + order.capacity() * 8 +
          candidates.capacity() * 4 + hamming.capacity() + shortlist.capacity() * 4 + ranked_distances.capacity() * 4 +
          encode.projection_transposed.capacity() * 4 + encode.centred.capacity() * 4 +
          encode.quantized.weight_pairs.capacity() * 2 + encode.quantized.weights_transposed.capacity() * 2 +
@@ -218,17 +218,21 @@ void probe_ranges(const CascadeLookup& lookup, const HashCode& code, int probes,
   r.listed = listed;
 }
 
-// Coarse: the union of the probed buckets, deduplicated by the `seen` bits,
-// in probe order (within a bucket, increasing point id), into `out` (room for
-// r.listed + 1). A bucket's first id is taken without a branch, since most
-// buckets hold 0 or 1 points: it is read even from an empty bucket (the
-// lookup's padding makes that safe), then counted only if the bucket has it
-// and it is new; its bit is rewritten unchanged otherwise. The caller clears
-// the words of `out`'s ids afterwards. (Reading 2 or 4 ids without a branch, or
-// prefetching the next feature's first ids, measured no faster at 100K
-// points: the gather waits on cache misses, not on mispredicted branches.)
+// Coarse: the union of the probed buckets, deduplicated by the `seen` bytes
+// (one per point), in probe order (within a bucket, increasing point id), into
+// `out` (room for r.listed + 1). A bucket's first two ids are taken without a
+// branch, since most buckets hold 0, 1 or 2 points: they are read even past
+// the bucket's end (the lookup's padding makes that safe), then counted only
+// if the bucket has them and they are new; their bytes are rewritten
+// unchanged otherwise. The caller clears the bytes of `out`'s ids afterwards.
+// Bytes rather than bits: a bit set read-modify-writes a word shared by 64
+// points, so the loads of nearby candidates waited on one another's stores
+// (bytes measured 10.3 against 12.0 ms for the gather on fountain-P11). Not
+// faster, measured: prefetching the next feature's first ids (the wait at 100K
+// points is on cache misses either way), and computing the Hamming distances
+// here rather than in a pass of their own (duplicates cost a distance each).
 template <typename Id>
-size_t gather_candidates(const Id* const* ids, const ProbeRanges& r, int probes, uint64_t* seen, uint32_t* out) {
+size_t gather_candidates(const Id* const* ids, const ProbeRanges& r, int probes, uint8_t* seen, uint32_t* out) {
   size_t n = 0;
   int c = 0;
   for (int k = 0; k < kHashTables; ++k) {
@@ -236,24 +240,30 @@ size_t gather_candidates(const Id* const* ids, const ProbeRanges& r, int probes,
     for (int b = 0; b < probes; ++b, ++c) {
       const uint32_t begin = r.begin[c], end = r.end[c];
       const uint32_t first = table_ids[begin];
-      const uint64_t word = seen[first >> 6], bit = uint64_t(1) << (first & 63);
-      const bool non_empty = begin < end;
+      const uint8_t was = seen[first];
+      const uint8_t non_empty = begin < end;
       out[n] = first;
-      n += static_cast<size_t>(non_empty & ((word & bit) == 0));
-      seen[first >> 6] = word | (non_empty ? bit : 0);
-      for (uint32_t i = begin + 1; i < end; ++i) {
+      n += static_cast<size_t>(non_empty & (was == 0));
+      seen[first] = was | non_empty;
+      const uint32_t second = table_ids[begin + 1];
+      const uint8_t was2 = seen[second];
+      const uint8_t two = begin + 1 < end;
+      out[n] = second;
+      n += static_cast<size_t>(two & (was2 == 0));
+      seen[second] = was2 | two;
+      for (uint32_t i = begin + 2; i < end; ++i) {
         const uint32_t id = table_ids[i];
-        const uint64_t w = seen[id >> 6], m = uint64_t(1) << (id & 63);
+        const uint8_t w = seen[id];
         out[n] = id;
-        n += static_cast<size_t>((w & m) == 0);
-        seen[id >> 6] = w | m;
+        n += static_cast<size_t>(w == 0);
+        seen[id] = 1;
       }
     }
   }
   return n;
 }
 
-size_t collect_all(const CascadeLookup& lookup, const ProbeRanges& r, int probes, uint64_t* seen, uint32_t* out) {
+size_t collect_all(const CascadeLookup& lookup, const ProbeRanges& r, int probes, uint8_t* seen, uint32_t* out) {
   if (lookup.uses_16bit_ids()) {
     const uint16_t* ids[kHashTables];
     for (int k = 0; k < kHashTables; ++k) ids[k] = lookup.ids16(k);
@@ -405,7 +415,7 @@ void CascadeMatcher::match_hashed(const DescriptorMatrix& queries, std::span<con
 
   // 2. Per feature: coarse → refined → precise.
   t.reset();
-  if (ws.seen.size() < (np + 63) / 64) ws.seen.resize((np + 63) / 64, 0);
+  if (ws.seen.size() < np) ws.seen.resize(np, 0);
   ws.table.resize(kPqTableSize);
   const int keep = std::max(options.max_one_to_many, 1) + 1;  // ranks needed by both rules
   float best_d[65];
@@ -429,8 +439,7 @@ void CascadeMatcher::match_hashed(const DescriptorMatrix& queries, std::span<con
     if (ranges.listed < 2) continue;  // not searched: no ratio test possible
     if (ws.candidates.size() < size_t(ranges.listed) + 1) ws.candidates.resize(size_t(ranges.listed) + 1);
     const size_t n_candidates = collect_all(lookup, ranges, probes, ws.seen.data(), ws.candidates.data());
-    // Whole words are cleared: valid since every bit is zero between features.
-    for (size_t j = 0; j < n_candidates; ++j) ws.seen[ws.candidates[j] >> 6] = 0;
+    for (size_t j = 0; j < n_candidates; ++j) ws.seen[ws.candidates[j]] = 0;
     out.stats.coarse_candidates += n_candidates;
     ++out.stats.features_searched;
     if (n_candidates < 2) continue;

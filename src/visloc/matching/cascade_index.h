@@ -188,10 +188,11 @@ struct CascadeMatches {
 // Reusable buffers of the search: grown to the largest segment and query
 // seen, then reused, so a search allocates nothing. One per thread.
 struct CascadeWorkspace {
-  // One bit per point: set while a feature's coarse list is gathered, for the
-  // deduplication, and cleared right after (all zero between features):
-  // 1/8 byte per point, where a uint32 stamp per point took 4.
-  std::vector<uint64_t> seen;
+  // One byte per point: set while a feature's coarse list is gathered, for the
+  // deduplication, and cleared right after (all zero between features); a
+  // bit per point measured slower (see gather_candidates), a uint32 stamp
+  // per point took 4 bytes.
+  std::vector<uint8_t> seen;
   std::vector<HashCode> query_codes;
   std::vector<uint32_t> sizes;
   std::vector<uint64_t> order;

@@ -67,11 +67,13 @@ struct TestIndex {
   CascadeIndexView view() const { return {codes.size(), hasher.view(), codes.data(), pq.data(), &lookup}; }
 };
 
-TestIndex make_index(const DescriptorMatrix& db, bool lsh = false) {
+// The hasher and codebook are trained on the first `train_rows` rows (0: all).
+TestIndex make_index(const DescriptorMatrix& db, bool lsh = false, size_t train_rows = 0) {
   TestIndex t;
   auto f = to_float(db);
-  t.hasher = lsh ? make_lsh_hasher(f.data(), db.rows(), 5) : train_itq(f.data(), db.rows(), {.iterations = 10}).hasher;
-  t.codebook = PqCodebook::train(f.data(), db.rows(), {.iterations = 10});
+  const size_t n_train = train_rows > 0 ? std::min(train_rows, db.rows()) : db.rows();
+  t.hasher = lsh ? make_lsh_hasher(f.data(), n_train, 5) : train_itq(f.data(), n_train, {.iterations = 10}).hasher;
+  t.codebook = PqCodebook::train(f.data(), n_train, {.iterations = 10});
   t.codes.resize(db.rows());
   HashWorkspace ws;
   encode_hash(t.hasher.view(), db.data(), db.rows(), t.codes.data(), ws);
@@ -381,8 +383,8 @@ TEST(CascadeSearch, CoarseListsAreTheUnionOfTheProbedBuckets) {
         EXPECT_EQ(m.stats.features_searched, listed >= 2 ? 1u : 0u);
         EXPECT_EQ(m.stats.coarse_candidates, listed >= 2 ? distinct : 0u);
         EXPECT_EQ(m.stats.ranked_candidates, listed >= 2 && distinct >= 2 ? distinct : 0u);
-        // The deduplication bits are all clear again, whatever the list's size.
-        EXPECT_TRUE(std::all_of(workspace.seen.begin(), workspace.seen.end(), [](uint64_t w) { return w == 0; }));
+        // The deduplication bytes are all clear again, whatever the list's size.
+        EXPECT_TRUE(std::all_of(workspace.seen.begin(), workspace.seen.end(), [](uint8_t b) { return b == 0; }));
         std::vector<uint32_t> found = m.many_points;
         std::sort(found.begin(), found.end());
         EXPECT_TRUE(std::includes(expected.begin(), expected.end(), found.begin(), found.end()));
@@ -394,7 +396,7 @@ TEST(CascadeSearch, CoarseListsAreTheUnionOfTheProbedBuckets) {
   }
 }
 
-TEST(CascadeSearch, AFeatureWithOneDistinctCandidateLeavesNoBitSet) {
+TEST(CascadeSearch, AFeatureWithOneDistinctCandidateLeavesNoByteSet) {
   // Two points that differ in every bit: a query equal to one of them lists it
   // in all 8 tables (8 listed, 1 distinct), so it is searched but not ranked.
   std::mt19937_64 rng(5);
@@ -419,7 +421,7 @@ TEST(CascadeSearch, AFeatureWithOneDistinctCandidateLeavesNoBitSet) {
       EXPECT_EQ(m.stats.features_searched, 1u);
       EXPECT_EQ(m.stats.coarse_candidates, 1u);
       EXPECT_EQ(m.stats.ranked_candidates, 0u);
-      EXPECT_TRUE(std::all_of(workspace.seen.begin(), workspace.seen.end(), [](uint64_t w) { return w == 0; }))
+      EXPECT_TRUE(std::all_of(workspace.seen.begin(), workspace.seen.end(), [](uint8_t b) { return b == 0; }))
           << "radius " << radius;
     }
 }
@@ -640,9 +642,9 @@ TEST(CascadeSearch, EveryKernelLevelAndAReusedWorkspaceGiveTheSameMatches) {
       EXPECT_EQ(m.many_distances, ref.many_distances) << to_string(level);
       EXPECT_EQ(m.stats.coarse_candidates, ref.stats.coarse_candidates);
       EXPECT_EQ(m.stats.ranked_candidates, ref.stats.ranked_candidates);
-      // The deduplication's bits are all cleared again after every feature.
-      EXPECT_TRUE(std::all_of(shared.seen.begin(), shared.seen.end(), [](uint64_t w) { return w == 0; }));
-      EXPECT_GE(shared.seen.size() * 64, t.view().num_points);
+      // The deduplication's bytes are all cleared again after every feature.
+      EXPECT_TRUE(std::all_of(shared.seen.begin(), shared.seen.end(), [](uint8_t b) { return b == 0; }));
+      EXPECT_GE(shared.seen.size(), t.view().num_points);
       // (The query codes come from the best kernel at every level: encode_hash
       // does not take a level; the hash kernels' equality is tested on its own.)
       // Codes hashed once by the caller give the same result.
@@ -658,6 +660,122 @@ TEST(CascadeSearch, EveryKernelLevelAndAReusedWorkspaceGiveTheSameMatches) {
     CascadeMatches again;
     CascadeMatcher(t.view(), t.codebook, shared).match(q, o, again);
     EXPECT_EQ(shared.capacity_bytes(), bytes);
+  }
+}
+
+namespace {
+
+// The cascade search of one feature written plainly, from its definition:
+// the probed buckets' points (table 0..7; the exact bucket, then the one-bit
+// neighbours by increasing bit; increasing id within a bucket) without
+// repeats; when there are more than L_R, the candidates below the L_R-th
+// Hamming distance and the first ones at it, in candidate order; the scalar
+// ADC distances (direct up to 160 ranked, by the table above); a stable sort;
+// the best-ratio rule. Appends to `out` as the search does.
+void reference_search(const TestIndex& t, const std::vector<std::vector<std::vector<uint32_t>>>& buckets,
+                      const DescriptorMatrix& q, uint32_t f, const HashCode& code, const CascadeSearchOptions& o,
+                      CascadeMatches& out) {
+  std::vector<uint32_t> candidates;
+  std::vector<bool> seen(t.codes.size());
+  size_t listed = 0;
+  for (int k = 0; k < kHashTables; ++k) {
+    const uint32_t key = hash_subcode(code, k);
+    for (int b = 0; b <= (o.lut_radius == 1 ? kHashTableBits : 0); ++b) {
+      for (uint32_t p : buckets[k][b == 0 ? key : key ^ (1u << (b - 1))]) {
+        ++listed;
+        if (!seen[p]) seen[p] = true, candidates.push_back(p);
+      }
+    }
+  }
+  if (listed < 2 || candidates.size() < 2) return;
+  std::vector<uint32_t> ranked = candidates;
+  if (o.refined && candidates.size() > size_t(o.refined_list)) {
+    std::vector<uint32_t> h;
+    for (uint32_t p : candidates) h.push_back(hamming_distance(code, t.codes[p]));
+    std::vector<uint32_t> sorted_h = h;
+    std::sort(sorted_h.begin(), sorted_h.end());
+    const uint32_t cut = sorted_h[o.refined_list - 1];
+    size_t at_cut = o.refined_list - size_t(std::count_if(h.begin(), h.end(), [&](uint32_t x) { return x < cut; }));
+    ranked.clear();
+    for (size_t i = 0; i < candidates.size(); ++i)
+      if (h[i] < cut || (h[i] == cut && at_cut > 0 && at_cut--)) ranked.push_back(candidates[i]);
+  }
+  float qf[kDescriptorDim];
+  for (int j = 0; j < kDescriptorDim; ++j) qf[j] = q.row(f)[j];
+  std::vector<float> d(ranked.size());
+  const SearchKernels& scalar = search_kernels(SimdLevel::kScalar);
+  if (ranked.size() <= 160) {
+    scalar.adc_direct(t.codebook.centroids().data(), qf, t.pq.data(), ranked.data(), ranked.size(), d.data());
+  } else {
+    std::vector<float> table(kPqTableSize);
+    scalar.adc_table(t.codebook.centroids_transposed(), qf, table.data());
+    scalar.adc_distances(table.data(), t.pq.data(), ranked.data(), ranked.size(), d.data());
+  }
+  std::vector<size_t> order(ranked.size());
+  for (size_t i = 0; i < order.size(); ++i) order[i] = i;
+  std::stable_sort(order.begin(), order.end(), [&](size_t a, size_t b) { return d[a] < d[b]; });
+  const float d0 = d[order[0]], d1 = d[order[1]];
+  if (d0 < o.ratio_one_to_one * o.ratio_one_to_one * d1) {
+    out.query.push_back(f);
+    out.point.push_back(ranked[order[0]]);
+    out.distance.push_back(std::sqrt(d0));
+  }
+  if (d0 < o.ratio_one_to_many * o.ratio_one_to_many * d1) {
+    out.many_query.push_back(f);
+    for (size_t i = 0; i < std::min(order.size(), size_t(o.max_one_to_many)); ++i) {
+      out.many_points.push_back(ranked[order[i]]);
+      out.many_distances.push_back(std::sqrt(d[order[i]]));
+    }
+    out.many_offsets.push_back(static_cast<uint32_t>(out.many_points.size()));
+  }
+}
+
+}  // namespace
+
+// The optimized search (branch-free gather, byte deduplication, counting-sort
+// shortlist, insertion into the nearest) returns exactly what the plain
+// definition does: the guard for any later change of the search loop that is
+// meant to be lossless. Segments with crowded buckets (clustered descriptors,
+// LSH codes) and with 32-bit ids, at both radii, with and without the refined
+// step, at every kernel level.
+TEST(CascadeSearch, SameMatchesAsThePlainDefinition) {
+  for (const auto& [points, lsh] : {std::pair<size_t, bool>{5000, false}, {4500, true}, {66000, false}}) {
+    DescriptorMatrix db = clustered_descriptors(points, 31, 12);
+    TestIndex t = make_index(db, lsh, 5000);
+    std::vector<std::vector<std::vector<uint32_t>>> buckets(kHashTables,
+                                                            std::vector<std::vector<uint32_t>>(kHashBuckets));
+    for (uint32_t p = 0; p < t.codes.size(); ++p)
+      for (int k = 0; k < kHashTables; ++k) buckets[k][hash_subcode(t.codes[p], k)].push_back(p);
+    std::vector<size_t> rows;
+    for (size_t i = 0; i < 150; ++i) rows.push_back(i * 11 % db.rows());
+    const DescriptorMatrix q = perturbed(db, rows, 12, 32);
+    std::vector<HashCode> codes(q.rows());
+    HashWorkspace hws;
+    encode_hash(t.hasher.view(), q.data(), q.rows(), codes.data(), hws);
+    for (int radius : {0, 1})
+      for (bool refined : {true, false})
+        for (SimdLevel level : supported_simd_levels()) {
+          SCOPED_TRACE(::testing::Message() << points << " points, lsh " << lsh << ", radius " << radius << ", refined "
+                                            << refined << ", " << to_string(level));
+          CascadeSearchOptions o;
+          o.lut_radius = radius;
+          o.refined = refined;
+          o.prioritize = false;
+          o.simd = level;
+          CascadeMatches expected;
+          expected.clear();
+          for (uint32_t f = 0; f < q.rows(); ++f) reference_search(t, buckets, q, f, codes[f], o, expected);
+          ASSERT_GT(expected.query.size(), 20u);
+          CascadeMatches m;
+          CascadeMatcher(t.view(), t.codebook).match_hashed(q, codes, o, m);
+          EXPECT_EQ(m.query, expected.query);
+          EXPECT_EQ(m.point, expected.point);
+          EXPECT_EQ(m.distance, expected.distance);
+          EXPECT_EQ(m.many_query, expected.many_query);
+          EXPECT_EQ(m.many_offsets, expected.many_offsets);
+          EXPECT_EQ(m.many_points, expected.many_points);
+          EXPECT_EQ(m.many_distances, expected.many_distances);
+        }
   }
 }
 

@@ -111,15 +111,31 @@ void hash_codes_u8_scalar(const QuantizedHashProjection& q, const uint8_t* x, si
 
 // ---- x86-64: POPCNT + AVX2 -----------------------------------------------------
 
+// Two candidates per step into two histograms, added at the end: neighbouring
+// candidates often share a distance, and one histogram would chain their
+// increments through memory.
 __attribute__((target("popcnt"))) void hamming_popcnt(const HashCode& q, const HashCode* codes, const uint32_t* ids,
                                                        size_t n, uint8_t* out, uint32_t* hist) {
   const uint64_t q0 = q.w[0], q1 = q.w[1];
-  for (size_t i = 0; i < n; ++i) {
+  uint32_t odd_hist[kHashBits + 1] = {};
+  size_t i = 0;
+  for (; i + 2 <= n; i += 2) {
+    const HashCode& a = codes[ids[i]];
+    const HashCode& b = codes[ids[i + 1]];
+    const uint32_t da = static_cast<uint32_t>(__builtin_popcountll(q0 ^ a.w[0]) + __builtin_popcountll(q1 ^ a.w[1]));
+    const uint32_t db = static_cast<uint32_t>(__builtin_popcountll(q0 ^ b.w[0]) + __builtin_popcountll(q1 ^ b.w[1]));
+    out[i] = static_cast<uint8_t>(da);
+    out[i + 1] = static_cast<uint8_t>(db);
+    ++hist[da];
+    ++odd_hist[db];
+  }
+  if (i < n) {
     const HashCode& c = codes[ids[i]];
     const uint32_t d = static_cast<uint32_t>(__builtin_popcountll(q0 ^ c.w[0]) + __builtin_popcountll(q1 ^ c.w[1]));
     out[i] = static_cast<uint8_t>(d);
     ++hist[d];
   }
+  for (int d = 0; d <= kHashBits; ++d) hist[d] += odd_hist[d];
 }
 
 // Four blocks of 8 centroids at a time: independent sums, so the adds of
