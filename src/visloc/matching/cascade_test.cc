@@ -671,23 +671,34 @@ namespace {
 // repeats; when there are more than L_R, the candidates below the L_R-th
 // Hamming distance and the first ones at it, in candidate order; the scalar
 // ADC distances (direct up to 160 ranked, by the table above); a stable sort;
-// the best-ratio rule. Appends to `out` as the search does.
-void reference_search(const TestIndex& t, const std::vector<std::vector<std::vector<uint32_t>>>& buckets,
-                      const DescriptorMatrix& q, uint32_t f, const HashCode& code, const CascadeSearchOptions& o,
-                      CascadeMatches& out) {
+// the best-ratio rule. Appends to `out` as the search does, with its
+// statistics; `most_ranked` is the longest ranked list. The ADC distances come
+// from the library's scalar kernels, and the 160 is the search's switch to
+// the table path: floats must agree to the bit, and the two paths round
+// differently. `keyed[k]` holds (subcode << 32 | point) of every point for
+// table k, sorted.
+void reference_search(const TestIndex& t, const std::vector<std::vector<uint64_t>>& keyed, const DescriptorMatrix& q,
+                      uint32_t f, const HashCode& code, const CascadeSearchOptions& o, CascadeMatches& out,
+                      size_t& most_ranked) {
   std::vector<uint32_t> candidates;
   std::vector<bool> seen(t.codes.size());
   size_t listed = 0;
   for (int k = 0; k < kHashTables; ++k) {
     const uint32_t key = hash_subcode(code, k);
     for (int b = 0; b <= (o.lut_radius == 1 ? kHashTableBits : 0); ++b) {
-      for (uint32_t p : buckets[k][b == 0 ? key : key ^ (1u << (b - 1))]) {
+      const uint64_t bucket = b == 0 ? key : key ^ (1u << (b - 1));
+      auto it = std::lower_bound(keyed[k].begin(), keyed[k].end(), bucket << 32);
+      for (; it != keyed[k].end() && (*it >> 32) == bucket; ++it) {
+        const uint32_t p = static_cast<uint32_t>(*it & 0xffffffffu);
         ++listed;
         if (!seen[p]) seen[p] = true, candidates.push_back(p);
       }
     }
   }
-  if (listed < 2 || candidates.size() < 2) return;
+  if (listed < 2) return;
+  ++out.stats.features_searched;
+  out.stats.coarse_candidates += candidates.size();
+  if (candidates.size() < 2) return;
   std::vector<uint32_t> ranked = candidates;
   if (o.refined && candidates.size() > size_t(o.refined_list)) {
     std::vector<uint32_t> h;
@@ -700,6 +711,8 @@ void reference_search(const TestIndex& t, const std::vector<std::vector<std::vec
     for (size_t i = 0; i < candidates.size(); ++i)
       if (h[i] < cut || (h[i] == cut && at_cut > 0 && at_cut--)) ranked.push_back(candidates[i]);
   }
+  out.stats.ranked_candidates += ranked.size();
+  most_ranked = std::max(most_ranked, ranked.size());
   float qf[kDescriptorDim];
   for (int j = 0; j < kDescriptorDim; ++j) qf[j] = q.row(f)[j];
   std::vector<float> d(ranked.size());
@@ -734,18 +747,21 @@ void reference_search(const TestIndex& t, const std::vector<std::vector<std::vec
 
 // The optimized search (branch-free gather, byte deduplication, counting-sort
 // shortlist, insertion into the nearest) returns exactly what the plain
-// definition does: the guard for any later change of the search loop that is
-// meant to be lossless. Segments with crowded buckets (clustered descriptors,
-// LSH codes) and with 32-bit ids, at both radii, with and without the refined
-// step, at every kernel level.
+// definition does, in index order with the best-ratio rule (the prioritized
+// order, early stop and group rule are tested above): the guard for any later
+// change of the search loop that is meant to be lossless. Segments with
+// crowded buckets (clustered descriptors, LSH codes) and with 32-bit ids, at
+// both radii, with and without the refined step (so both ADC paths), at every
+// kernel level.
 TEST(CascadeSearch, SameMatchesAsThePlainDefinition) {
   for (const auto& [points, lsh] : {std::pair<size_t, bool>{5000, false}, {4500, true}, {66000, false}}) {
     DescriptorMatrix db = clustered_descriptors(points, 31, 12);
     TestIndex t = make_index(db, lsh, 5000);
-    std::vector<std::vector<std::vector<uint32_t>>> buckets(kHashTables,
-                                                            std::vector<std::vector<uint32_t>>(kHashBuckets));
-    for (uint32_t p = 0; p < t.codes.size(); ++p)
-      for (int k = 0; k < kHashTables; ++k) buckets[k][hash_subcode(t.codes[p], k)].push_back(p);
+    std::vector<std::vector<uint64_t>> keyed(kHashTables);
+    for (int k = 0; k < kHashTables; ++k) {
+      for (uint32_t p = 0; p < t.codes.size(); ++p) keyed[k].push_back(uint64_t(hash_subcode(t.codes[p], k)) << 32 | p);
+      std::sort(keyed[k].begin(), keyed[k].end());
+    }
     std::vector<size_t> rows;
     for (size_t i = 0; i < 150; ++i) rows.push_back(i * 11 % db.rows());
     const DescriptorMatrix q = perturbed(db, rows, 12, 32);
@@ -753,19 +769,25 @@ TEST(CascadeSearch, SameMatchesAsThePlainDefinition) {
     HashWorkspace hws;
     encode_hash(t.hasher.view(), q.data(), q.rows(), codes.data(), hws);
     for (int radius : {0, 1})
-      for (bool refined : {true, false})
+      for (bool refined : {true, false}) {
+        SCOPED_TRACE(::testing::Message()
+                     << points << " points, lsh " << lsh << ", radius " << radius << ", refined " << refined);
+        CascadeSearchOptions o;
+        o.lut_radius = radius;
+        o.refined = refined;
+        o.prioritize = false;
+        CascadeMatches expected;
+        expected.clear();
+        size_t most_ranked = 0;
+        for (uint32_t f = 0; f < q.rows(); ++f) reference_search(t, keyed, q, f, codes[f], o, expected, most_ranked);
+        ASSERT_GT(expected.query.size(), 20u);
+        // Not vacuous: the refined step trims lists, and without it some
+        // feature ranks more than 160 candidates (the ADC table path).
+        if (refined) EXPECT_LT(expected.stats.ranked_candidates, expected.stats.coarse_candidates);
+        if (!refined && radius == 1) EXPECT_GT(most_ranked, 160u);
         for (SimdLevel level : supported_simd_levels()) {
-          SCOPED_TRACE(::testing::Message() << points << " points, lsh " << lsh << ", radius " << radius << ", refined "
-                                            << refined << ", " << to_string(level));
-          CascadeSearchOptions o;
-          o.lut_radius = radius;
-          o.refined = refined;
-          o.prioritize = false;
+          SCOPED_TRACE(to_string(level));
           o.simd = level;
-          CascadeMatches expected;
-          expected.clear();
-          for (uint32_t f = 0; f < q.rows(); ++f) reference_search(t, buckets, q, f, codes[f], o, expected);
-          ASSERT_GT(expected.query.size(), 20u);
           CascadeMatches m;
           CascadeMatcher(t.view(), t.codebook).match_hashed(q, codes, o, m);
           EXPECT_EQ(m.query, expected.query);
@@ -775,7 +797,11 @@ TEST(CascadeSearch, SameMatchesAsThePlainDefinition) {
           EXPECT_EQ(m.many_offsets, expected.many_offsets);
           EXPECT_EQ(m.many_points, expected.many_points);
           EXPECT_EQ(m.many_distances, expected.many_distances);
+          EXPECT_EQ(m.stats.features_searched, expected.stats.features_searched);
+          EXPECT_EQ(m.stats.coarse_candidates, expected.stats.coarse_candidates);
+          EXPECT_EQ(m.stats.ranked_candidates, expected.stats.ranked_candidates);
         }
+      }
   }
 }
 

@@ -241,8 +241,12 @@ __attribute__((target("avx2"))) void hash_codes_avx2(const float* wt, const floa
 // Lanes are the 8 dimensions: each centroid row is one 8-float load, the
 // sub-vectors accumulate into two registers (even and odd m), and one
 // horizontal sum per candidate follows adc_direct_scalar's tree.
-__attribute__((target("avx2"))) void adc_direct_avx2(const float* c, const float* q, const uint8_t* pq,
-                                                     const uint32_t* ids, size_t n, float* out) {
+// The body of adc_direct_avx2, also compiled into the AVX-512 level's
+// function, where 32 vector registers hold the query's 16 sub-vectors and the
+// accumulators without spilling (AVX2 has 16).
+__attribute__((target("avx2"), always_inline)) inline void adc_direct_ymm(const float* c, const float* q,
+                                                                          const uint8_t* pq, const uint32_t* ids,
+                                                                          size_t n, float* out) {
   __m256 qm[kPqSubvectors];
   for (int m = 0; m < kPqSubvectors; ++m) qm[m] = _mm256_loadu_ps(q + m * kPqSubDim);
   constexpr size_t kAhead = 4;  // the codes of a later candidate are fetched while this one is summed
@@ -263,6 +267,11 @@ __attribute__((target("avx2"))) void adc_direct_avx2(const float* c, const float
     const __m128 g = _mm_add_ps(h, _mm_movehl_ps(h, h));                                  // (h0+h2, h1+h3)
     out[i] = _mm_cvtss_f32(_mm_add_ss(g, _mm_shuffle_ps(g, g, 1)));
   }
+}
+
+__attribute__((target("avx2"))) void adc_direct_avx2(const float* c, const float* q, const uint8_t* pq,
+                                                     const uint32_t* ids, size_t n, float* out) {
+  adc_direct_ymm(c, q, pq, ids, n, out);
 }
 
 // Blocks of 4 rows × 16 outputs (8 accumulators of 8 int32): per pair of
@@ -314,6 +323,12 @@ __attribute__((target("avx2"))) void hash_codes_u8_avx2(const QuantizedHashProje
 }
 
 // ---- x86-64: AVX-512F ------------------------------------------------------------
+
+// adc_direct_avx2's code with AVX-512VL's 32 vector registers.
+__attribute__((target("avx512f,avx512vl"))) void adc_direct_avx512(const float* c, const float* q, const uint8_t* pq,
+                                                                   const uint32_t* ids, size_t n, float* out) {
+  adc_direct_ymm(c, q, pq, ids, n, out);
+}
 
 __attribute__((target("avx512f"))) void adc_table_avx512(const float* ct, const float* q, float* table) {
   for (int m = 0; m < kPqSubvectors; ++m) {
@@ -439,7 +454,7 @@ constexpr SearchKernels kScalarKernels{SimdLevel::kScalar, hamming_scalar,    ad
 constexpr SearchKernels kAvx2Kernels{SimdLevel::kAvx2, hamming_popcnt,  adc_table_avx2,    adc_distances_avx2,
                                      adc_direct_avx2,  hash_codes_avx2, hash_codes_u8_avx2};
 constexpr SearchKernels kAvx512Kernels{SimdLevel::kAvx512, hamming_popcnt,    adc_table_avx512,    adc_distances_avx512,
-                                       adc_direct_avx2,    hash_codes_avx512, hash_codes_u8_avx512};
+                                       adc_direct_avx512,  hash_codes_avx512, hash_codes_u8_avx512};
 #endif
 
 SimdLevel best_level() {
@@ -474,7 +489,7 @@ bool cpu_supports(SimdLevel level) {
     case SimdLevel::kAvx2: return __builtin_cpu_supports("popcnt") && __builtin_cpu_supports("avx2");
     case SimdLevel::kAvx512:
       return __builtin_cpu_supports("popcnt") && __builtin_cpu_supports("avx2") && __builtin_cpu_supports("avx512f") &&
-             __builtin_cpu_supports("avx512bw");
+             __builtin_cpu_supports("avx512bw") && __builtin_cpu_supports("avx512vl");
 #else
     default: return false;
 #endif

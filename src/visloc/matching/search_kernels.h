@@ -1,6 +1,6 @@
 // The per-candidate kernels of the cascade search, each in a portable scalar
 // reference and in SIMD variants chosen at run time from what the CPU has
-// (x86-64: POPCNT + AVX2, AVX-512F + BW; any other CPU, e.g. aarch64: the
+// (x86-64: POPCNT + AVX2, AVX-512F + BW + VL; any other CPU, e.g. aarch64: the
 // reference, whose std::popcount is already a hardware instruction there).
 // The default build targets baseline x86-64, so only the variant functions
 // are compiled for the newer instruction sets (GCC target attributes).
@@ -49,7 +49,7 @@ enum class SimdLevel {
   kBest,    // the best level this CPU supports (chosen once, at first use)
   kScalar,  // portable reference
   kAvx2,    // x86-64 with POPCNT, AVX2
-  kAvx512,  // x86-64 with POPCNT, AVX-512F and AVX-512BW
+  kAvx512,  // x86-64 with POPCNT, AVX-512F, AVX-512BW and AVX-512VL
 };
 const char* to_string(SimdLevel level);
 // Parses "best", "scalar", "avx2", "avx512"; throws kInvalidArgument.
