@@ -242,8 +242,9 @@ __attribute__((target("avx2"))) void hash_codes_avx2(const float* wt, const floa
 // sub-vectors accumulate into two registers (even and odd m), and one
 // horizontal sum per candidate follows adc_direct_scalar's tree.
 // The body of adc_direct_avx2, also compiled into the AVX-512 level's
-// function, where 32 vector registers hold the query's 16 sub-vectors and the
-// accumulators without spilling (AVX2 has 16).
+// function, where 32 vector registers hold the query's sub-vectors and the
+// accumulators with at most one reload per candidate (AVX2 has 16 registers,
+// and reloads most of the 16 sub-vectors from the stack).
 __attribute__((target("avx2"), always_inline)) inline void adc_direct_ymm(const float* c, const float* q,
                                                                           const uint8_t* pq, const uint32_t* ids,
                                                                           size_t n, float* out) {
