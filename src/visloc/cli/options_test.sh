@@ -23,6 +23,8 @@ done
 check --min-confidence localize --map /nonexistent --min-confidence 1.5 q.jpg
 check --vote-points localize --map /nonexistent --vote-points -1 q.jpg
 check --vote-radius localize --map /nonexistent --vote-radius 2 q.jpg
+check --vote-ratio localize --map /nonexistent --vote-ratio 1.5 q.jpg
+check --vote-ratio localize --map /nonexistent --vote-ratio nan q.jpg
 check --segment-votes localize --map /nonexistent --segment-votes pixels q.jpg
 rm -f /tmp/visloc_options_test.$$
 [ "$status" = 0 ] && echo "all numeric options refuse NaN and bad ranges"

@@ -557,6 +557,7 @@ nlohmann::json city_report_json(const fs::path& city_dir, const CityBenchmarkOpt
         {"point_vote_index_bytes", t.point_vote_bytes},
         {"points_per_segment", opt.localizer.point_votes.points_per_segment},
         {"probe_radius", opt.localizer.point_votes.probe_radius},
+        {"distinct_ratio", opt.localizer.point_votes.distinct_ratio},
         {"normalize_by_chance", opt.localizer.point_votes.normalize_by_chance}}},
       {"positives", pose_summary(t.positives.errors_m, t.positives.count, t.positives.registered, t.positives.wrong)},
       {"negatives_unmapped_streets",
@@ -654,7 +655,8 @@ std::string city_report_markdown(const nlohmann::json& report, const CityBenchma
          : t.image_votes                ? "image votes"
                                         : "nothing: every segment is searched")
      << (t.point_votes ? "; point-vote index " + std::to_string((t.point_vote_bytes + 512 * 1024) / (1024 * 1024)) +
-                             " MiB, probe radius " + std::to_string(opt.localizer.point_votes.probe_radius)
+                             " MiB, probe radius " + std::to_string(opt.localizer.point_votes.probe_radius) +
+                             ", ratio " + std::to_string(opt.localizer.point_votes.distinct_ratio).substr(0, 4)
                        : std::string())
      << "): the true segment is among the " << opt.localizer.max_segments << " candidates searched first for "
      << t.retrieval_hits << "/" << t.positives.count << " positives";

@@ -33,6 +33,11 @@ void add_options(OptionTable& t, LocalizerOptions& o) {
         "skipped an overfull bucket; finds matches that differ in more bits; its buckets are skipped above a "
         "sixteenth of the bucket bound)")
       .range(0, 1);
+  t.add("--vote-ratio", o.point_votes.distinct_ratio,
+        "Point votes: a feature votes only when its nearest map point is nearer (Hamming bits) than this "
+        "times the nearest point of any segment that shares no image with that point's (Lowe's ratio test "
+        "across segments: a facade that looks like other streets' does not vote); 1: every feature votes")
+      .range(0.01, 1.0);
   t.flag("--vote-chance-normalization", o.point_votes.normalize_by_chance,
          "Point votes: divide each segment's votes by its rate of chance votes from unrelated segments' points");
   t.add("--accept-inliers", o.accept_inliers,

@@ -16,6 +16,8 @@ void SegmentPointVoteOptions::validate() const {
   if (max_bucket < 1) throw_error(ErrorCode::kInvalidArgument, "max_bucket must be >= 1, got ", max_bucket);
   if (probe_radius < 0 || probe_radius > 1)
     throw_error(ErrorCode::kInvalidArgument, "vote_radius (probe radius) must be 0 or 1, got ", probe_radius);
+  if (!(distinct_ratio > 0 && distinct_ratio <= 1))
+    throw_error(ErrorCode::kInvalidArgument, "vote_ratio (distinct_ratio) must be in (0, 1], got ", distinct_ratio);
 }
 
 SegmentPointVotes::SegmentPointVotes(const SegmentPointVoteOptions& options) : options_(options) {
@@ -40,47 +42,111 @@ void SegmentPointVotes::add_segment(uint32_t segment, std::span<const HashCode> 
 
 void SegmentPointVotes::finalize(const std::vector<std::vector<uint32_t>>& related) {
   lookup_ = CascadeLookup(codes_, /*neighbourhood_sizes=*/false);  // votes probe buckets, they do not order by size
+  related_.assign(max_segment_plus_one_, {});
+  for (size_t s = 0; s < related.size() && s < related_.size(); ++s) {
+    related_[s] = related[s];
+    std::sort(related_[s].begin(), related_[s].end());
+  }
   weight_.assign(max_segment_plus_one_, 1.0f);
   if (options_.normalize_by_chance) compute_chance_weights(related);
   finalized_ = true;
 }
 
 size_t SegmentPointVotes::memory_bytes() const {
-  return codes_.capacity() * sizeof(HashCode) + segment_of_.capacity() * sizeof(uint32_t) + lookup_.memory_bytes();
+  size_t related_entries = 0;
+  for (const auto& r : related_) related_entries += r.capacity();
+  return codes_.capacity() * sizeof(HashCode) + segment_of_.capacity() * sizeof(uint32_t) + lookup_.memory_bytes() +
+         related_entries * sizeof(uint32_t);
+}
+
+bool SegmentPointVotes::related(uint32_t a, uint32_t b) const {
+  return a < related_.size() && std::binary_search(related_[a].begin(), related_[a].end(), b);
 }
 
 // The nearest points of one query feature: their distance and the distinct
 // segments that hold one at that distance (at most kMaxTies; more are a
-// feature seen everywhere, and its vote is split among those kept).
+// feature seen everywhere, and its vote is split among those kept); and,
+// for the distinctiveness test, each segment's nearest point within the
+// bound (the kMaxSegments nearest segments).
 struct SegmentPointVotes::Nearest {
   static constexpr int kMaxTies = 16;
+  static constexpr int kMaxSegments = 32;
   uint32_t bound = 0;
   uint32_t distance = 0;
+  // Points farther than this need not be offered: the nearest so far; with
+  // the distinctiveness test, the farthest rival that could still fail it
+  // (d1 ≤ d0 / ratio; one more bit for the float rounding of the test).
+  uint32_t cut = 0;
+  bool per_segment = false;
+  float ratio = 1;
   int count = 0;
   uint32_t segments[kMaxTies];
+  int listed = 0;
+  uint32_t listed_segment[kMaxSegments], listed_distance[kMaxSegments];
 
-  void reset(uint32_t max_distance) {
-    bound = distance = max_distance;
-    count = 0;
+  void reset(uint32_t max_distance, float distinct_ratio) {
+    bound = distance = cut = max_distance;
+    ratio = distinct_ratio;
+    per_segment = distinct_ratio < 1.0f;
+    count = listed = 0;
   }
   void offer(uint32_t d, uint32_t segment) {
-    if (d > distance || d > bound) return;
+    if (d > bound) return;
+    if (per_segment) list(d, segment);
+    if (d > distance) return;
     if (d < distance) {
       distance = d;
       count = 0;
+      cut = per_segment ? std::min(bound, static_cast<uint32_t>(static_cast<float>(d) / ratio) + 1) : d;
     }
     for (int i = 0; i < count; ++i)
       if (segments[i] == segment) return;
     if (count < kMaxTies) segments[count++] = segment;
   }
+  void list(uint32_t d, uint32_t segment) {
+    for (int i = 0; i < listed; ++i)
+      if (listed_segment[i] == segment) {
+        listed_distance[i] = std::min(listed_distance[i], d);
+        return;
+      }
+    if (listed < kMaxSegments) {
+      listed_segment[listed] = segment;
+      listed_distance[listed++] = d;
+      return;
+    }
+    int farthest = 0;
+    for (int i = 1; i < kMaxSegments; ++i)
+      if (listed_distance[i] > listed_distance[farthest]) farthest = i;
+    if (d < listed_distance[farthest]) {
+      listed_segment[farthest] = segment;
+      listed_distance[farthest] = d;
+    }
+  }
 };
+
+bool SegmentPointVotes::distinctive(const Nearest& n) const {
+  if (options_.distinct_ratio >= 1.0f) return true;
+  // d1: the nearest rival, a point of a segment that is neither one of the
+  // nearest's nor related to one; none within the bound passes.
+  bool rival = false;
+  uint32_t d1 = 0;
+  for (int i = 0; i < n.listed; ++i) {
+    const uint32_t s = n.listed_segment[i];
+    bool near_one = false;
+    for (int k = 0; k < n.count && !near_one; ++k) near_one = s == n.segments[k] || related(n.segments[k], s);
+    if (near_one || (rival && n.listed_distance[i] >= d1)) continue;
+    rival = true;
+    d1 = n.listed_distance[i];
+  }
+  return !rival || static_cast<float>(n.distance) < options_.distinct_ratio * static_cast<float>(d1);
+}
 
 // VISLOC_POPCNT_CLONES (binary_hasher.h): the Hamming distances' popcount is
 // one instruction where the CPU has POPCNT, as in the cascade search.
 
 VISLOC_POPCNT_CLONES
 bool SegmentPointVotes::nearest(const HashCode& q, const uint8_t* excluded, Nearest& out, size_t& compared) const {
-  out.reset(static_cast<uint32_t>(options_.max_hamming));
+  out.reset(static_cast<uint32_t>(options_.max_hamming), excluded ? 1.0f : options_.distinct_ratio);
   bool skipped_a_bucket = false;
   for (int t = 0; t < kHashTables; ++t)
     skipped_a_bucket |= !probe_bucket(t, hash_subcode(q, t), q, excluded, out, compared, options_.max_bucket);
@@ -101,15 +167,16 @@ bool SegmentPointVotes::nearest(const HashCode& q, const uint8_t* excluded, Near
 }
 
 // A point's segment is read only when its distance could be offered (the
-// nearest so far or a tie): most points of a bucket are farther.
+// nearest so far or a tie; within the bound for the distinctiveness test):
+// most points of a bucket are farther.
 template <typename Id>
 inline void offer_bucket(const Id* ids, uint32_t begin, uint32_t end, const HashCode& q, const HashCode* codes,
-                         const uint32_t* segment_of, const uint8_t* excluded, uint32_t& distance,
+                         const uint32_t* segment_of, const uint8_t* excluded, const uint32_t& cut,
                          std::invocable<uint32_t, uint32_t> auto&& offer) {
   for (uint32_t i = begin; i < end; ++i) {
     const uint32_t id = ids[i];
     const uint32_t d = hamming_distance(q, codes[id]);
-    if (d > distance) continue;
+    if (d > cut) continue;
     const uint32_t segment = segment_of[id];
     if (excluded && excluded[segment]) continue;
     offer(d, segment);
@@ -124,9 +191,9 @@ inline bool SegmentPointVotes::probe_bucket(int table, uint32_t key, const HashC
   compared += end - begin;
   auto offer = [&out](uint32_t d, uint32_t segment) { out.offer(d, segment); };
   if (lookup_.uses_16bit_ids())
-    offer_bucket(lookup_.ids16(table), begin, end, q, codes_.data(), segment_of_.data(), excluded, out.distance, offer);
+    offer_bucket(lookup_.ids16(table), begin, end, q, codes_.data(), segment_of_.data(), excluded, out.cut, offer);
   else
-    offer_bucket(lookup_.ids32(table), begin, end, q, codes_.data(), segment_of_.data(), excluded, out.distance, offer);
+    offer_bucket(lookup_.ids32(table), begin, end, q, codes_.data(), segment_of_.data(), excluded, out.cut, offer);
   return true;
 }
 
@@ -185,10 +252,12 @@ void SegmentPointVotes::vote(std::span<const HashCode> query, std::vector<float>
   Nearest best;
   for (const HashCode& q : query) {
     if (nearest(q, nullptr, best, compared)) {
-      const float share = 1.0f / static_cast<float>(best.count);
-      for (int i = 0; i < best.count; ++i) scratch[best.segments[i]] += share;
-      out.total_votes += 1.0f;
       out.feature_segments.insert(out.feature_segments.end(), best.segments, best.segments + best.count);
+      if (distinctive(best)) {
+        const float share = 1.0f / static_cast<float>(best.count);
+        for (int i = 0; i < best.count; ++i) scratch[best.segments[i]] += share;
+        out.total_votes += 1.0f;
+      }
     }
     out.feature_offsets.push_back(static_cast<uint32_t>(out.feature_segments.size()));
   }

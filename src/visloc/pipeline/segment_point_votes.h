@@ -36,6 +36,17 @@
 // Buckets larger than `max_bucket` points are skipped: such a sub-code is
 // shared by a large part of the map and says little, and it would dominate
 // the time.
+//
+// Distinctive votes only (`distinct_ratio`, Lowe's ratio test across
+// segments): a feature votes only when its nearest point, at d0 bits, is
+// clearly nearer than the nearest point, at d1, of every segment unrelated to
+// the nearest's (sharing no image with it: overlapping segments hold the same
+// physical points), d0 < distinct_ratio × d1, both among the probed buckets;
+// a feature with no such point within max_hamming votes. A facade that
+// looks like those of other streets (windows, doors, generic texture) gives
+// near-equal distances in several unrelated segments and no vote, where it
+// gave one to whichever happened to be nearest: votes that make the ranking
+// of a query with few distinctive features a lottery.
 #pragma once
 
 #include <cstdint>
@@ -62,6 +73,10 @@ struct SegmentPointVoteOptions {
   // [1/4, 4]. A segment whose codes are near everything (a hub) otherwise
   // collects votes from every query.
   bool normalize_by_chance = false;
+  // A vote needs d0 < distinct_ratio × d1 (above); 1: every feature with a
+  // point within max_hamming votes (as before). 0.8 is the 1-1 ratio of the
+  // cascade search (ν_h, Lowe's), not fitted here.
+  float distinct_ratio = 0.8f;
   void validate() const;          // throws Error(kInvalidArgument) naming the field
 };
 
@@ -74,11 +89,13 @@ struct SegmentPointVoteResult {
   std::vector<SegmentPointVote> segments;  // every segment with a vote, most votes first (ties: lower id)
   float total_votes = 0;                   // query features that voted
   size_t candidates_compared = 0;          // Hamming distances computed
-  // Per query feature i, the segments its vote went to (the ties at the
-  // nearest distance): feature_segments[feature_offsets[i] ..
-  // feature_offsets[i + 1]), empty when it did not vote. For the confidence's
-  // "elsewhere" input (confidence.h): a pose's inlier whose feature's nearest
-  // map point lies in an unrelated segment.
+  // Per query feature i, the segments of its nearest points (the ties at the
+  // nearest distance), where its vote went if it was distinctive:
+  // feature_segments[feature_offsets[i] .. feature_offsets[i + 1]), empty
+  // when no point is within max_hamming. For the confidence's "elsewhere"
+  // input (confidence.h): a pose's inlier whose feature's nearest map point
+  // lies in an unrelated segment (a copied building: such a feature is
+  // seldom distinctive, so the nearest is kept whether or not it voted).
   std::vector<uint32_t> feature_offsets;
   std::vector<uint32_t> feature_segments;
   std::span<const uint32_t> segments_of_feature(size_t i) const {
@@ -93,7 +110,8 @@ class SegmentPointVotes {
   // finalize() once every segment is added; segment ids need not be dense.
   void add_segment(uint32_t segment, std::span<const HashCode> codes);
   // `related[s]`: segments that may hold the same physical points as s (they
-  // share images), left out of s's chance votes; only with normalize_by_chance.
+  // share images): left out of s's chance votes (normalize_by_chance) and of
+  // the distinctiveness test's d1 for a feature nearest to s.
   void finalize(const std::vector<std::vector<uint32_t>>& related = {});
   // Per segment: the factor its votes are multiplied by (1 without normalization).
   const std::vector<float>& segment_weights() const { return weight_; }
@@ -114,15 +132,19 @@ class SegmentPointVotes {
   uint32_t max_segment_plus_one_ = 0;
   CascadeLookup lookup_;
   std::vector<float> weight_;
-  // The nearest indexed points' distance and segments (ties) of one code,
-  // skipping segments with excluded[s] != 0 (null: none); false when none is
-  // within max_hamming.
+  std::vector<std::vector<uint32_t>> related_;  // per segment, sorted
+  // The nearest indexed points' distance and segments (ties) of one code, and
+  // each segment's nearest within max_hamming, skipping segments with
+  // excluded[s] != 0 (null: none); false when none is within max_hamming.
   struct Nearest;
   bool nearest(const HashCode& q, const uint8_t* excluded, Nearest& out, size_t& compared) const;
   // Offers the points of bucket `key` of `table`; false (nothing offered) when
   // it holds more than max_bucket points.
   inline bool probe_bucket(int table, uint32_t key, const HashCode& q, const uint8_t* excluded, Nearest& out,
                            size_t& compared, int max_bucket) const;
+  // Whether the nearest point of `n` is distinctive (distinct_ratio).
+  bool distinctive(const Nearest& n) const;
+  bool related(uint32_t a, uint32_t b) const;
   void compute_chance_weights(const std::vector<std::vector<uint32_t>>& related);
   bool finalized_ = false;
 };

@@ -121,6 +121,75 @@ TEST(SegmentPointVotes, FarFeaturesDoNotVoteAndTiesAreSplit) {
   EXPECT_FLOAT_EQ(votes_of(r, 0), 1);
 }
 
+// `code` with bits [from, to) flipped (outside table 0's sub-code, bits 0-15,
+// the point stays in the feature's table-0 bucket).
+HashCode flip_bits(HashCode code, int from, int to) {
+  for (int bit = from; bit < to; ++bit) code.w[bit >> 6] ^= uint64_t(1) << (bit & 63);
+  return code;
+}
+
+TEST(SegmentPointVotes, OnlyDistinctiveFeaturesVote) {
+  RandomGenerator rng(13);
+  std::vector<HashCode> a = random_codes(500, rng), b = random_codes(500, rng);
+  // A facade of segment 0 with a look-alike in segment 1: the feature is 10
+  // bits from a[3] and 12 from b[7] (10 < 0.8 × 12 fails), while a[4]'s
+  // feature, 4 bits off, has no point of another segment within the bound.
+  b[7] = flip_bits(a[3], 100, 102);
+  const HashCode look_alike = flip_bits(a[3], 16, 26);
+  const HashCode distinct = flip_bits(a[4], 16, 20);
+  const HashCode query[] = {look_alike, distinct};
+  std::vector<float> scratch;
+  SegmentPointVoteResult r;
+
+  SegmentPointVotes votes({.points_per_segment = 0});
+  EXPECT_FLOAT_EQ(votes.options().distinct_ratio, 0.8f);  // the default
+  votes.add_segment(0, a);
+  votes.add_segment(1, b);
+  votes.finalize();
+  votes.vote(query, scratch, r);
+  EXPECT_FLOAT_EQ(r.total_votes, 1);
+  EXPECT_FLOAT_EQ(votes_of(r, 0), 1);
+  EXPECT_FLOAT_EQ(votes_of(r, 1), 0);
+  // Both features keep their nearest point's segment (the confidence's
+  // 'elsewhere' input reads it), voted or not.
+  ASSERT_EQ(r.feature_offsets.size(), 3u);
+  for (size_t f : {0, 1}) {
+    ASSERT_EQ(r.segments_of_feature(f).size(), 1u) << f;
+    EXPECT_EQ(r.segments_of_feature(f)[0], 0u) << f;
+  }
+
+  // Without the test, the look-alike votes for its nearest point's segment.
+  SegmentPointVotes every({.points_per_segment = 0, .distinct_ratio = 1.0f});
+  every.add_segment(0, a);
+  every.add_segment(1, b);
+  every.finalize();
+  every.vote(query, scratch, r);
+  EXPECT_FLOAT_EQ(r.total_votes, 2);
+  EXPECT_FLOAT_EQ(votes_of(r, 0), 2);
+
+  // Segments that share images may hold the same point: a look-alike there
+  // is not a rival (the look-alike's vote is back).
+  SegmentPointVotes overlapping({.points_per_segment = 0});
+  overlapping.add_segment(0, a);
+  overlapping.add_segment(1, b);
+  overlapping.finalize({{1}, {0}});
+  overlapping.vote(query, scratch, r);
+  EXPECT_FLOAT_EQ(r.total_votes, 2);
+  EXPECT_FLOAT_EQ(votes_of(r, 0), 2);
+
+  // A rival clearly farther passes: 10 bits against 14 (10 < 11.2).
+  b[7] = flip_bits(a[3], 100, 104);
+  SegmentPointVotes farther({.points_per_segment = 0});
+  farther.add_segment(0, a);
+  farther.add_segment(1, b);
+  farther.finalize();
+  farther.vote(query, scratch, r);
+  EXPECT_FLOAT_EQ(votes_of(r, 0), 2);
+
+  EXPECT_THROW(SegmentPointVotes({.distinct_ratio = 0.0f}), Error);
+  EXPECT_THROW(SegmentPointVotes({.distinct_ratio = 1.5f}), Error);
+}
+
 TEST(SegmentPointVotes, RadiusOneFindsPointsThatDifferInEverySubCode) {
   RandomGenerator rng(29);
   const std::vector<HashCode> a = random_codes(1000, rng);

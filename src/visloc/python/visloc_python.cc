@@ -237,6 +237,7 @@ void take_localizer_options(Kwargs& k, LocalizerOptions& o) {
   k.take("vote_points", o.point_votes.points_per_segment);
   k.take("vote_chance_normalization", o.point_votes.normalize_by_chance);
   k.take("vote_radius", o.point_votes.probe_radius);
+  k.take("vote_ratio", o.point_votes.distinct_ratio);
   k.take("accept_inliers", o.accept_inliers);
   k.take("early_stop", o.search.early_stop);
   k.take("full_search_fallback", o.full_search_fallback);
@@ -672,7 +673,7 @@ void bind_localizer(py::module_& m) {
 Localizer(map_dir, **options): options are LocalizerOptions fields, named as
 the `visloc localize` flags: setting ('1', '2', '3', '3+'), top_images,
 max_segments, fallback_segments, segment_votes ('auto', 'points', 'images',
-'both'), vote_points, vote_radius, vote_chance_normalization, accept_inliers, early_stop, full_search_fallback, threshold_px,
+'both'), vote_points, vote_radius, vote_ratio, vote_chance_normalization, accept_inliers, early_stop, full_search_fallback, threshold_px,
 min_inliers, min_confidence, use_exif_focal, seed, cache_mib, max_image_side,
 max_features, contrast_threshold, root_sift, max_pixels. OpenCV's thread count,
 which SIFT uses, is process-wide: see visloc.set_opencv_threads.

@@ -73,6 +73,8 @@ def test_not_a_map_raises_format_error(tmp_path):
         ({"segment_votes": "pixels"}, ValueError, "segment_votes"),
         ({"vote_points": -1}, ValueError, "vote_points"),
         ({"vote_radius": 2}, ValueError, "vote_radius"),
+        ({"vote_ratio": 1.5}, ValueError, "vote_ratio"),
+        ({"vote_ratio": 0.0}, ValueError, "vote_ratio"),
         ({"top_images": "20"}, TypeError, "top_images"),
         ({"use_exif_focal": 1}, TypeError, "use_exif_focal"),
         ({"top_image": 20}, TypeError, "top_image"),
