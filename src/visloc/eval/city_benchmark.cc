@@ -557,7 +557,7 @@ nlohmann::json city_report_json(const fs::path& city_dir, const CityBenchmarkOpt
         {"point_vote_index_bytes", t.point_vote_bytes},
         {"points_per_segment", opt.localizer.point_votes.points_per_segment},
         {"probe_radius", opt.localizer.point_votes.probe_radius},
-        {"distinct_ratio", opt.localizer.point_votes.distinct_ratio},
+        {"distinct_ratio", std::round(double(opt.localizer.point_votes.distinct_ratio) * 1000) / 1000},
         {"normalize_by_chance", opt.localizer.point_votes.normalize_by_chance}}},
       {"positives", pose_summary(t.positives.errors_m, t.positives.count, t.positives.registered, t.positives.wrong)},
       {"negatives_unmapped_streets",
@@ -607,6 +607,15 @@ nlohmann::json city_report_json(const fs::path& city_dir, const CityBenchmarkOpt
 }
 
 // report.md.
+namespace {
+// `value` with `decimals` digits after the point.
+std::string fixed_text(double value, int decimals) {
+  std::ostringstream s;
+  s << std::fixed << std::setprecision(decimals) << value;
+  return s.str();
+}
+}  // namespace
+
 std::string city_report_markdown(const nlohmann::json& report, const CityBenchmarkOptions& opt,
                                  const CityMapSplit& split, const nlohmann::json& build_summary,
                                  const CityLocalizationTally& t, const CityQueryCounts& c) {
@@ -656,7 +665,7 @@ std::string city_report_markdown(const nlohmann::json& report, const CityBenchma
                                         : "nothing: every segment is searched")
      << (t.point_votes ? "; point-vote index " + std::to_string((t.point_vote_bytes + 512 * 1024) / (1024 * 1024)) +
                              " MiB, probe radius " + std::to_string(opt.localizer.point_votes.probe_radius) +
-                             ", ratio " + std::to_string(opt.localizer.point_votes.distinct_ratio).substr(0, 4)
+                             ", vote ratio " + fixed_text(opt.localizer.point_votes.distinct_ratio, 2)
                        : std::string())
      << "): the true segment is among the " << opt.localizer.max_segments << " candidates searched first for "
      << t.retrieval_hits << "/" << t.positives.count << " positives";

@@ -182,7 +182,8 @@ double ambiguous_inlier_share(std::span<const uint32_t> candidate_offsets, std::
                               double ratio);
 
 // The share of a pose's inliers seen elsewhere in the map: of the inliers
-// whose query feature voted (SegmentPointVoteResult: its nearest indexed map
+// whose query feature has a nearest point within the vote bound, whether or
+// not it was distinctive enough to vote (SegmentPointVoteResult: its nearest indexed map
 // point over every segment, by the map-wide hash codes; the index holds up
 // to points_per_segment evenly strided points of each segment, so a right
 // inlier's own point is often not in it, and keeps at most 16 tied
@@ -191,7 +192,7 @@ double ambiguous_inlier_share(std::span<const uint32_t> candidate_offsets, std::
 // on a copy of a building elsewhere in the map (a chain store's facade, a row
 // of identical houses) has many; so has the right pose on such a building.
 // `query_feature[i]`: the query feature of correspondence i, `chosen[i]` its
-// inlier candidate or −1. nullopt when no inlier's feature voted.
+// inlier candidate or −1. nullopt when no inlier's feature has a nearest point.
 std::optional<double> elsewhere_inlier_share(const SegmentPointVoteResult& votes,
                                              std::span<const uint32_t> query_feature, std::span<const int32_t> chosen,
                                              uint32_t segment, std::span<const uint32_t> related);

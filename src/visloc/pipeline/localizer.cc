@@ -433,7 +433,10 @@ std::vector<size_t> Localizer::Impl::candidate_segments(const FeatureSet& f, Que
   std::vector<std::pair<size_t, float>> ranked;
   float point_sum = 0;
   for (const SegmentPointVote& v : ws.point_votes.segments) point_sum += v.votes;
-  for (const SegmentPointVote& v : ws.point_votes.segments) ranked.emplace_back(v.segment, v.votes / point_sum);
+  // Segments after the voted ones have votes 0 (nearest points without a
+  // distinctive vote): share 0, in their order (the sort below is stable).
+  for (const SegmentPointVote& v : ws.point_votes.segments)
+    ranked.emplace_back(v.segment, point_sum > 0 ? v.votes / point_sum : 0.0f);
   float sources = point_sum > 0 ? 1.0f : 0.0f;  // the shares' sum over every segment
   const bool sum_images = retrieval && segment_votes == SegmentVoteSource::kBoth;
   if (sum_images) {

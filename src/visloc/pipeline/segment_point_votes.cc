@@ -16,8 +16,8 @@ void SegmentPointVoteOptions::validate() const {
   if (max_bucket < 1) throw_error(ErrorCode::kInvalidArgument, "max_bucket must be >= 1, got ", max_bucket);
   if (probe_radius < 0 || probe_radius > 1)
     throw_error(ErrorCode::kInvalidArgument, "vote_radius (probe radius) must be 0 or 1, got ", probe_radius);
-  if (!(distinct_ratio > 0 && distinct_ratio <= 1))
-    throw_error(ErrorCode::kInvalidArgument, "vote_ratio (distinct_ratio) must be in (0, 1], got ", distinct_ratio);
+  if (!(distinct_ratio >= 0.01f && distinct_ratio <= 1))
+    throw_error(ErrorCode::kInvalidArgument, "vote_ratio (distinct_ratio) must be in [0.01, 1], got ", distinct_ratio);
 }
 
 SegmentPointVotes::SegmentPointVotes(const SegmentPointVoteOptions& options) : options_(options) {
@@ -42,10 +42,12 @@ void SegmentPointVotes::add_segment(uint32_t segment, std::span<const HashCode> 
 
 void SegmentPointVotes::finalize(const std::vector<std::vector<uint32_t>>& related) {
   lookup_ = CascadeLookup(codes_, /*neighbourhood_sizes=*/false);  // votes probe buckets, they do not order by size
-  related_.assign(max_segment_plus_one_, {});
+  related_.assign(options_.distinct_ratio < 1.0f ? max_segment_plus_one_ : 0, {});
   for (size_t s = 0; s < related.size() && s < related_.size(); ++s) {
     related_[s] = related[s];
     std::sort(related_[s].begin(), related_[s].end());
+    related_[s].erase(std::unique(related_[s].begin(), related_[s].end()), related_[s].end());
+    related_[s].shrink_to_fit();
   }
   weight_.assign(max_segment_plus_one_, 1.0f);
   if (options_.normalize_by_chance) compute_chance_weights(related);
@@ -65,9 +67,10 @@ bool SegmentPointVotes::related(uint32_t a, uint32_t b) const {
 
 // The nearest points of one query feature: their distance and the distinct
 // segments that hold one at that distance (at most kMaxTies; more are a
-// feature seen everywhere, and its vote is split among those kept); and,
-// for the distinctiveness test, each segment's nearest point within the
-// bound (the kMaxSegments nearest segments).
+// feature seen everywhere, and its vote is split among those kept; with the
+// distinctiveness test, a tie between unrelated segments is no vote); and,
+// for that test, each segment's nearest point within the cut (the
+// kMaxSegments nearest segments).
 struct SegmentPointVotes::Nearest {
   static constexpr int kMaxTies = 16;
   static constexpr int kMaxSegments = 32;
@@ -83,12 +86,16 @@ struct SegmentPointVotes::Nearest {
   uint32_t segments[kMaxTies];
   int listed = 0;
   uint32_t listed_segment[kMaxSegments], listed_distance[kMaxSegments];
+  // The nearest distance a full list dropped (a segment it could not keep):
+  // possibly a rival, so the test counts it as one.
+  uint32_t dropped = UINT32_MAX;
 
   void reset(uint32_t max_distance, float distinct_ratio) {
     bound = distance = cut = max_distance;
     ratio = distinct_ratio;
     per_segment = distinct_ratio < 1.0f;
     count = listed = 0;
+    dropped = UINT32_MAX;
   }
   void offer(uint32_t d, uint32_t segment) {
     if (d > bound) return;
@@ -97,7 +104,10 @@ struct SegmentPointVotes::Nearest {
     if (d < distance) {
       distance = d;
       count = 0;
-      cut = per_segment ? std::min(bound, static_cast<uint32_t>(static_cast<float>(d) / ratio) + 1) : d;
+      cut = !per_segment ? d
+            : static_cast<float>(d) >= ratio * static_cast<float>(bound)
+                ? bound
+                : static_cast<uint32_t>(static_cast<float>(d) / ratio) + 1;
     }
     for (int i = 0; i < count; ++i)
       if (segments[i] == segment) return;
@@ -118,23 +128,33 @@ struct SegmentPointVotes::Nearest {
     for (int i = 1; i < kMaxSegments; ++i)
       if (listed_distance[i] > listed_distance[farthest]) farthest = i;
     if (d < listed_distance[farthest]) {
+      dropped = std::min(dropped, listed_distance[farthest]);
       listed_segment[farthest] = segment;
       listed_distance[farthest] = d;
+    } else {
+      dropped = std::min(dropped, d);
     }
   }
 };
 
 bool SegmentPointVotes::distinctive(const Nearest& n) const {
   if (options_.distinct_ratio >= 1.0f) return true;
-  // d1: the nearest rival, a point of a segment that is neither one of the
-  // nearest's nor related to one; none within the bound passes.
-  bool rival = false;
-  uint32_t d1 = 0;
+  // d1: the nearest rival, a point of a segment related to none of the
+  // nearest's other segments (ties at d0), nor one of them itself unless the
+  // tie is with unrelated segments; none within the bound passes. A dropped
+  // entry of a full list may have been a rival.
+  bool rival = n.dropped != UINT32_MAX;
+  uint32_t d1 = n.dropped;
   for (int i = 0; i < n.listed; ++i) {
     const uint32_t s = n.listed_segment[i];
-    bool near_one = false;
-    for (int k = 0; k < n.count && !near_one; ++k) near_one = s == n.segments[k] || related(n.segments[k], s);
-    if (near_one || (rival && n.listed_distance[i] >= d1)) continue;
+    bool winner = false, linked = false;
+    for (int k = 0; k < n.count; ++k) {
+      if (s == n.segments[k])
+        winner = true;
+      else if (related(n.segments[k], s))
+        linked = true;
+    }
+    if (linked || (winner && n.count == 1) || (rival && n.listed_distance[i] >= d1)) continue;
     rival = true;
     d1 = n.listed_distance[i];
   }
@@ -151,12 +171,12 @@ bool SegmentPointVotes::nearest(const HashCode& q, const uint8_t* excluded, Near
   for (int t = 0; t < kHashTables; ++t)
     skipped_a_bucket |= !probe_bucket(t, hash_subcode(q, t), q, excluded, out, compared, options_.max_bucket);
   if (options_.probe_radius == 0) return out.count > 0;
-  // Radius 1 only when radius 0 may have missed a nearer point: a point within
-  // 7 bits shares a sub-code with the feature (pigeonhole over 8 tables), so
-  // once every exact bucket was read and the nearest found (or the bound
-  // itself) is under 8 bits, radius 1 can only offer points farther away.
-  const uint32_t bound = out.count > 0 ? out.distance : static_cast<uint32_t>(options_.max_hamming);
-  if (!skipped_a_bucket && bound < static_cast<uint32_t>(kHashTables)) return out.count > 0;
+  // Radius 1 only when radius 0 may have missed a point that matters: a point
+  // within 7 bits shares a sub-code with the feature (pigeonhole over 8
+  // tables), so once every exact bucket was read and the cut (the nearest
+  // found, the farthest rival that matters to the distinctiveness test, or
+  // the bound itself) is under 8 bits, radius 1 can only offer points beyond it.
+  if (!skipped_a_bucket && out.cut < static_cast<uint32_t>(kHashTables)) return out.count > 0;
   const int radius1_max_bucket = std::max(1, options_.max_bucket / 16);
   for (int t = 0; t < kHashTables; ++t) {
     const uint32_t key = hash_subcode(q, t);
@@ -247,14 +267,19 @@ void SegmentPointVotes::vote(std::span<const HashCode> query, std::vector<float>
   out.feature_offsets.reserve(query.size() + 1);
   out.feature_offsets.push_back(0);
   out.feature_segments.clear();
-  scratch.assign(max_segment_plus_one_, 0.0f);
+  // scratch: the votes per segment, then the nearest points' shares of every
+  // feature, voted or not.
+  const size_t n_segments = max_segment_plus_one_;
+  scratch.assign(2 * n_segments, 0.0f);
+  float* nearest_shares = scratch.data() + n_segments;
   size_t compared = 0;
   Nearest best;
   for (const HashCode& q : query) {
     if (nearest(q, nullptr, best, compared)) {
       out.feature_segments.insert(out.feature_segments.end(), best.segments, best.segments + best.count);
+      const float share = 1.0f / static_cast<float>(best.count);
+      for (int i = 0; i < best.count; ++i) nearest_shares[best.segments[i]] += share;
       if (distinctive(best)) {
-        const float share = 1.0f / static_cast<float>(best.count);
         for (int i = 0; i < best.count; ++i) scratch[best.segments[i]] += share;
         out.total_votes += 1.0f;
       }
@@ -262,11 +287,19 @@ void SegmentPointVotes::vote(std::span<const HashCode> query, std::vector<float>
     out.feature_offsets.push_back(static_cast<uint32_t>(out.feature_segments.size()));
   }
   out.candidates_compared = compared;
-  for (uint32_t s = 0; s < max_segment_plus_one_; ++s)
+  for (uint32_t s = 0; s < n_segments; ++s)
     if (scratch[s] > 0) out.segments.push_back({s, scratch[s] * weight_[s]});
-  std::sort(out.segments.begin(), out.segments.end(), [](const SegmentPointVote& a, const SegmentPointVote& b) {
+  const auto by_votes = [](const SegmentPointVote& a, const SegmentPointVote& b) {
     return a.votes != b.votes ? a.votes > b.votes : a.segment < b.segment;
-  });
+  };
+  std::sort(out.segments.begin(), out.segments.end(), by_votes);
+  // The segments with nearest points but no vote, ranked by those points'
+  // shares (held in `votes` for the sort, then 0).
+  const size_t voted = out.segments.size();
+  for (uint32_t s = 0; s < n_segments; ++s)
+    if (scratch[s] == 0 && nearest_shares[s] > 0) out.segments.push_back({s, nearest_shares[s] * weight_[s]});
+  std::sort(out.segments.begin() + static_cast<std::ptrdiff_t>(voted), out.segments.end(), by_votes);
+  for (size_t i = voted; i < out.segments.size(); ++i) out.segments[i].votes = 0;
 }
 
 }  // namespace visloc

@@ -41,8 +41,12 @@
 // segments): a feature votes only when its nearest point, at d0 bits, is
 // clearly nearer than the nearest point, at d1, of every segment unrelated to
 // the nearest's (sharing no image with it: overlapping segments hold the same
-// physical points), d0 < distinct_ratio × d1, both among the probed buckets;
-// a feature with no such point within max_hamming votes. A facade that
+// physical points), d0 < distinct_ratio × d1; a tie between unrelated
+// segments is no vote, and a feature with no rival within max_hamming votes.
+// Rivals are found in the probed buckets: at radius 0 those that share a
+// sub-code with the feature (every point within 7 bits), at radius 1, which
+// then runs whenever a rival within reach could still fail the test, also
+// those within 15 bits. A facade that
 // looks like those of other streets (windows, doors, generic texture) gives
 // near-equal distances in several unrelated segments and no vote, where it
 // gave one to whichever happened to be nearest: votes that make the ranking
@@ -86,7 +90,11 @@ struct SegmentPointVote {
 };
 
 struct SegmentPointVoteResult {
-  std::vector<SegmentPointVote> segments;  // every segment with a vote, most votes first (ties: lower id)
+  // Every segment with a vote, most votes first (ties: lower id); then, with
+  // votes 0, those where only features that were not distinctive had their
+  // nearest point, most such features first (so that they can still be
+  // candidates after the voted ones).
+  std::vector<SegmentPointVote> segments;
   float total_votes = 0;                   // query features that voted
   size_t candidates_compared = 0;          // Hamming distances computed
   // Per query feature i, the segments of its nearest points (the ties at the

@@ -94,7 +94,7 @@ TEST(SegmentPointVotes, FarFeaturesDoNotVoteAndTiesAreSplit) {
   SegmentPointVotes votes({.points_per_segment = 0, .max_hamming = 32});
   votes.add_segment(0, a);
   votes.add_segment(1, b);
-  votes.finalize();
+  votes.finalize({{1}, {0}});  // the segments share the placemark's images
   std::vector<float> scratch;
   SegmentPointVoteResult r;
 
@@ -103,6 +103,20 @@ TEST(SegmentPointVotes, FarFeaturesDoNotVoteAndTiesAreSplit) {
   EXPECT_FLOAT_EQ(votes_of(r, 0), 0.5f);
   EXPECT_FLOAT_EQ(votes_of(r, 1), 0.5f);
   EXPECT_FLOAT_EQ(r.total_votes, 1);
+
+  // The same tie between segments that share no image is ambiguous: no vote,
+  // and both segments follow the voted ones (none here) with votes 0.
+  SegmentPointVotes unrelated({.points_per_segment = 0, .max_hamming = 32});
+  unrelated.add_segment(0, a);
+  unrelated.add_segment(1, b);
+  unrelated.finalize();
+  unrelated.vote(shared, scratch, r);
+  EXPECT_FLOAT_EQ(r.total_votes, 0);
+  ASSERT_EQ(r.segments.size(), 2u);
+  EXPECT_EQ(r.segments[0].segment, 0u);
+  EXPECT_EQ(r.segments[1].segment, 1u);
+  EXPECT_FLOAT_EQ(r.segments[0].votes, 0);
+  EXPECT_FLOAT_EQ(r.segments[1].votes, 0);
 
   // 40 bits off, with the flips kept out of the first 16-bit sub-code so
   // that the point is still a candidate: beyond max_hamming, no vote.
@@ -177,14 +191,53 @@ TEST(SegmentPointVotes, OnlyDistinctiveFeaturesVote) {
   EXPECT_FLOAT_EQ(r.total_votes, 2);
   EXPECT_FLOAT_EQ(votes_of(r, 0), 2);
 
-  // A rival clearly farther passes: 10 bits against 14 (10 < 11.2).
-  b[7] = flip_bits(a[3], 100, 104);
+  // A rival farther by the ratio passes: 10 bits against 13 (10 < 10.4); at
+  // the boundary it does not: 8 against 10 (8 < 8 fails).
+  b[7] = flip_bits(a[3], 100, 103);
+  b[8] = flip_bits(a[6], 100, 102);
+  const HashCode boundary = flip_bits(a[6], 16, 24);
+  const HashCode ratio_query[] = {look_alike, boundary};
   SegmentPointVotes farther({.points_per_segment = 0});
   farther.add_segment(0, a);
   farther.add_segment(1, b);
   farther.finalize();
-  farther.vote(query, scratch, r);
-  EXPECT_FLOAT_EQ(votes_of(r, 0), 2);
+  farther.vote(ratio_query, scratch, r);
+  EXPECT_FLOAT_EQ(r.total_votes, 1);
+  EXPECT_FLOAT_EQ(votes_of(r, 0), 1);
+  ASSERT_EQ(r.segments_of_feature(0).size(), 1u);
+
+  // A rival that shares no sub-code with the feature (one bit off in each
+  // table, 8 bits away) is found by radius 1, which runs because it could
+  // still fail the test (7 < 0.8 × 8 fails), though the nearest is 7 bits off.
+  const HashCode q = a[9];
+  HashCode seven = q, eight = q;
+  for (int table = 0; table < 7; ++table) seven = flip_subcode_bit(seven, table, 4);
+  for (int table = 0; table < 8; ++table) eight = flip_subcode_bit(eight, table, 9);
+  const HashCode radius_query[] = {q};
+  for (int radius : {0, 1}) {
+    SegmentPointVotes by_radius({.points_per_segment = 0, .probe_radius = radius});
+    by_radius.add_segment(0, std::vector<HashCode>{seven});
+    by_radius.add_segment(1, std::vector<HashCode>{eight});
+    by_radius.finalize();
+    by_radius.vote(radius_query, scratch, r);
+    EXPECT_FLOAT_EQ(r.total_votes, radius == 0 ? 1.0f : 0.0f) << radius;
+  }
+
+  // 40 overlapping segments tie at 6 bits (more than the 32 a feature's list
+  // keeps) and an unrelated one has a point at 7: the list drops it, and the
+  // dropped distance still counts as a rival (6 < 5.6 fails).
+  SegmentPointVotes crowded({.points_per_segment = 0});
+  std::vector<std::vector<uint32_t>> related(41);
+  const HashCode six = flip_bits(q, 16, 22), seven_off = flip_bits(q, 16, 23);
+  for (uint32_t s = 0; s < 40; ++s) {
+    crowded.add_segment(s, std::vector<HashCode>{six});
+    for (uint32_t t = 0; t < 40; ++t)
+      if (t != s) related[s].push_back(t);
+  }
+  crowded.add_segment(40, std::vector<HashCode>{seven_off});
+  crowded.finalize(related);
+  crowded.vote(radius_query, scratch, r);
+  EXPECT_FLOAT_EQ(r.total_votes, 0);
 
   EXPECT_THROW(SegmentPointVotes({.distinct_ratio = 0.0f}), Error);
   EXPECT_THROW(SegmentPointVotes({.distinct_ratio = 1.5f}), Error);
@@ -261,7 +314,9 @@ TEST(SegmentPointVotes, RadiusOneStillRunsWhenAnExactBucketWasSkipped) {
   std::vector<float> scratch;
   SegmentPointVoteResult r;
   for (int radius : {0, 1}) {
-    SegmentPointVotes votes({.points_per_segment = 0, .max_bucket = 50, .probe_radius = radius});
+    // (Segments 1 and 2 share no image: the distinctiveness test would turn
+    // their tie into no vote; this test is about the probing.)
+    SegmentPointVotes votes({.points_per_segment = 0, .max_bucket = 50, .probe_radius = radius, .distinct_ratio = 1});
     votes.add_segment(1, std::vector<HashCode>{one});
     votes.add_segment(2, segment2);
     votes.finalize();
@@ -337,7 +392,9 @@ TEST(SegmentPointVotes, ChanceNormalizationDiscountsAHubSegment) {
   for (int s = 1; s < 4; ++s)
     for (size_t i = 0; i < 900; i += 3) segments[0].push_back(flip(flip(segments[s][i], 3), 70));
   const auto build = [&](bool normalize, const std::vector<std::vector<uint32_t>>& related) {
-    SegmentPointVotes votes({.points_per_segment = 0, .normalize_by_chance = normalize});
+    // (The queries tie between unrelated segments, which the distinctiveness
+    // test would turn into no vote; this test is about the weights.)
+    SegmentPointVotes votes({.points_per_segment = 0, .normalize_by_chance = normalize, .distinct_ratio = 1});
     for (uint32_t s = 0; s < 4; ++s) votes.add_segment(s, segments[s]);
     votes.finalize(related);
     return votes;
