@@ -453,11 +453,15 @@ std::vector<size_t> Localizer::Impl::candidate_segments(const FeatureSet& f, Que
     sources += q.total_votes > 0 ? 1.0f : 0.0f;
   }
   std::stable_sort(ranked.begin(), ranked.end(), [](const auto& a, const auto& b) { return a.second > b.second; });
-  res.retrieval_voted_segments = ranked.size();
+  res.retrieval_voted_segments =
+      static_cast<size_t>(std::count_if(ranked.begin(), ranked.end(), [](const auto& r) { return r.second > 0; }));
   res.retrieval_total_votes = sources;
   for (size_t k = 0; k < ranked.size() && static_cast<int>(k) < max_candidates; ++k)
     take(ranked[k].first, ranked[k].second);
-  // auto: the retrieved images fill the places the point votes leave: now
+  // The segments after the voted ones (share 0: features had their nearest
+  // point there but were not distinctive) rank before the retrieved images,
+  // as measured (README #13). auto: the retrieved images fill the places the
+  // point votes and those leave: now
   // when the first max_segments need them, else only before the fallback
   // segments are searched (most queries never are).
   if (retrieval && !sum_images && static_cast<int>(candidates.size()) < max_candidates) {

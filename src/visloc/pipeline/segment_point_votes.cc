@@ -86,8 +86,10 @@ struct SegmentPointVotes::Nearest {
   uint32_t segments[kMaxTies];
   int listed = 0;
   uint32_t listed_segment[kMaxSegments], listed_distance[kMaxSegments];
-  // The nearest distance a full list dropped (a segment it could not keep):
-  // possibly a rival, so the test counts it as one.
+  // The nearest distance a full list dropped (a segment it could not keep,
+  // whose relation to the nearest is then unknown): counted as a rival, so a
+  // feature within reach of more than kMaxSegments segments is not
+  // distinctive (overlap relates a segment to a few neighbours only).
   uint32_t dropped = UINT32_MAX;
 
   void reset(uint32_t max_distance, float distinct_ratio) {
