@@ -35,6 +35,16 @@ float votes_of(const SegmentPointVoteResult& r, uint32_t segment) {
   return 0;
 }
 
+// An index of segments 0 (`a`) and 1 (`b`), finalized with `related`.
+SegmentPointVotes two_segments(const SegmentPointVoteOptions& options, const std::vector<HashCode>& a,
+                               const std::vector<HashCode>& b, const std::vector<std::vector<uint32_t>>& related = {}) {
+  SegmentPointVotes votes(options);
+  votes.add_segment(0, a);
+  votes.add_segment(1, b);
+  votes.finalize(related);
+  return votes;
+}
+
 TEST(SegmentPointVotes, QueryFeaturesVoteForTheSegmentOfTheirNearestPoint) {
   RandomGenerator rng(11);
   const std::vector<HashCode> a = random_codes(3000, rng), b = random_codes(5000, rng);
@@ -106,10 +116,7 @@ TEST(SegmentPointVotes, FarFeaturesDoNotVoteAndTiesAreSplit) {
 
   // The same tie between segments that share no image is ambiguous: no vote,
   // and both segments follow the voted ones (none here) with votes 0.
-  SegmentPointVotes unrelated({.points_per_segment = 0, .max_hamming = 32});
-  unrelated.add_segment(0, a);
-  unrelated.add_segment(1, b);
-  unrelated.finalize();
+  const SegmentPointVotes unrelated = two_segments({.points_per_segment = 0, .max_hamming = 32}, a, b);
   unrelated.vote(shared, scratch, r);
   EXPECT_FLOAT_EQ(r.total_votes, 0);
   ASSERT_EQ(r.segments.size(), 2u);
@@ -155,11 +162,8 @@ TEST(SegmentPointVotes, OnlyDistinctiveFeaturesVote) {
   std::vector<float> scratch;
   SegmentPointVoteResult r;
 
-  SegmentPointVotes votes({.points_per_segment = 0});
+  const SegmentPointVotes votes = two_segments({.points_per_segment = 0}, a, b);
   EXPECT_FLOAT_EQ(votes.options().distinct_ratio, 0.8f);  // the default
-  votes.add_segment(0, a);
-  votes.add_segment(1, b);
-  votes.finalize();
   votes.vote(query, scratch, r);
   EXPECT_FLOAT_EQ(r.total_votes, 1);
   EXPECT_FLOAT_EQ(votes_of(r, 0), 1);
@@ -173,20 +177,14 @@ TEST(SegmentPointVotes, OnlyDistinctiveFeaturesVote) {
   }
 
   // Without the test, the look-alike votes for its nearest point's segment.
-  SegmentPointVotes every({.points_per_segment = 0, .distinct_ratio = 1.0f});
-  every.add_segment(0, a);
-  every.add_segment(1, b);
-  every.finalize();
+  const SegmentPointVotes every = two_segments({.points_per_segment = 0, .distinct_ratio = 1.0f}, a, b);
   every.vote(query, scratch, r);
   EXPECT_FLOAT_EQ(r.total_votes, 2);
   EXPECT_FLOAT_EQ(votes_of(r, 0), 2);
 
   // Segments that share images may hold the same point: a look-alike there
   // is not a rival (the look-alike's vote is back).
-  SegmentPointVotes overlapping({.points_per_segment = 0});
-  overlapping.add_segment(0, a);
-  overlapping.add_segment(1, b);
-  overlapping.finalize({{1}, {0}});
+  const SegmentPointVotes overlapping = two_segments({.points_per_segment = 0}, a, b, {{1}, {0}});
   overlapping.vote(query, scratch, r);
   EXPECT_FLOAT_EQ(r.total_votes, 2);
   EXPECT_FLOAT_EQ(votes_of(r, 0), 2);
@@ -196,10 +194,7 @@ TEST(SegmentPointVotes, OnlyDistinctiveFeaturesVote) {
   b[7] = flip_bits(a[3], 100, 103);
   b[8] = flip_bits(a[6], 100, 102);
   const HashCode boundary = flip_bits(a[6], 16, 24);
-  SegmentPointVotes farther({.points_per_segment = 0});
-  farther.add_segment(0, a);
-  farther.add_segment(1, b);
-  farther.finalize();
+  const SegmentPointVotes farther = two_segments({.points_per_segment = 0}, a, b);
   const HashCode farther_query[] = {look_alike}, boundary_query[] = {boundary};
   farther.vote(farther_query, scratch, r);
   EXPECT_FLOAT_EQ(r.total_votes, 1);
