@@ -195,85 +195,97 @@ void coarse_sizes_impl(const CascadeLookup& lookup, const HashCode* codes, size_
   }
 }
 
-// The probes of one feature: [begin, end) of every probed bucket, in probe
-// order (table 0..7; the exact bucket, then its one-bit neighbours), and the
-// sum of their sizes. Branch-free, so the loads of different probes overlap.
+// The probes of one feature that hold points: [begin, end) and the table of
+// every non-empty probed bucket, in probe order (table 0..7; the exact bucket,
+// then its one-bit neighbours), and the sum of their sizes. Empty buckets are
+// dropped from the list without a branch (each probe is written, the count
+// advances by its bitmap bit) before any offset is read, so they cost neither
+// an offset load nor a load of the ids (most probes at radius 1 are empty).
 struct ProbeRanges {
   static constexpr int kMaxProbes = kHashTables * (kHashTableBits + 1);
   uint32_t begin[kMaxProbes], end[kMaxProbes];
+  uint8_t table[kMaxProbes];
+  int count = 0;        // non-empty probes
   uint32_t listed = 0;  // Σ bucket sizes (the coarse size, before deduplication)
 };
 
 VISLOC_POPCNT_CLONES
 void probe_ranges(const CascadeLookup& lookup, const HashCode& code, int probes, ProbeRanges& r) {
-  uint32_t listed = 0;
   int c = 0;
   for (int k = 0; k < kHashTables; ++k) {
     const uint32_t key = hash_subcode(code, k);
-    for (int b = 0; b < probes; ++b, ++c) {
-      lookup.bucket_range(k, probe_bucket(key, b), r.begin[c], r.end[c]);
-      listed += r.end[c] - r.begin[c];
+    for (int b = 0; b < probes; ++b) {
+      uint32_t rank;
+      const uint32_t non_empty = lookup.bucket_rank(k, probe_bucket(key, b), rank);
+      r.begin[c] = rank;
+      r.table[c] = static_cast<uint8_t>(k);
+      c += static_cast<int>(non_empty);
     }
   }
+  uint32_t listed = 0;
+  for (int i = 0; i < c; ++i) {
+    const uint32_t* o = lookup.table_offsets(r.table[i]);
+    const uint32_t rank = r.begin[i];
+    r.begin[i] = o[rank];
+    r.end[i] = o[rank + 1];
+    listed += r.end[i] - r.begin[i];
+  }
+  r.count = c;
   r.listed = listed;
 }
 
 // Coarse: the union of the probed buckets, deduplicated by the `seen` bytes
 // (one per point), in probe order (within a bucket, increasing point id), into
-// `out` (room for r.listed + 1). A bucket's first two ids are taken without a
-// branch, since most buckets hold 0, 1 or 2 points: they are read even past
-// the bucket's end (the lookup's padding makes that safe), then counted only
-// if the bucket has them and they are new; their bytes are rewritten
-// unchanged otherwise. The caller clears the bytes of `out`'s ids afterwards.
-// Bytes rather than bits: a bit set read-modify-writes a word shared by 64
-// points, so the loads of nearby candidates waited on one another's stores.
-// Measured on fountain-P11's gather (8,192 features, radius 1, medians of 3):
-// bytes 10.1 against 12.0 ms for bits; two ids without a branch 9.1 against
-// 10.1 ms for one. Not faster, measured: prefetching the next feature's first
-// ids (the wait at 100K points is on cache misses either way), and computing
-// the Hamming distances here rather than in a pass of their own (duplicates
-// cost a distance each).
+// `out` (room for r.listed + 1). Every listed bucket holds a point; its second
+// id is taken without a branch, since most buckets hold 1 or 2 points: it is
+// read even past the bucket's end (the lookup's padding makes that safe),
+// then counted only if the bucket has it and it is new; its byte is
+// rewritten unchanged otherwise. The caller clears the bytes of `out`'s ids
+// afterwards. Bytes rather than bits: a bit set read-modify-writes a word
+// shared by 64 points, so the loads of nearby candidates waited on one
+// another's stores. Measured on fountain-P11's gather (8,192 features, radius
+// 1, medians of 3): bytes 10.1 against 12.0 ms for bits; two ids without a
+// branch 9.1 against 10.1 ms for one. Not faster, measured: prefetching the
+// next feature's first ids (the wait at 100K points is on cache misses either
+// way), and computing the Hamming distances here rather than in a pass of
+// their own (duplicates cost a distance each).
 template <typename Id>
-size_t gather_candidates(const Id* const* ids, const ProbeRanges& r, int probes, uint8_t* seen, uint32_t* out) {
+size_t gather_candidates(const Id* const* ids, const ProbeRanges& r, uint8_t* seen, uint32_t* out) {
   size_t n = 0;
-  int c = 0;
-  for (int k = 0; k < kHashTables; ++k) {
-    const Id* table_ids = ids[k];
-    for (int b = 0; b < probes; ++b, ++c) {
-      const uint32_t begin = r.begin[c], end = r.end[c];
-      const uint32_t first = table_ids[begin];
-      const uint8_t was = seen[first];
-      const uint8_t non_empty = begin < end;
-      out[n] = first;
-      n += static_cast<size_t>(non_empty & (was == 0));
-      seen[first] = was | non_empty;
-      const uint32_t second = table_ids[begin + 1];
-      const uint8_t was2 = seen[second];
-      const uint8_t two = begin + 1 < end;
-      out[n] = second;
-      n += static_cast<size_t>(two & (was2 == 0));
-      seen[second] = was2 | two;
-      for (uint32_t i = begin + 2; i < end; ++i) {
-        const uint32_t id = table_ids[i];
-        const uint8_t w = seen[id];
-        out[n] = id;
-        n += static_cast<size_t>(w == 0);
-        seen[id] = 1;
-      }
+  for (int c = 0; c < r.count; ++c) {
+    const Id* table_ids = ids[r.table[c]];
+    const uint32_t begin = r.begin[c], end = r.end[c];
+    const uint32_t first = table_ids[begin];
+    const uint8_t was = seen[first];
+    out[n] = first;
+    n += static_cast<size_t>(was == 0);
+    seen[first] = 1;
+    const uint32_t second = table_ids[begin + 1];
+    const uint8_t was2 = seen[second];
+    const uint8_t two = begin + 1 < end;
+    out[n] = second;
+    n += static_cast<size_t>(two & (was2 == 0));
+    seen[second] = was2 | two;
+    for (uint32_t i = begin + 2; i < end; ++i) {
+      const uint32_t id = table_ids[i];
+      const uint8_t w = seen[id];
+      out[n] = id;
+      n += static_cast<size_t>(w == 0);
+      seen[id] = 1;
     }
   }
   return n;
 }
 
-size_t collect_all(const CascadeLookup& lookup, const ProbeRanges& r, int probes, uint8_t* seen, uint32_t* out) {
+size_t collect_all(const CascadeLookup& lookup, const ProbeRanges& r, uint8_t* seen, uint32_t* out) {
   if (lookup.uses_16bit_ids()) {
     const uint16_t* ids[kHashTables];
     for (int k = 0; k < kHashTables; ++k) ids[k] = lookup.ids16(k);
-    return gather_candidates(ids, r, probes, seen, out);
+    return gather_candidates(ids, r, seen, out);
   }
   const uint32_t* ids[kHashTables];
   for (int k = 0; k < kHashTables; ++k) ids[k] = lookup.ids32(k);
-  return gather_candidates(ids, r, probes, seen, out);
+  return gather_candidates(ids, r, seen, out);
 }
 
 // Refined: the `list` nearest of the n candidates (more than `list`) by
@@ -440,7 +452,7 @@ void CascadeMatcher::match_hashed(const DescriptorMatrix& queries, std::span<con
     probe_ranges(lookup, code, probes, ranges);
     if (ranges.listed < 2) continue;  // not searched: no ratio test possible
     if (ws.candidates.size() < size_t(ranges.listed) + 1) ws.candidates.resize(size_t(ranges.listed) + 1);
-    const size_t n_candidates = collect_all(lookup, ranges, probes, ws.seen.data(), ws.candidates.data());
+    const size_t n_candidates = collect_all(lookup, ranges, ws.seen.data(), ws.candidates.data());
     for (size_t j = 0; j < n_candidates; ++j) ws.seen[ws.candidates[j]] = 0;
     out.stats.coarse_candidates += n_candidates;
     ++out.stats.features_searched;

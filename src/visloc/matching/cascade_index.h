@@ -95,6 +95,17 @@ class CascadeLookup {
     begin = o[r];
     end = o[r + bit];
   }
+  // Whether bucket `key` holds points (1) or not (0), and its rank among the
+  // table's non-empty buckets: a non-empty bucket is [o[rank], o[rank + 1])
+  // of table_offsets(table). Touches only the bitmap and the ranks (16 KiB
+  // per table), so a probe of an empty bucket costs no offset load.
+  uint32_t bucket_rank(int table, uint32_t key, uint32_t& rank) const {
+    const size_t w = table * kBitmapWords + (key >> 6);
+    const uint64_t word = bitmap_[w];
+    rank = rank_[w] + static_cast<uint32_t>(std::popcount(word & ((uint64_t(1) << (key & 63)) - 1)));
+    return static_cast<uint32_t>((word >> (key & 63)) & 1u);
+  }
+  const uint32_t* table_offsets(int table) const { return offsets_.data() + table_start_[table]; }
   uint32_t bucket_size(int table, uint32_t key) const {
     uint32_t b, e;
     bucket_range(table, key, b, e);

@@ -78,7 +78,7 @@ struct SegmentPointVotes::Nearest {
   uint32_t distance = 0;
   // Points farther than this need not be offered: the nearest so far; with
   // the distinctiveness test, the farthest rival that could still fail it
-  // (d1 ≤ d0 / ratio; one more bit for the float rounding of the test).
+  // (rival_cut).
   uint32_t cut = 0;
   bool per_segment = false;
   float ratio = 1;
@@ -99,6 +99,20 @@ struct SegmentPointVotes::Nearest {
     count = listed = 0;
     dropped = UINT32_MAX;
   }
+  // The farthest rival distance d1 ≤ bound that fails the test at d0, i.e.
+  // !(d0 < ratio · d1) in the test's own float arithmetic (d1 = d0 always
+  // fails it, as ratio ≤ 1): floor(d0 / ratio), stepped to where the float
+  // test turns, so no distance that could fail it is cut and none that
+  // cannot is probed for.
+  uint32_t rival_cut(uint32_t d0) const {
+    const float f0 = static_cast<float>(d0);
+    if (f0 >= ratio * static_cast<float>(bound)) return bound;
+    auto fails = [&](uint32_t d1) { return !(f0 < ratio * static_cast<float>(d1)); };
+    uint32_t c = std::max(d0, static_cast<uint32_t>(f0 / ratio));
+    while (c < bound && fails(c + 1)) ++c;
+    while (c > d0 && !fails(c)) --c;
+    return c;
+  }
   void offer(uint32_t d, uint32_t segment) {
     if (d > bound) return;
     if (per_segment) list(d, segment);
@@ -106,10 +120,7 @@ struct SegmentPointVotes::Nearest {
     if (d < distance) {
       distance = d;
       count = 0;
-      cut = !per_segment ? d
-            : static_cast<float>(d) >= ratio * static_cast<float>(bound)
-                ? bound
-                : static_cast<uint32_t>(static_cast<float>(d) / ratio) + 1;
+      cut = !per_segment ? d : rival_cut(d);
     }
     for (int i = 0; i < count; ++i)
       if (segments[i] == segment) return;
