@@ -241,6 +241,58 @@ TEST(SegmentPointVotes, OnlyDistinctiveFeaturesVote) {
   EXPECT_THROW(SegmentPointVotes({.distinct_ratio = 1.5f}), Error);
 }
 
+// The test's boundary at every ratio, in its own float arithmetic: a
+// feature d0 bits from segment 0's point and d1 from segment 1's (unrelated)
+// votes, for the nearer one, exactly when min < ratio × max. The rival is
+// placed two ways: inside one sub-code (found at radius 0) and one bit off
+// in every sub-code, plus more in some (found only at radius 1, which the
+// search must decide to run), so a rival cut one bit too tight or a skipped
+// radius 1 shows here.
+TEST(SegmentPointVotes, DistinctivenessBoundaryAtEveryRatio) {
+  RandomGenerator rng(17);
+  const HashCode q = random_codes(1, rng)[0];
+  const HashCode query[] = {q};
+  std::vector<float> scratch;
+  SegmentPointVoteResult r;
+  int checked = 0, voted = 0;
+  for (float ratio : {0.5f, 0.6f, 0.7f, 0.75f, 0.8f, 0.9f, 0.95f, 1.0f}) {
+    for (int d0 = 1; d0 <= 12; ++d0) {
+      for (int d1 = 1; d1 <= 20; ++d1) {
+        for (bool spread : {false, true}) {
+          if (spread && (d1 < 8 || d1 > 15)) continue;
+          HashCode rival = q;
+          if (spread) {
+            for (int table = 0; table < 8; ++table) rival = flip_subcode_bit(rival, table, 3);
+            for (int table = 0; table < d1 - 8; ++table) rival = flip_subcode_bit(rival, table, 11);
+          } else {
+            rival = flip_bits(q, 64, 64 + d1);  // sub-codes 4 and 5 only
+          }
+          const HashCode nearest = flip_bits(q, 16, 16 + d0);  // sub-code 1 only
+          ASSERT_EQ(hamming_distance(rival, q), uint32_t(d1));
+          ASSERT_EQ(hamming_distance(nearest, q), uint32_t(d0));
+          const SegmentPointVotes votes = two_segments({.points_per_segment = 0, .distinct_ratio = ratio},
+                                                       std::vector<HashCode>{nearest}, std::vector<HashCode>{rival});
+          votes.vote(query, scratch, r);
+          const int lo = std::min(d0, d1), hi = std::max(d0, d1);
+          const bool expect = static_cast<float>(lo) < ratio * static_cast<float>(hi);
+          const uint32_t winner = d0 < d1 ? 0u : 1u;
+          if (ratio >= 1.0f) {
+            EXPECT_FLOAT_EQ(r.total_votes, 1) << d0 << " " << d1;  // every feature votes (a tie split)
+          } else {
+            EXPECT_FLOAT_EQ(r.total_votes, expect ? 1.0f : 0.0f)
+                << "ratio " << ratio << ", d0 " << d0 << ", d1 " << d1 << (spread ? ", spread" : "");
+            if (expect) EXPECT_FLOAT_EQ(votes_of(r, winner), 1) << ratio << " " << d0 << " " << d1;
+            voted += expect;
+          }
+          ++checked;
+        }
+      }
+    }
+  }
+  EXPECT_GT(voted, 100);  // both outcomes are exercised
+  EXPECT_LT(voted, checked - 100);
+}
+
 TEST(SegmentPointVotes, RadiusOneFindsPointsThatDifferInEverySubCode) {
   RandomGenerator rng(29);
   const std::vector<HashCode> a = random_codes(1000, rng);
