@@ -97,7 +97,7 @@ class CascadeLookup {
   }
   // Whether bucket `key` holds points (1) or not (0), and its rank among the
   // table's non-empty buckets: a non-empty bucket is [o[rank], o[rank + 1])
-  // of table_offsets(table). Touches only the bitmap and the ranks (16 KiB
+  // of table_offsets(table). Touches only the bitmap and the ranks (12 KiB
   // per table), so a probe of an empty bucket costs no offset load.
   uint32_t bucket_rank(int table, uint32_t key, uint32_t& rank) const {
     const size_t w = table * kBitmapWords + (key >> 6);

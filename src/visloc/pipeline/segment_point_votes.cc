@@ -65,6 +65,15 @@ bool SegmentPointVotes::related(uint32_t a, uint32_t b) const {
   return a < related_.size() && std::binary_search(related_[a].begin(), related_[a].end(), b);
 }
 
+namespace {
+// The distinctiveness test, one definition for the test and for the cut that
+// bounds which rivals are looked for: the nearest at d0 bits is distinctive
+// against a rival at d1 when d0 < ratio × d1 (float arithmetic).
+inline bool passes_ratio_test(uint32_t d0, uint32_t d1, float ratio) {
+  return static_cast<float>(d0) < ratio * static_cast<float>(d1);
+}
+}  // namespace
+
 // The nearest points of one query feature: their distance and the distinct
 // segments that hold one at that distance (at most kMaxTies; more are a
 // feature seen everywhere, and its vote is split among those kept; with the
@@ -100,15 +109,14 @@ struct SegmentPointVotes::Nearest {
     dropped = UINT32_MAX;
   }
   // The farthest rival distance d1 ≤ bound that fails the test at d0, i.e.
-  // !(d0 < ratio · d1) in the test's own float arithmetic (d1 = d0 always
+  // !passes_ratio_test(d0, d1), the test itself (d1 = d0 always
   // fails it, as ratio ≤ 1): floor(d0 / ratio), stepped to where the float
   // test turns, so no distance that could fail it is cut and none that
   // cannot is probed for.
   uint32_t rival_cut(uint32_t d0) const {
-    const float f0 = static_cast<float>(d0);
-    if (f0 >= ratio * static_cast<float>(bound)) return bound;
-    auto fails = [&](uint32_t d1) { return !(f0 < ratio * static_cast<float>(d1)); };
-    uint32_t c = std::max(d0, static_cast<uint32_t>(f0 / ratio));
+    if (!passes_ratio_test(d0, bound, ratio)) return bound;
+    auto fails = [&](uint32_t d1) { return !passes_ratio_test(d0, d1, ratio); };
+    uint32_t c = std::max(d0, static_cast<uint32_t>(static_cast<float>(d0) / ratio));
     while (c < bound && fails(c + 1)) ++c;
     while (c > d0 && !fails(c)) --c;
     return c;
@@ -171,7 +179,7 @@ bool SegmentPointVotes::distinctive(const Nearest& n) const {
     rival = true;
     d1 = n.listed_distance[i];
   }
-  return !rival || static_cast<float>(n.distance) < options_.distinct_ratio * static_cast<float>(d1);
+  return !rival || passes_ratio_test(n.distance, d1, options_.distinct_ratio);
 }
 
 // VISLOC_POPCNT_CLONES (binary_hasher.h): the Hamming distances' popcount is
