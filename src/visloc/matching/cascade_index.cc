@@ -247,9 +247,10 @@ void probe_ranges(const CascadeLookup& lookup, const HashCode& code, int probes,
 // another's stores. Measured on fountain-P11's gather (8,192 features, radius
 // 1, medians of 3): bytes 10.1 against 12.0 ms for bits; the first two ids
 // without a branch (when empty buckets were still listed) 9.1 against 10.1 ms
-// for one; empty buckets dropped from the list: 98.5 of the 136 probes of a
-// 100K-point segment's features hold points, and the search at radius 1 took
-// minima of 33.9-42.6 against 39.7-51.9 ms (noisy). Not faster, measured: prefetching the
+// for one; empty buckets dropped from the list: fountain-P11's full search at
+// radius 1 28.5 against 33.6 ms (`bench matching`, medians of 6 alternated
+// runs), but on a 100K-point segment, where 98.5 of a feature's 136 probes
+// hold points, no change beyond the noise (micro bench). Not faster, measured: prefetching the
 // next feature's first ids (the wait at 100K points is on cache misses either
 // way), and computing the Hamming distances here rather than in a pass of
 // their own (duplicates cost a distance each).
