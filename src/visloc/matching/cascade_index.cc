@@ -201,7 +201,8 @@ void coarse_sizes_impl(const CascadeLookup& lookup, const HashCode* codes, size_
 // listed, `begin` holds each bucket's rank until its offsets are read). Empty buckets are
 // dropped from the list without a branch (each probe is written, the count
 // advances by its bitmap bit) before any offset is read, so they cost neither
-// an offset load nor a load of the ids (most probes at radius 1 are empty).
+// an offset load nor a load of the ids (many at radius 1 on a segment of a few
+// thousand points; 28% on a 100K-point one).
 struct ProbeRanges {
   static constexpr int kMaxProbes = kHashTables * (kHashTableBits + 1);
   uint32_t begin[kMaxProbes], end[kMaxProbes];

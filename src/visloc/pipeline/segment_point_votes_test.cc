@@ -1,6 +1,7 @@
 #include "visloc/pipeline/segment_point_votes.h"
 
 #include <gtest/gtest.h>
+#include <tuple>
 
 #include "visloc/util/error.h"
 #include "visloc/util/random.h"
@@ -254,7 +255,7 @@ TEST(SegmentPointVotes, DistinctivenessBoundaryAtEveryRatio) {
   const HashCode query[] = {q};
   std::vector<float> scratch;
   SegmentPointVoteResult r;
-  int checked = 0, voted = 0;
+  int checked = 0, voted = 0;  // below ratio 1
   for (float ratio : {0.5f, 0.6f, 0.7f, 0.75f, 0.8f, 0.9f, 0.95f, 1.0f}) {
     for (int d0 = 1; d0 <= 12; ++d0) {
       for (int d1 = 1; d1 <= 20; ++d1) {
@@ -276,14 +277,16 @@ TEST(SegmentPointVotes, DistinctivenessBoundaryAtEveryRatio) {
           const int lo = std::min(d0, d1), hi = std::max(d0, d1);
           const bool expect = static_cast<float>(lo) < ratio * static_cast<float>(hi);
           const uint32_t winner = d0 < d1 ? 0u : 1u;
-          if (ratio >= 1.0f) {
-            EXPECT_FLOAT_EQ(r.total_votes, 1) << d0 << " " << d1;  // every feature votes (a tie split)
-          } else {
-            EXPECT_FLOAT_EQ(r.total_votes, expect ? 1.0f : 0.0f)
-                << "ratio " << ratio << ", d0 " << d0 << ", d1 " << d1 << (spread ? ", spread" : "");
-            if (expect) EXPECT_FLOAT_EQ(votes_of(r, winner), 1) << ratio << " " << d0 << " " << d1;
-            voted += expect;
+          SCOPED_TRACE(::testing::Message()
+                       << "ratio " << ratio << ", d0 " << d0 << ", d1 " << d1 << (spread ? ", spread" : ""));
+          if (ratio >= 1.0f) {  // every feature votes for its nearest; a tie is split
+            EXPECT_FLOAT_EQ(r.total_votes, 1);
+            EXPECT_FLOAT_EQ(votes_of(r, winner), d0 == d1 ? 0.5f : 1.0f);
+            continue;
           }
+          EXPECT_FLOAT_EQ(r.total_votes, expect ? 1.0f : 0.0f);
+          if (expect) EXPECT_FLOAT_EQ(votes_of(r, winner), 1);
+          voted += expect;
           ++checked;
         }
       }
@@ -291,6 +294,16 @@ TEST(SegmentPointVotes, DistinctivenessBoundaryAtEveryRatio) {
   }
   EXPECT_GT(voted, 100);  // both outcomes are exercised
   EXPECT_LT(voted, checked - 100);
+  // The predicate itself at a few worked points: 3 < 0.6 × 5 = 3 fails,
+  // 3 < 0.6 × 6 = 3.6 passes; 9 < 0.75 × 12 = 9 fails, 9 < 0.75 × 13 passes.
+  for (auto [ratio, d0, d1, votes_expected] :
+       {std::tuple{0.6f, 3, 5, false}, {0.6f, 3, 6, true}, {0.75f, 9, 12, false}, {0.75f, 9, 13, true}}) {
+    const SegmentPointVotes votes = two_segments({.points_per_segment = 0, .distinct_ratio = ratio},
+                                                 std::vector<HashCode>{flip_bits(q, 16, 16 + d0)},
+                                                 std::vector<HashCode>{flip_bits(q, 64, 64 + d1)});
+    votes.vote(query, scratch, r);
+    EXPECT_FLOAT_EQ(r.total_votes, votes_expected ? 1.0f : 0.0f) << ratio << " " << d0 << " " << d1;
+  }
 }
 
 TEST(SegmentPointVotes, RadiusOneFindsPointsThatDifferInEverySubCode) {
@@ -332,8 +345,8 @@ TEST(SegmentPointVotes, RadiusOneFindsPointsThatDifferInEverySubCode) {
   }
   EXPECT_EQ(compared[0], 7u);  // a[9], in the 7 tables whose sub-code the 2 flipped bits left intact
   EXPECT_EQ(compared[1], compared[0]);
-  // The same at 6 bits with the distinctiveness test (0.8): a rival could
-  // fail it only at 7 bits (6 < 0.8 × 7 fails, 6 < 0.8 × 8 passes), within
+  // The same at 6 bits with the distinctiveness test (0.8): a rival fails it
+  // only within 7 bits (6 < 0.8 × 7 fails, 6 < 0.8 × 8 passes), within
   // radius 0's reach, so radius 1 is still not run.
   HashCode six = a[9];
   six.w[0] ^= 0x3F;
