@@ -333,34 +333,25 @@ TEST(SegmentPointVotes, RadiusOneFindsPointsThatDifferInEverySubCode) {
   far.w[0] = (far.w[0] & ~(uint64_t(0xFFFF) << 16)) | (near.w[0] & (uint64_t(0xFFFF) << 16));
   far = flip_subcode_bit(far, 1, 0);
   const std::vector<HashCode> two_points = {a[9], far};
-  const HashCode near_query[] = {near};
-  size_t compared[2] = {0, 0};
-  for (int radius : {0, 1}) {
-    SegmentPointVotes votes({.points_per_segment = 0, .probe_radius = radius});
-    votes.add_segment(2, two_points);
-    votes.finalize();
-    votes.vote(near_query, scratch, r);
-    EXPECT_FLOAT_EQ(votes_of(r, 2), 1.0f);
-    compared[radius] = r.candidates_compared;
-  }
-  EXPECT_EQ(compared[0], 7u);  // a[9], in the 7 tables whose sub-code the 2 flipped bits left intact
-  EXPECT_EQ(compared[1], compared[0]);
   // The same at 6 bits with the distinctiveness test (0.8): a rival fails it
   // only within 7 bits (6 < 0.8 × 7 fails, 6 < 0.8 × 8 passes), within
   // radius 0's reach, so radius 1 is still not run.
   HashCode six = a[9];
   six.w[0] ^= 0x3F;
-  const HashCode six_query[] = {six};
-  for (int radius : {0, 1}) {
-    SegmentPointVotes votes({.points_per_segment = 0, .probe_radius = radius});
-    votes.add_segment(2, two_points);
-    votes.finalize();
-    votes.vote(six_query, scratch, r);
-    EXPECT_FLOAT_EQ(votes_of(r, 2), 1.0f);
-    compared[radius] = r.candidates_compared;
+  for (const HashCode& feature : {near, six}) {
+    const HashCode feature_query[] = {feature};
+    size_t compared[2] = {0, 0};
+    for (int radius : {0, 1}) {
+      SegmentPointVotes votes({.points_per_segment = 0, .probe_radius = radius});
+      votes.add_segment(2, two_points);
+      votes.finalize();
+      votes.vote(feature_query, scratch, r);
+      EXPECT_FLOAT_EQ(votes_of(r, 2), 1.0f);
+      compared[radius] = r.candidates_compared;
+    }
+    EXPECT_EQ(compared[0], 7u);  // a[9], in the 7 tables whose sub-code the flipped bits left intact
+    EXPECT_EQ(compared[1], compared[0]);
   }
-  EXPECT_EQ(compared[0], 7u);
-  EXPECT_EQ(compared[1], compared[0]);
   // 8 bits from a[9] (it shares only table 1's sub-code), radius 1 runs and compares `far` too.
   HashCode farther = near;
   for (int table = 2; table < kHashTables; ++table) farther = flip_subcode_bit(farther, table, 5);
