@@ -13,6 +13,7 @@
 #include <sstream>
 #include <unordered_set>
 
+#include "bench/reranking_study.h"
 #include "visloc/baselines/faiss_baselines.h"
 #include "visloc/colmap/colmap_database.h"
 #include "visloc/geometry/pose_list.h"
@@ -413,6 +414,92 @@ void run_cascades(const SceneQueries& s, const LoadedMap& m, const std::function
   }
 }
 
+// The re-ranking study (bench/reranking_study.h): rerank-RANKER-lrL_R, the
+// full search's shortlist at radius 1 ranked by RANKER, at L_R 40 (the
+// default) and 64 (the L_R lever).
+void run_reranking(const SceneQueries& s, const LoadedMap& m, const std::function<void(const MethodTotals&)>& done) {
+  static const char* const kRankers[] = {"pq16", "exact", "pq32", "opq16"};
+  static const int kLists[] = {40, 64};
+  auto name = [](const char* ranker, int list) {
+    return std::string("rerank-") + ranker + "-lr" + std::to_string(list);
+  };
+  auto wanted = [&](const char* ranker) {
+    for (int list : kLists)
+      if (method_wanted(s.options.methods, name(ranker, list))) return true;
+    return false;
+  };
+  if (std::none_of(std::begin(kRankers), std::end(kRankers), wanted)) return;
+  const Segment& seg = *m.segment;
+  const size_t np = m.points;
+  std::unique_ptr<FaissPqReranker> pq32, opq16;
+  if (wanted("pq32")) pq32 = std::make_unique<FaissPqReranker>(m.descriptors_float.data(), np, 32, false);
+  if (wanted("opq16")) opq16 = std::make_unique<FaissPqReranker>(m.descriptors_float.data(), np, 16, true);
+  CascadeMatcher ccs(seg.index(), m.map.codebook());
+  CascadeMatches cm;
+  const double base = seg.bytes().per_point_bytes_per_point(np);
+  const double base_total =
+      seg.bytes().file_bytes_per_point(np) + double(m.map.codebook().centroids().size_bytes()) / double(np);
+  std::vector<float> d, qf(kDescriptorDim);
+  std::vector<uint32_t> f, p;
+  for (int list : kLists) {
+    const CascadeSearchOptions o = whole_shortlist_options(list);
+    for (const char* r : kRankers) {
+      const std::string method = name(r, list);
+      if (!method_wanted(s.options.methods, method)) continue;
+      MethodTotals mt{method};
+      const std::string ranker = r;
+      // What a segment would hold with this ranking in place of its 16-byte PQ
+      // codes: 32-byte codes (FAISS's 32 × 256 × 4-dimension codebook has the
+      // 128 KiB of the 16 × 256 × 8 one), the same codes and one 128 × 128
+      // rotation per map, or the 128-byte descriptors.
+      const double per_point = ranker == "pq32" ? 16.0 : ranker == "exact" ? 128.0 - kPqCodeBytes : 0.0;
+      const double per_map = ranker == "opq16" ? double(kDescriptorDim * kDescriptorDim * sizeof(float)) : 0.0;
+      mt.bytes_per_point = base + per_point;
+      mt.bytes_per_point_total = base_total + per_point + per_map / double(np);
+      for (size_t qi = 0; qi < s.queries.size(); ++qi) {
+        const QueryImage& q = s.queries[qi];
+        Timer t;
+        ccs.match(q.features.descriptors, o, cm);
+        f.clear();
+        p.clear();
+        for (size_t i = 0; i < cm.many_query.size(); ++i) {
+          const uint32_t feature = cm.many_query[i], begin = cm.many_offsets[i], end = cm.many_offsets[i + 1];
+          const size_t n = end - begin;
+          const uint32_t* ids = cm.many_points.data() + begin;
+          d.resize(n);
+          const uint8_t* qd = q.features.descriptors.row(feature);
+          for (int j = 0; j < kDescriptorDim; ++j) qf[j] = qd[j];
+          if (ranker == "pq16") {
+            for (size_t k = 0; k < n; ++k) d[k] = cm.many_distances[begin + k] * cm.many_distances[begin + k];
+          } else if (ranker == "exact") {
+            for (size_t k = 0; k < n; ++k) {
+              const uint8_t* pd = m.descriptors.row(ids[k]);
+              float sum = 0;
+              for (int j = 0; j < kDescriptorDim; ++j) {
+                const float x = qf[j] - float(pd[j]);
+                sum += x * x;
+              }
+              d[k] = sum;
+            }
+          } else {
+            (ranker == "pq32" ? *pq32 : *opq16).distances(qf.data(), ids, n, d.data());
+          }
+          const int best = nearest_passing_ratio(d, static_cast<float>(s.options.ratio));
+          if (best >= 0) f.push_back(feature), p.push_back(ids[best]);
+        }
+        mt.ms += t.elapsed_ms();
+        mt.exact_total += s.exact_sets[qi].size();
+        score_one_to_one(s, mt, qi, f, p);
+        mt.candidates += cm.many_query.empty() ? 0.0 : double(cm.many_points.size()) / double(cm.many_query.size());
+        mt.features += q.features.size();
+        mt.searched_features += cm.stats.features_searched;
+        ++mt.queries;
+      }
+      done(mt);
+    }
+  }
+}
+
 SceneResult run_scene(const MatchingBenchmarkOptions& o, const MatchingBenchmarkScene& scene,
                       const std::function<void(const std::string&)>& progress) {
   SceneResult res;
@@ -428,6 +515,7 @@ SceneResult run_scene(const MatchingBenchmarkOptions& o, const MatchingBenchmark
   done(run_exact(s, m));
   run_faiss(s, m, done);
   run_cascades(s, m, done);
+  run_reranking(s, m, done);
   return res;
 }
 
