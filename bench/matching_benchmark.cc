@@ -11,6 +11,7 @@
 #include <optional>
 #include <span>
 #include <sstream>
+#include <string_view>
 #include <unordered_set>
 
 #include "bench/reranking_study.h"
@@ -319,10 +320,14 @@ struct CascadeConfig {
   CascadeSearchOptions options;
 };
 
-std::vector<CascadeConfig> cascade_configs() {
+// `ratio`: the 1-1 sets' ν_h (--ratio), as for every other method; the 1-M
+// sets' ν stays 0.9 unless ν_h is above it.
+std::vector<CascadeConfig> cascade_configs(float ratio) {
   std::vector<CascadeConfig> configs;
-  auto opts = [](int radius, bool refined, bool prioritize, OneToManyRule rule) {
+  auto opts = [ratio](int radius, bool refined, bool prioritize, OneToManyRule rule) {
     CascadeSearchOptions o;
+    o.ratio_one_to_one = ratio;
+    o.ratio_one_to_many = std::max(o.ratio_one_to_many, ratio);
     o.lut_radius = radius;
     o.refined = refined;
     o.prioritize = prioritize;
@@ -408,95 +413,109 @@ void run_cascades(const SceneQueries& s, const LoadedMap& m, const std::function
   CascadeMatcher ccs(m.segment->index(), m.map.codebook());
   CascadeMatcher lsh_matcher(lsh_view, m.map.codebook());
   CascadeMatches cm;
-  for (const auto& c : cascade_configs()) {
+  for (const auto& c : cascade_configs(static_cast<float>(s.options.ratio))) {
     if (!method_wanted(s.options.methods, c.name)) continue;
     done(run_cascade_method(s, m, c, c.lsh ? lsh_matcher : ccs, cm));
   }
 }
 
 // The re-ranking study (bench/reranking_study.h): rerank-RANKER-lrL_R, the
-// full search's shortlist at radius 1 ranked by RANKER, at L_R 40 (the
-// default) and 64 (the L_R lever).
+// full search's short lists at radius 1 ranked by RANKER, at L_R 40 (the
+// default) and 64 (the L_R lever). Run only when a --method asks for it (its
+// FAISS training takes ~1 min per scene). Its ms/query is the ranking alone,
+// with FAISS's generic per-feature tables: not what a kernel would cost.
+struct ShortlistRanker {
+  const char* name;
+  double per_point_bytes;  // what a segment would hold in place of its 16-byte PQ codes
+  double per_map_bytes;
+  int faiss_subquantizers;  // 0: not a FAISS quantizer
+  bool opq_rotation;
+};
+// Per point, what a segment would hold in place of its 16-byte PQ codes: no
+// byte more with 16-byte codes (pq16, faiss-pq16, opq16), 16 more with
+// 32-byte ones (FAISS's 32 × 256 × 4-dimension codebook has the 128 KiB of the
+// 16 × 256 × 8 one), 112 more with the descriptors; per map, opq16's 128 × 128
+// float rotation.
+constexpr ShortlistRanker kShortlistRankers[] = {
+    {"pq16", 0, 0, 0, false},
+    {"exact", 128.0 - kPqCodeBytes, 0, 0, false},
+    {"faiss-pq16", 0, 0, 16, false},
+    {"pq32", 16, 0, 32, false},
+    {"opq16", 0, double(kDescriptorDim) * kDescriptorDim * sizeof(float), 16, true}};
+constexpr int kShortlistLengths[] = {40, 64};
+
+std::string reranking_method(const ShortlistRanker& r, int list) {
+  return std::string("rerank-") + r.name + "-lr" + std::to_string(list);
+}
+
+bool reranker_wanted(const std::vector<std::string>& methods, const ShortlistRanker& r) {
+  if (methods.empty()) return false;  // opt-in
+  return std::any_of(std::begin(kShortlistLengths), std::end(kShortlistLengths),
+                     [&](int list) { return method_wanted(methods, reranking_method(r, list)); });
+}
+
 void run_reranking(const SceneQueries& s, const LoadedMap& m, const std::function<void(const MethodTotals&)>& done) {
-  static const char* const kRankers[] = {"pq16", "exact", "pq32", "opq16"};
-  static const int kLists[] = {40, 64};
-  auto name = [](const char* ranker, int list) {
-    return std::string("rerank-") + ranker + "-lr" + std::to_string(list);
-  };
-  auto wanted = [&](const char* ranker) {
-    for (int list : kLists)
-      if (method_wanted(s.options.methods, name(ranker, list))) return true;
-    return false;
-  };
-  if (std::none_of(std::begin(kRankers), std::end(kRankers), wanted)) return;
+  const auto& methods = s.options.methods;
+  if (std::none_of(std::begin(kShortlistRankers), std::end(kShortlistRankers),
+                   [&](const ShortlistRanker& r) { return reranker_wanted(methods, r); }))
+    return;
   const Segment& seg = *m.segment;
   const size_t np = m.points;
-  std::unique_ptr<FaissPqReranker> pq32, opq16;
-  if (wanted("pq32")) pq32 = std::make_unique<FaissPqReranker>(m.descriptors_float.data(), np, 32, false);
-  if (wanted("opq16")) opq16 = std::make_unique<FaissPqReranker>(m.descriptors_float.data(), np, 16, true);
+  std::vector<std::unique_ptr<FaissPqReranker>> faiss(std::size(kShortlistRankers));
+  for (size_t r = 0; r < faiss.size(); ++r) {
+    const ShortlistRanker& ranker = kShortlistRankers[r];
+    if (ranker.faiss_subquantizers > 0 && reranker_wanted(methods, ranker))
+      faiss[r] = std::make_unique<FaissPqReranker>(
+          m.descriptors_float.data(), np,
+          FaissPqReranker::Options{.subquantizers = ranker.faiss_subquantizers, .opq_rotation = ranker.opq_rotation});
+  }
   CascadeMatcher ccs(seg.index(), m.map.codebook());
-  CascadeMatches cm;
+  CascadeMatches whole;
   const double base = seg.bytes().per_point_bytes_per_point(np);
   const double base_total =
       seg.bytes().file_bytes_per_point(np) + double(m.map.codebook().centroids().size_bytes()) / double(np);
-  std::vector<float> d, qf(kDescriptorDim);
+  const auto ratio = static_cast<float>(s.options.ratio);
   std::vector<uint32_t> f, p;
-  for (int list : kLists) {
-    const CascadeSearchOptions o = whole_shortlist_options(list);
-    for (const char* r : kRankers) {
-      const std::string method = name(r, list);
-      if (!method_wanted(s.options.methods, method)) continue;
-      MethodTotals mt{method};
-      const std::string ranker = r;
-      // What a segment would hold with this ranking in place of its 16-byte PQ
-      // codes: 32-byte codes (FAISS's 32 × 256 × 4-dimension codebook has the
-      // 128 KiB of the 16 × 256 × 8 one), the same codes and one 128 × 128
-      // rotation per map, or the 128-byte descriptors.
-      const double per_point = ranker == "pq32" ? 16.0 : ranker == "exact" ? 128.0 - kPqCodeBytes : 0.0;
-      const double per_map = ranker == "opq16" ? double(kDescriptorDim * kDescriptorDim * sizeof(float)) : 0.0;
-      mt.bytes_per_point = base + per_point;
-      mt.bytes_per_point_total = base_total + per_point + per_map / double(np);
-      for (size_t qi = 0; qi < s.queries.size(); ++qi) {
-        const QueryImage& q = s.queries[qi];
-        Timer t;
-        ccs.match(q.features.descriptors, o, cm);
-        f.clear();
-        p.clear();
-        for (size_t i = 0; i < cm.many_query.size(); ++i) {
-          const uint32_t feature = cm.many_query[i], begin = cm.many_offsets[i], end = cm.many_offsets[i + 1];
-          const size_t n = end - begin;
-          const uint32_t* ids = cm.many_points.data() + begin;
-          d.resize(n);
-          const uint8_t* qd = q.features.descriptors.row(feature);
-          for (int j = 0; j < kDescriptorDim; ++j) qf[j] = qd[j];
-          if (ranker == "pq16") {
-            for (size_t k = 0; k < n; ++k) d[k] = cm.many_distances[begin + k] * cm.many_distances[begin + k];
-          } else if (ranker == "exact") {
-            for (size_t k = 0; k < n; ++k) {
-              const uint8_t* pd = m.descriptors.row(ids[k]);
-              float sum = 0;
-              for (int j = 0; j < kDescriptorDim; ++j) {
-                const float x = qf[j] - float(pd[j]);
-                sum += x * x;
-              }
-              d[k] = sum;
-            }
-          } else {
-            (ranker == "pq32" ? *pq32 : *opq16).distances(qf.data(), ids, n, d.data());
-          }
-          const int best = nearest_passing_ratio(d, static_cast<float>(s.options.ratio));
-          if (best >= 0) f.push_back(feature), p.push_back(ids[best]);
-        }
-        mt.ms += t.elapsed_ms();
+  for (const int list : kShortlistLengths) {
+    std::vector<MethodTotals> totals;
+    std::vector<size_t> rankers;
+    for (size_t r = 0; r < std::size(kShortlistRankers); ++r) {
+      const ShortlistRanker& ranker = kShortlistRankers[r];
+      const std::string name = reranking_method(ranker, list);
+      if (!method_wanted(methods, name)) continue;
+      MethodTotals mt{name};
+      mt.bytes_per_point = base + ranker.per_point_bytes;
+      mt.bytes_per_point_total = base_total + ranker.per_point_bytes + ranker.per_map_bytes / double(np);
+      totals.push_back(mt);
+      rankers.push_back(r);
+    }
+    if (totals.empty()) continue;
+    const CascadeSearchOptions o = whole_shortlist_options(list, 1, ratio);
+    for (size_t qi = 0; qi < s.queries.size(); ++qi) {
+      const QueryImage& q = s.queries[qi];
+      ccs.match(q.features.descriptors, o, whole);  // once per query and L_R, for every ranker
+      for (size_t t = 0; t < totals.size(); ++t) {
+        MethodTotals& mt = totals[t];
+        const size_t r = rankers[t];
+        const std::string_view name = kShortlistRankers[r].name;
+        const ShortlistDistances distances = name == "pq16" ? search_pq_distances(whole)
+                                             : name == "exact"
+                                                 ? exact_distances(whole, q.features.descriptors, m.descriptors)
+                                                 : faiss_distances(whole, q.features.descriptors, *faiss[r]);
+        Timer timer;
+        rank_whole_shortlists(whole, distances, ratio, f, p);
+        mt.ms += timer.elapsed_ms();
         mt.exact_total += s.exact_sets[qi].size();
         score_one_to_one(s, mt, qi, f, p);
-        mt.candidates += cm.many_query.empty() ? 0.0 : double(cm.many_points.size()) / double(cm.many_query.size());
+        mt.candidates += whole.stats.features_searched
+                             ? double(whole.stats.coarse_candidates) / double(whole.stats.features_searched)
+                             : 0;
         mt.features += q.features.size();
-        mt.searched_features += cm.stats.features_searched;
+        mt.searched_features += whole.stats.features_searched;
         ++mt.queries;
       }
-      done(mt);
     }
+    for (const MethodTotals& mt : totals) done(mt);
   }
 }
 

@@ -8,9 +8,10 @@
 //   lsh-cascade   CasHash-style: 8 random 16-bit tables, Hamming top L_R, PQ
 //   ccs-*         the cascade search: without the refined step, full search,
 //                 prioritized; LUT radius 0 (paper) and 1 (multi-index probing)
-//   rerank-*      the full search's shortlist at radius 1 ranked by its own
-//                 PQ, exact L2, FAISS PQ 32 × 8 bits or OPQ + PQ 16 × 8 bits,
-//                 at L_R 40 and 64: the recall levers (bench/reranking_study.h)
+//   rerank-*      only when a --method asks for it: the full search's short
+//                 lists at radius 1 ranked by its own PQ, exact L2, FAISS PQ
+//                 16 or 32 × 8 bits, OPQ + PQ 16 × 8 bits, at L_R 40 and 64:
+//                 the recall levers (bench/reranking_study.h)
 // Per method: milliseconds per query (matching only, one thread), coarse
 // candidates per feature, 1-1 matches, recall of the exact method's 1-1
 // matches, bytes per point, and — scored with the held-out images' reference

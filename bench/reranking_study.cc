@@ -3,19 +3,21 @@
 #include <faiss/VectorTransform.h>
 #include <faiss/impl/ProductQuantizer.h>
 
+#include <algorithm>
 #include <cmath>
 
 #include "visloc/util/error.h"
 
 namespace visloc {
 
-CascadeSearchOptions whole_shortlist_options(int refined_list, int lut_radius) {
+CascadeSearchOptions whole_shortlist_options(int refined_list, int lut_radius, float ratio_one_to_one) {
   CascadeSearchOptions o;
   o.lut_radius = lut_radius;
   o.prioritize = false;
   o.refined = true;
   o.refined_list = refined_list;
   o.max_one_to_many = refined_list;
+  o.ratio_one_to_one = ratio_one_to_one;
   o.ratio_one_to_many = 1.0f;
   o.one_to_many_rule = OneToManyRule::kBestRatio;
   o.validate();
@@ -33,18 +35,83 @@ int nearest_passing_ratio(std::span<const float> squared, float ratio) {
   return squared[best] < ratio * ratio * second ? static_cast<int>(best) : -1;
 }
 
-FaissPqReranker::FaissPqReranker(const float* points, size_t n, int subquantizers, bool opq_rotation) {
-  VISLOC_CHECK(n > 0 && subquantizers > 0 && kDescriptorDim % subquantizers == 0);
+void rank_whole_shortlists(const CascadeMatches& whole, const ShortlistDistances& distances, float ratio,
+                           std::vector<uint32_t>& features, std::vector<uint32_t>& points) {
+  features.clear();
+  points.clear();
+  std::vector<float> d;
+  for (size_t i = 0; i < whole.many_query.size(); ++i) {
+    const uint32_t begin = whole.many_offsets[i], end = whole.many_offsets[i + 1];
+    const std::span<const uint32_t> ids(whole.many_points.data() + begin, end - begin);
+    d.resize(ids.size());
+    distances(i, ids, d.data());
+    const int best = nearest_passing_ratio(d, ratio);
+    if (best >= 0) {
+      features.push_back(whole.many_query[i]);
+      points.push_back(ids[static_cast<size_t>(best)]);
+    }
+  }
+}
+
+ShortlistDistances search_pq_distances(const CascadeMatches& whole) {
+  return [&whole](size_t list, std::span<const uint32_t> ids, float* out) {
+    const float* d = whole.many_distances.data() + whole.many_offsets[list];
+    for (size_t k = 0; k < ids.size(); ++k) out[k] = d[k] * d[k];
+  };
+}
+
+ShortlistDistances exact_distances(const CascadeMatches& whole, const DescriptorMatrix& queries,
+                                   const DescriptorMatrix& points) {
+  return [&whole, &queries, &points](size_t list, std::span<const uint32_t> ids, float* out) {
+    const uint8_t* q = queries.row(whole.many_query[list]);
+    for (size_t k = 0; k < ids.size(); ++k) {
+      VISLOC_CHECK(ids[k] < points.rows(), "short-list point out of the descriptors' range");
+      const uint8_t* p = points.row(ids[k]);
+      float sum = 0;  // exact: integers below 2^24
+      for (int j = 0; j < kDescriptorDim; ++j) {
+        const float x = float(q[j]) - float(p[j]);
+        sum += x * x;
+      }
+      out[k] = sum;
+    }
+  };
+}
+
+void FaissPqReranker::Options::validate() const {
+  if (subquantizers < 1 || subquantizers > kDescriptorDim || kDescriptorDim % subquantizers != 0)
+    throw_error(ErrorCode::kInvalidArgument, "FaissPqReranker.subquantizers must divide 128, got ", subquantizers);
+  if (opq_iterations < 1)
+    throw_error(ErrorCode::kInvalidArgument, "FaissPqReranker.opq_iterations must be >= 1, got ", opq_iterations);
+}
+
+namespace {
+
+std::unique_ptr<faiss::ProductQuantizer> make_pq(int subquantizers) {
+  auto pq = std::make_unique<faiss::ProductQuantizer>(kDescriptorDim, subquantizers, 8);
+  pq->verbose = false;
+  pq->cp.min_points_per_centroid = 16;  // as PqCodebook: segments of a few thousand points are normal
+  return pq;
+}
+
+}  // namespace
+
+FaissPqReranker::FaissPqReranker(const float* points, size_t n, const Options& options) : points_(n) {
+  options.validate();
+  if (n < 256)
+    throw_error(ErrorCode::kInvalidArgument, "FaissPqReranker: ", n,
+                " points, at least 256 are needed (one per centroid)");
   std::vector<float> train(points, points + n * kDescriptorDim);
   const auto count = static_cast<int64_t>(n);
-  if (opq_rotation) {
-    rotation_ = std::make_unique<faiss::OPQMatrix>(kDescriptorDim, subquantizers);
+  if (options.opq_rotation) {
+    rotation_ = std::make_unique<faiss::OPQMatrix>(kDescriptorDim, options.subquantizers);
     rotation_->verbose = false;
+    rotation_->niter = options.opq_iterations;
+    rotation_pq_ = make_pq(options.subquantizers);
+    rotation_->pq = rotation_pq_.get();
     rotation_->train(count, points);
     rotation_->apply_noalloc(count, points, train.data());
   }
-  pq_ = std::make_unique<faiss::ProductQuantizer>(kDescriptorDim, subquantizers, 8);
-  pq_->verbose = false;
+  pq_ = make_pq(options.subquantizers);
   pq_->train(count, train.data());
   codes_.resize(n * pq_->code_size);
   pq_->compute_codes(train.data(), codes_.data(), count);
@@ -65,21 +132,31 @@ void FaissPqReranker::transform(const float* query, float* out) const {
 }
 
 void FaissPqReranker::reconstruct(uint32_t id, float* out) const {
-  VISLOC_CHECK(size_t(id) * pq_->code_size < codes_.size());
+  VISLOC_CHECK(id < points_, "point id out of range");
   pq_->decode(codes_.data() + size_t(id) * pq_->code_size, out);
 }
 
-void FaissPqReranker::distances(const float* query, const uint32_t* ids, size_t n, float* out) {
+void FaissPqReranker::distances(const float* query, std::span<const uint32_t> ids, float* out) {
   transform(query, rotated_.data());
   pq_->compute_distance_table(rotated_.data(), table_.data());
   const size_t m = pq_->M, k = pq_->ksub;
-  for (size_t i = 0; i < n; ++i) {
-    VISLOC_CHECK(size_t(ids[i]) * m < codes_.size());
+  for (size_t i = 0; i < ids.size(); ++i) {
+    VISLOC_CHECK(ids[i] < points_, "point id out of range");
     const uint8_t* c = codes_.data() + size_t(ids[i]) * m;
     float d = 0;
     for (size_t j = 0; j < m; ++j) d += table_[j * k + c[j]];
     out[i] = d;
   }
+}
+
+ShortlistDistances faiss_distances(const CascadeMatches& whole, const DescriptorMatrix& queries,
+                                   FaissPqReranker& reranker) {
+  auto query = std::make_shared<std::vector<float>>(kDescriptorDim);
+  return [&whole, &queries, &reranker, query](size_t list, std::span<const uint32_t> ids, float* out) {
+    const uint8_t* q = queries.row(whole.many_query[list]);
+    std::copy(q, q + kDescriptorDim, query->begin());
+    reranker.distances(query->data(), ids, out);
+  };
 }
 
 }  // namespace visloc

@@ -1,21 +1,30 @@
-// The re-ranking study of `visloc bench matching` (its rerank-* methods; the
-// cheap recall levers of #15): the full cascade search's shortlist (the L_R
-// nearest points by Hamming distance, or every candidate of a shorter coarse
-// list) ranked by another distance, then Lowe's 1-1 ratio test, against the
-// exact method's 1-1 matches. The rankers:
-//   the segment's own PQ (16 bytes per point): the search itself, the check
-//   of the harness; exact L2 on the points' descriptors: the bound of any
-//   re-ranking of the same shortlist; FAISS PQ with 32 sub-quantizers (16
-//   bytes per point more); FAISS OPQ, a learnt 128 × 128 rotation (64 KiB
-//   per map) before 16 sub-quantizers (no byte per point more).
+// The re-ranking study of `visloc bench matching` (its rerank-* methods, run
+// when asked for with --method rerank; the cheap recall levers of #15): the
+// full cascade search's short list (the L_R nearest points by Hamming
+// distance, or every candidate of a shorter coarse list) ranked by another
+// distance, then Lowe's 1-1 ratio test, scored against the exact method's 1-1
+// matches. The rankers (ShortlistRanker):
+//   pq16        the search's own 16-byte PQ distances: repeats ccs-full-r1,
+//               the check of the harness
+//   exact       L2 on the points' descriptors: the bound of any re-ranking of
+//               the same short lists
+//   faiss-pq16  FAISS PQ 16 × 8 bits, trained here: the control of opq16
+//   pq32        FAISS PQ 32 × 8 bits (16 bytes per point more)
+//   opq16       FAISS OPQ, a learnt 128 × 128 rotation (64 KiB per map),
+//               before PQ 16 × 8 bits (no byte per point more)
+// A feature whose two nearest search PQ distances tie has no short list here
+// (the search's 1-1 test rejects it as well), so every ranker misses it: the
+// finer rankers' recall is, if anything, slightly low.
 #pragma once
 
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <span>
 #include <vector>
 
+#include "visloc/features/feature_set.h"
 #include "visloc/matching/cascade_index.h"
 
 namespace faiss {
@@ -26,11 +35,11 @@ struct ProductQuantizer;
 namespace visloc {
 
 // Options under which CascadeMatcher returns, as a feature's 1-M set, its
-// whole ranked list (M = L_R, ν = 1, the best-ratio rule, every feature in
-// order): every feature whose two nearest PQ distances differ; one with an
-// exact tie is left out, as the search's own 1-1 test rejects it too.
-// `refined_list` in [2, 64] (M's range).
-CascadeSearchOptions whole_shortlist_options(int refined_list, int lut_radius = 1);
+// whole ranked list (M = L_R, ν = 1, the best-ratio rule, the refined step
+// on, every feature in order): every feature with at least 2 candidates
+// whose two nearest PQ distances differ. `refined_list` in [2, 64] (M's
+// range); `ratio_one_to_one` is the search's ν_h.
+CascadeSearchOptions whole_shortlist_options(int refined_list, int lut_radius = 1, float ratio_one_to_one = 0.8f);
 
 // The position in `squared` (squared distances) of the nearest when it passes
 // Lowe's ratio test, d0 < ratio² · d1 with d1 the second smallest; -1 when it
@@ -38,11 +47,36 @@ CascadeSearchOptions whole_shortlist_options(int refined_list, int lut_radius = 
 // nearest (a tie fails).
 int nearest_passing_ratio(std::span<const float> squared, float ratio);
 
+// Squared distances of short list `list` (an index into whole.many_query) to
+// its points `ids`, into `out`.
+using ShortlistDistances = std::function<void(size_t list, std::span<const uint32_t> ids, float* out)>;
+
+// The 1-1 matches of the short lists in `whole` (a search with
+// whole_shortlist_options) ranked by `distances`: (feature, point) pairs into
+// `features` / `points` (cleared first), in the lists' order.
+void rank_whole_shortlists(const CascadeMatches& whole, const ShortlistDistances& distances, float ratio,
+                           std::vector<uint32_t>& features, std::vector<uint32_t>& points);
+
+// The search's own distances, squared back (the search reports their roots).
+ShortlistDistances search_pq_distances(const CascadeMatches& whole);
+// Exact squared L2 between query features (rows of `queries`, by
+// whole.many_query) and points (rows of `points`, by id).
+ShortlistDistances exact_distances(const CascadeMatches& whole, const DescriptorMatrix& queries,
+                                   const DescriptorMatrix& points);
+
 // A FAISS product quantizer over a segment's point descriptors (128 floats
-// each), optionally after an OPQ rotation, trained and encoded on them.
+// each), optionally after an OPQ rotation, trained and encoded on them. Not
+// thread-safe: `distances` uses the object's scratch.
 class FaissPqReranker {
  public:
-  FaissPqReranker(const float* points, size_t n, int subquantizers, bool opq_rotation);
+  struct Options {
+    int subquantizers = 16;     // 8 bits each; divides 128
+    bool opq_rotation = false;  // learn an OPQ rotation first
+    int opq_iterations = 50;    // OPQ's outer iterations (FAISS's default)
+    void validate() const;
+  };
+  // Needs at least 256 points (one per centroid); throws kInvalidArgument.
+  FaissPqReranker(const float* points, size_t n, const Options& options);
   ~FaissPqReranker();
   FaissPqReranker(const FaissPqReranker&) = delete;
   FaissPqReranker& operator=(const FaissPqReranker&) = delete;
@@ -50,17 +84,23 @@ class FaissPqReranker {
   size_t code_bytes() const;  // per point
   // Squared distances of `query` (128 floats) to the points `ids`: the sum of
   // the query's table of sub-distances over each point's code.
-  void distances(const float* query, const uint32_t* ids, size_t n, float* out);
-  // For tests: the query as the quantizer sees it (rotated with OPQ), and a
-  // point's decoded code in that space; 128 floats each.
+  void distances(const float* query, std::span<const uint32_t> ids, float* out);
+  // The query as the quantizer sees it (rotated with OPQ), and a point's
+  // decoded code in that space; 128 floats each.
   void transform(const float* query, float* out) const;
   void reconstruct(uint32_t id, float* out) const;
 
  private:
   std::unique_ptr<faiss::OPQMatrix> rotation_;
+  std::unique_ptr<faiss::ProductQuantizer> rotation_pq_;  // the PQ the rotation is trained with
   std::unique_ptr<faiss::ProductQuantizer> pq_;
+  size_t points_ = 0;
   std::vector<uint8_t> codes_;
   std::vector<float> table_, rotated_;
 };
+
+// The reranker's distances for the short lists of `whole`.
+ShortlistDistances faiss_distances(const CascadeMatches& whole, const DescriptorMatrix& queries,
+                                   FaissPqReranker& reranker);
 
 }  // namespace visloc

@@ -3,6 +3,8 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <array>
+#include <map>
 #include <random>
 #include <set>
 #include <utility>
@@ -10,6 +12,8 @@
 #include "visloc/baselines/faiss_baselines.h"
 #include "visloc/matching/binary_hasher.h"
 #include "visloc/matching/pq_codebook.h"
+#include "visloc/util/error.h"
+#include "visloc/util/test_support.h"
 
 using namespace visloc;
 
@@ -17,8 +21,7 @@ namespace {
 
 const int kOneThread = (set_faiss_threads(1), 1);
 
-// SIFT-like descriptors: a mixture of clusters in [0, 255]; the queries are
-// noisy copies of points.
+// SIFT-like descriptors: a mixture of clusters in [0, 255].
 DescriptorMatrix clustered(size_t n, uint32_t seed) {
   std::mt19937 rng(seed);
   std::uniform_int_distribution<int> centre(0, 110), noise(-35, 35);
@@ -33,18 +36,47 @@ DescriptorMatrix clustered(size_t n, uint32_t seed) {
   return d;
 }
 
-DescriptorMatrix noisy_copies(const DescriptorMatrix& db, size_t n, uint32_t seed, int amplitude = 12) {
+// Noisy copies of random points: rows `first`.. of `out`, their sources into `sources`.
+void add_noisy_copies(const DescriptorMatrix& db, size_t first, size_t n, uint32_t seed, int amplitude,
+                      DescriptorMatrix& out, std::vector<uint32_t>& sources) {
   std::mt19937 rng(seed);
   std::uniform_int_distribution<int> noise(-amplitude, amplitude);
-  DescriptorMatrix q(n);
   for (size_t i = 0; i < n; ++i) {
-    const uint8_t* p = db.row(rng() % db.rows());
-    for (int j = 0; j < kDescriptorDim; ++j) q.row(i)[j] = static_cast<uint8_t>(std::clamp(p[j] + noise(rng), 0, 255));
+    const auto source = static_cast<uint32_t>(rng() % db.rows());
+    sources.push_back(source);
+    for (int j = 0; j < kDescriptorDim; ++j)
+      out.row(first + i)[j] = static_cast<uint8_t>(std::clamp(db.row(source)[j] + noise(rng), 0, 255));
   }
-  return q;
 }
 
 std::vector<float> to_float(const DescriptorMatrix& d) { return {d.data(), d.data() + d.size_bytes()}; }
+
+// A segment's search over clustered points, and queries: 400 near copies
+// (clear matches) then 400 far ones (ambiguous: their two nearest are close).
+struct SearchFixture {
+  DescriptorMatrix db = clustered(6000, 3);
+  BinaryHasher hasher;
+  PqCodebook codebook;
+  std::vector<HashCode> codes;
+  std::vector<uint8_t> pq;
+  CascadeLookup lookup;
+  DescriptorMatrix queries{800};
+  std::vector<uint32_t> sources;
+  SearchFixture() {
+    const std::vector<float> f = to_float(db);
+    hasher = train_itq(f.data(), db.rows(), {.iterations = 10}).hasher;
+    codebook = PqCodebook::train(f.data(), db.rows(), {.iterations = 10});
+    codes.resize(db.rows());
+    HashWorkspace hw;
+    encode_hash(hasher.view(), db.data(), db.rows(), codes.data(), hw);
+    pq.resize(db.rows() * kPqCodeBytes);
+    codebook.encode(f.data(), db.rows(), pq.data());
+    lookup = CascadeLookup(codes);
+    add_noisy_copies(db, 0, 400, 4, 12, queries, sources);
+    add_noisy_copies(db, 400, 400, 8, 60, queries, sources);
+  }
+  CascadeIndexView view() const { return {codes.size(), hasher.view(), codes.data(), pq.data(), &lookup}; }
+};
 
 }  // namespace
 
@@ -62,25 +94,36 @@ TEST(RerankingStudy, NearestPassingRatioAtWorkedPoints) {
 }
 
 // The quantizer's distances are the squared distances of the (rotated) query
-// to the decoded points, with and without OPQ; the rotation is orthogonal, so
-// it keeps the query's length.
+// to the decoded points, with and without OPQ; the rotation is orthogonal (it
+// keeps lengths) and not the identity; a query's nearest by the codes is the
+// point it copies.
 TEST(RerankingStudy, FaissDistancesAreThoseToTheDecodedPoints) {
-  const DescriptorMatrix db = clustered(3000, 5);
+  const DescriptorMatrix db = clustered(4200, 5);
   const std::vector<float> points = to_float(db);
-  const DescriptorMatrix queries = noisy_copies(db, 20, 9);
+  DescriptorMatrix queries(20);
+  std::vector<uint32_t> sources;
+  add_noisy_copies(db, 0, 20, 9, 12, queries, sources);
   for (const bool opq : {false, true}) {
     SCOPED_TRACE(opq ? "opq16" : "pq32");
-    FaissPqReranker reranker(points.data(), db.rows(), opq ? 16 : 32, opq);
+    FaissPqReranker reranker(points.data(), db.rows(),
+                             {.subquantizers = opq ? 16 : 32, .opq_rotation = opq, .opq_iterations = 8});
     EXPECT_EQ(reranker.code_bytes(), opq ? 16u : 32u);
-    std::vector<uint32_t> ids(50);
-    for (uint32_t i = 0; i < ids.size(); ++i) ids[i] = i * 59;
-    std::vector<float> d(ids.size()), q(kDescriptorDim), qt(kDescriptorDim), x(kDescriptorDim);
+    std::vector<float> d, q(kDescriptorDim), qt(kDescriptorDim), x(kDescriptorDim);
+    size_t found = 0;
+    double moved = 0;
     for (size_t r = 0; r < queries.rows(); ++r) {
+      std::vector<uint32_t> ids(50);
+      for (uint32_t i = 0; i < ids.size(); ++i) ids[i] = (i * 59 + 7 * uint32_t(r)) % uint32_t(db.rows());
+      ids[r % ids.size()] = sources[r];
+      d.resize(ids.size());
       for (int j = 0; j < kDescriptorDim; ++j) q[j] = queries.row(r)[j];
-      reranker.distances(q.data(), ids.data(), ids.size(), d.data());
+      reranker.distances(q.data(), ids, d.data());
       reranker.transform(q.data(), qt.data());
       double len_q = 0, len_qt = 0;
-      for (int j = 0; j < kDescriptorDim; ++j) len_q += q[j] * q[j], len_qt += qt[j] * qt[j];
+      for (int j = 0; j < kDescriptorDim; ++j) {
+        len_q += q[j] * q[j], len_qt += qt[j] * qt[j];
+        moved += std::abs(double(qt[j]) - q[j]);
+      }
       EXPECT_NEAR(len_qt, len_q, 1e-4 * len_q);
       for (size_t i = 0; i < ids.size(); ++i) {
         reranker.reconstruct(ids[i], x.data());
@@ -88,46 +131,26 @@ TEST(RerankingStudy, FaissDistancesAreThoseToTheDecodedPoints) {
         for (int j = 0; j < kDescriptorDim; ++j) want += (qt[j] - x[j]) * (qt[j] - x[j]);
         EXPECT_NEAR(d[i], want, 1e-3 * want + 1e-2);
       }
+      found += ids[std::min_element(d.begin(), d.end()) - d.begin()] == sources[r];
     }
-    // Finer codes rank nearer to exact L2 than the 16-byte PQ would: a sanity
-    // check that codes and table line up (a scrambled code would not).
-    std::vector<float> exact(ids.size());
-    for (int j = 0; j < kDescriptorDim; ++j) q[j] = queries.row(0)[j];
-    reranker.distances(q.data(), ids.data(), ids.size(), d.data());
-    for (size_t i = 0; i < ids.size(); ++i) {
-      double s = 0;
-      for (int j = 0; j < kDescriptorDim; ++j)
-        s += (q[j] - points[ids[i] * kDescriptorDim + j]) * (q[j] - points[ids[i] * kDescriptorDim + j]);
-      exact[i] = float(s);
-    }
-    const auto nearest_exact = std::min_element(exact.begin(), exact.end()) - exact.begin();
-    const auto nearest_pq = std::min_element(d.begin(), d.end()) - d.begin();
-    EXPECT_EQ(nearest_pq, nearest_exact);
+    if (opq)
+      EXPECT_GT(moved, 100.0);  // rotated
+    else
+      EXPECT_EQ(moved, 0.0);
+    EXPECT_GE(found, 18u);
   }
+  EXPECT_EQ(error_of([&] { FaissPqReranker(points.data(), 255, {}); }).find("at least 256") != std::string::npos, true);
+  EXPECT_NE(error_of([&] { FaissPqReranker(points.data(), db.rows(), {.subquantizers = 12}); }).find("divide 128"),
+            std::string::npos);
 }
 
-// The harness's check: the whole shortlists ranked by the search's own PQ
+// The harness's check: the whole short lists ranked by the search's own PQ
 // distances, through the same ratio test, give exactly the search's 1-1 set,
-// at both radii and both L_R.
+// at both radii and both L_R; each list is the whole L_R list, of which the
+// search's 1-M set is the head, for every feature whose two nearest differ.
 TEST(RerankingStudy, WholeShortlistsRankedByTheSearchsDistancesRepeatTheSearch) {
-  const DescriptorMatrix db = clustered(6000, 3);
-  const std::vector<float> f = to_float(db);
-  const BinaryHasher hasher = train_itq(f.data(), db.rows(), {.iterations = 10}).hasher;
-  const PqCodebook codebook = PqCodebook::train(f.data(), db.rows(), {.iterations = 10});
-  std::vector<HashCode> codes(db.rows());
-  HashWorkspace hw;
-  encode_hash(hasher.view(), db.data(), db.rows(), codes.data(), hw);
-  std::vector<uint8_t> pq(db.rows() * kPqCodeBytes);
-  codebook.encode(f.data(), db.rows(), pq.data());
-  const CascadeLookup lookup(codes);
-  const CascadeIndexView view{codes.size(), hasher.view(), codes.data(), pq.data(), &lookup};
-  CascadeMatcher matcher(view, codebook);
-  // Near copies (clear matches) and far ones (ambiguous: their two nearest
-  // are close, so ν decides which features have a 1-M set).
-  DescriptorMatrix queries(800);
-  const DescriptorMatrix near = noisy_copies(db, 400, 4), far = noisy_copies(db, 400, 8, 60);
-  std::copy(near.data(), near.data() + near.size_bytes(), queries.data());
-  std::copy(far.data(), far.data() + far.size_bytes(), queries.data() + near.size_bytes());
+  const SearchFixture fx;
+  CascadeMatcher matcher(fx.view(), fx.codebook);
   for (const int radius : {0, 1})
     for (const int list : {40, 64}) {
       SCOPED_TRACE(testing::Message() << "radius " << radius << ", L_R " << list);
@@ -135,24 +158,66 @@ TEST(RerankingStudy, WholeShortlistsRankedByTheSearchsDistancesRepeatTheSearch) 
       search.lut_radius = radius;
       search.prioritize = false;
       search.refined_list = list;
-      const CascadeMatches direct = matcher.match(queries, search);
-      const CascadeMatches whole = matcher.match(queries, whole_shortlist_options(list, radius));
+      const CascadeMatches direct = matcher.match(fx.queries, search);
+      const CascadeMatches whole = matcher.match(fx.queries, whole_shortlist_options(list, radius));
+      std::vector<uint32_t> f, p;
+      rank_whole_shortlists(whole, search_pq_distances(whole), search.ratio_one_to_one, f, p);
       std::set<std::pair<uint32_t, uint32_t>> want, got;
       for (size_t i = 0; i < direct.query.size(); ++i) want.emplace(direct.query[i], direct.point[i]);
-      size_t longest = 0;
-      for (size_t i = 0; i < whole.many_query.size(); ++i) {
-        const uint32_t begin = whole.many_offsets[i], end = whole.many_offsets[i + 1];
-        longest = std::max<size_t>(longest, end - begin);
-        std::vector<float> squared;
-        for (uint32_t k = begin; k < end; ++k) squared.push_back(whole.many_distances[k] * whole.many_distances[k]);
-        const int best = nearest_passing_ratio(squared, search.ratio_one_to_one);
-        if (best >= 0) got.emplace(whole.many_query[i], whole.many_points[begin + best]);
-      }
+      for (size_t i = 0; i < f.size(); ++i) got.emplace(f[i], p[i]);
       EXPECT_GT(want.size(), 300u);
       EXPECT_EQ(got, want);
+      std::map<uint32_t, size_t> whole_list;
+      size_t longest = 0;
+      for (size_t i = 0; i < whole.many_query.size(); ++i) {
+        whole_list[whole.many_query[i]] = i;
+        longest = std::max<size_t>(longest, whole.many_offsets[i + 1] - whole.many_offsets[i]);
+      }
       EXPECT_EQ(longest, size_t(list));  // the whole L_R list, not the top M = 5
-      // Every feature whose two nearest differ, not only those within ν = 0.9:
-      // a finer ranking may pass the 1-1 test where the search's PQ did not.
+      // Every feature whose two nearest differ, not only those within ν = 0.9.
       EXPECT_GT(whole.many_query.size(), direct.many_query.size() + 20);
+      for (size_t i = 0; i < direct.many_query.size(); ++i) {
+        const auto it = whole_list.find(direct.many_query[i]);
+        ASSERT_NE(it, whole_list.end());
+        const uint32_t w = whole.many_offsets[it->second], n = direct.many_offsets[i + 1] - direct.many_offsets[i];
+        ASSERT_GE(whole.many_offsets[it->second + 1] - w, n);
+        for (uint32_t k = 0; k < n; ++k)
+          EXPECT_EQ(whole.many_points[w + k], direct.many_points[direct.many_offsets[i] + k]);
+      }
     }
+}
+
+// Exact ranking: the squared L2 of the query's and the points' descriptors;
+// on the same short lists it finds at least as many of the copied points as
+// the search's PQ does.
+TEST(RerankingStudy, ExactDistancesAndTheirRanking) {
+  const SearchFixture fx;
+  CascadeMatcher matcher(fx.view(), fx.codebook);
+  const CascadeMatches whole = matcher.match(fx.queries, whole_shortlist_options(40));
+  ASSERT_GT(whole.many_query.size(), 100u);
+  const ShortlistDistances exact = exact_distances(whole, fx.queries, fx.db);
+  for (size_t i = 0; i < whole.many_query.size(); i += 37) {
+    const uint32_t begin = whole.many_offsets[i], end = whole.many_offsets[i + 1];
+    const std::span<const uint32_t> ids(whole.many_points.data() + begin, end - begin);
+    std::vector<float> d(ids.size());
+    exact(i, ids, d.data());
+    for (size_t k = 0; k < ids.size(); ++k) {
+      int64_t want = 0;
+      for (int j = 0; j < kDescriptorDim; ++j) {
+        const int64_t x = int64_t(fx.queries.row(whole.many_query[i])[j]) - int64_t(fx.db.row(ids[k])[j]);
+        want += x * x;
+      }
+      EXPECT_EQ(d[k], float(want));
+    }
+  }
+  auto right = [&](const ShortlistDistances& distances) {
+    std::vector<uint32_t> f, p;
+    rank_whole_shortlists(whole, distances, 0.8f, f, p);
+    size_t n = 0;
+    for (size_t i = 0; i < f.size(); ++i) n += p[i] == fx.sources[f[i]];
+    return n;
+  };
+  const size_t by_pq = right(search_pq_distances(whole)), by_exact = right(exact);
+  EXPECT_GT(by_pq, 300u);
+  EXPECT_GE(by_exact, by_pq);
 }

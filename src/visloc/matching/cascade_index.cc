@@ -255,17 +255,6 @@ void probe_ranges(const CascadeLookup& lookup, const HashCode& code, int probes,
 // next feature's first ids (the wait at 100K points is on cache misses either
 // way), and computing the Hamming distances here rather than in a pass of
 // their own (duplicates cost a distance each).
-// Where the 100K-point segment's full search at radius 1 spends its time
-// (a copy of the search cut after each step, micro bench, medians of 6 in
-// one process, 43 ms in all): the probes and offsets 3.4 ms, the gather
-// 14.7 ms, the Hamming pass 8.4 ms, the short list and ADC the rest. Also
-// not faster, measured there: each table's codes stored beside its ids, in
-// bucket order, so the Hamming distances are taken in the gather from
-// contiguous memory (8 × 16 bytes per point more: 81 against 43 ms, the
-// larger tables miss the cache more); prefetching the ranked candidates' PQ
-// codes before the ADC (43.0-45.5 against 32.8-37.6 ms, 3 alternated
-// processes); the lookup and workspace in transparent huge pages
-// (glibc.malloc.hugetlb=1: no change beyond the noise).
 template <typename Id>
 size_t gather_candidates(const Id* const* ids, const ProbeRanges& r, uint8_t* seen, uint32_t* out) {
   size_t n = 0;
@@ -417,6 +406,20 @@ void CascadeMatcher::match(const DescriptorMatrix& queries, const CascadeSearchO
   out.stats.ms_total += ms_hash;
 }
 
+// Where the full search at radius 1 on a 100K-point segment (10K features,
+// micro bench) spends its time, measured on a copy of this search cut after
+// each step, all in one process (medians of 6; the copy 43.1 ms, this search
+// 46.3 ms in the same run): the probes and offsets 3.4 ms, the gather 14.7,
+// the Hamming pass 8.4, the short list and ADC 16.6. Measured there and not
+// kept: each table's codes stored beside its ids in bucket order, so the
+// gather takes the Hamming distances from contiguous memory (8 × 16 bytes
+// per point more; 81.1 against 43.1 ms, the larger tables miss the cache
+// more); the ranked candidates' PQ codes prefetched before the ADC (3-9%
+// faster in the copy, but this search measured slower with it: 43.0-45.5
+// against 32.8-37.6 ms in 3 alternated process pairs, unexplained on a noisy
+// machine); the lookup and workspace in transparent huge pages
+// (glibc.malloc.hugetlb=1, 20-290 MB of huge pages seen in the process: no
+// change beyond the noise in 6 alternated pairs).
 void CascadeMatcher::match_hashed(const DescriptorMatrix& queries, std::span<const HashCode> codes,
                                   const CascadeSearchOptions& options, CascadeMatches& out) {
   options.validate();
