@@ -432,26 +432,30 @@ struct ShortlistRanker {
   bool opq_rotation;
 };
 // Per point, what a segment would hold in place of its 16-byte PQ codes: no
-// byte more with 16-byte codes (pq16, faiss-pq16, opq16), 16 more with
+// byte more with 16-byte codes (search-pq16, faiss-pq16, faiss-opq16), 16 more with
 // 32-byte ones (FAISS's 32 × 256 × 4-dimension codebook has the 128 KiB of the
-// 16 × 256 × 8 one), 112 more with the descriptors; per map, opq16's 128 × 128
+// 16 × 256 × 8 one), 112 more with the descriptors; per map, faiss-opq16's 128 × 128
 // float rotation.
 constexpr ShortlistRanker kShortlistRankers[] = {
-    {"pq16", 0, 0, 0, false},
+    {"search-pq16", 0, 0, 0, false},
     {"exact", 128.0 - kPqCodeBytes, 0, 0, false},
     {"faiss-pq16", 0, 0, 16, false},
-    {"pq32", 16, 0, 32, false},
-    {"opq16", 0, double(kDescriptorDim) * kDescriptorDim * sizeof(float), 16, true}};
+    {"faiss-pq32", 16, 0, 32, false},
+    {"faiss-opq16", 0, double(kDescriptorDim) * kDescriptorDim * sizeof(float), 16, true}};
 constexpr int kShortlistLengths[] = {40, 64};
 
 std::string reranking_method(const ShortlistRanker& r, int list) {
   return std::string("rerank-") + r.name + "-lr" + std::to_string(list);
 }
 
+// Opt-in: only when a --method names it (an empty list runs every other method).
+bool reranking_wanted(const std::vector<std::string>& methods, const ShortlistRanker& r, int list) {
+  return !methods.empty() && method_wanted(methods, reranking_method(r, list));
+}
+
 bool reranker_wanted(const std::vector<std::string>& methods, const ShortlistRanker& r) {
-  if (methods.empty()) return false;  // opt-in
   return std::any_of(std::begin(kShortlistLengths), std::end(kShortlistLengths),
-                     [&](int list) { return method_wanted(methods, reranking_method(r, list)); });
+                     [&](int list) { return reranking_wanted(methods, r, list); });
 }
 
 void run_reranking(const SceneQueries& s, const LoadedMap& m, const std::function<void(const MethodTotals&)>& done) {
@@ -461,11 +465,11 @@ void run_reranking(const SceneQueries& s, const LoadedMap& m, const std::functio
     return;
   const Segment& seg = *m.segment;
   const size_t np = m.points;
-  std::vector<std::unique_ptr<FaissPqReranker>> faiss(std::size(kShortlistRankers));
-  for (size_t r = 0; r < faiss.size(); ++r) {
+  std::vector<std::unique_ptr<FaissPqReranker>> faiss_rerankers(std::size(kShortlistRankers));
+  for (size_t r = 0; r < faiss_rerankers.size(); ++r) {
     const ShortlistRanker& ranker = kShortlistRankers[r];
     if (ranker.faiss_subquantizers > 0 && reranker_wanted(methods, ranker))
-      faiss[r] = std::make_unique<FaissPqReranker>(
+      faiss_rerankers[r] = std::make_unique<FaissPqReranker>(
           m.descriptors_float.data(), np,
           FaissPqReranker::Options{.subquantizers = ranker.faiss_subquantizers, .opq_rotation = ranker.opq_rotation});
   }
@@ -482,7 +486,7 @@ void run_reranking(const SceneQueries& s, const LoadedMap& m, const std::functio
     for (size_t r = 0; r < std::size(kShortlistRankers); ++r) {
       const ShortlistRanker& ranker = kShortlistRankers[r];
       const std::string name = reranking_method(ranker, list);
-      if (!method_wanted(methods, name)) continue;
+      if (!reranking_wanted(methods, ranker, list)) continue;
       MethodTotals mt{name};
       mt.bytes_per_point = base + ranker.per_point_bytes;
       mt.bytes_per_point_total = base_total + ranker.per_point_bytes + ranker.per_map_bytes / double(np);
@@ -497,11 +501,11 @@ void run_reranking(const SceneQueries& s, const LoadedMap& m, const std::functio
       for (size_t t = 0; t < totals.size(); ++t) {
         MethodTotals& mt = totals[t];
         const size_t r = rankers[t];
-        const std::string_view name = kShortlistRankers[r].name;
-        const ShortlistDistances distances = name == "pq16" ? search_pq_distances(whole)
-                                             : name == "exact"
+        const ShortlistDistances distances = faiss_rerankers[r]
+                                                 ? faiss_distances(whole, q.features.descriptors, *faiss_rerankers[r])
+                                             : std::string_view(kShortlistRankers[r].name) == "exact"
                                                  ? exact_distances(whole, q.features.descriptors, m.descriptors)
-                                                 : faiss_distances(whole, q.features.descriptors, *faiss[r]);
+                                                 : search_pq_distances(whole);
         Timer timer;
         rank_whole_shortlists(whole, distances, ratio, f, p);
         mt.ms += timer.elapsed_ms();

@@ -12,7 +12,8 @@
 //                 lists at radius 1 ranked by its own PQ, exact L2, FAISS PQ
 //                 16 or 32 × 8 bits, OPQ + PQ 16 × 8 bits, at L_R 40 and 64:
 //                 the recall levers (bench/reranking_study.h)
-// Per method: milliseconds per query (matching only, one thread), coarse
+// Per method: milliseconds per query (matching only, one thread; rerank-*:
+// the ranking alone), coarse
 // candidates per feature, 1-1 matches, recall of the exact method's 1-1
 // matches, bytes per point, and — scored with the held-out images' reference
 // (SfM) poses — 1-1 matches within 4 px and, for the cascade, the 1-M set's
@@ -44,7 +45,7 @@ struct MatchingBenchmarkOptions {
   int max_queries = 0;               // per scene, the first ones of the list (<= 0: all)
   double ratio = 0.8;                // ratio test of the 1-1 sets (ν_h), in (0, 1]
   double inlier_px = 4.0;            // reprojection threshold with the reference pose, pixels (<= 0: no inliers)
-  std::vector<std::string> methods;  // only methods whose name starts with one of these (empty: all)
+  std::vector<std::string> methods;  // only methods whose name starts with one of these (empty: all but rerank-*)
   SiftOptions sift;                  // with `extract`
   // Throws Error(kInvalidArgument) naming the bad option.
   void validate() const;

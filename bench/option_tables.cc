@@ -115,7 +115,7 @@ void add_options(OptionTable& t, MatchingBenchmarkOptions& o) {
   t.add("--max-queries", o.max_queries, "Use at most this many queries per map (0: all)").no_default();
   t.add("--ratio", o.ratio, "Ratio test of the 1-1 sets (ν_h)");
   t.add("--inlier-px", o.inlier_px, "Reprojection threshold with the reference pose, pixels");
-  t.add("--method", o.methods, "Only methods whose name starts with this (repeatable)");
+  t.add("--method", o.methods, "Only methods whose name starts with this (repeatable; rerank-* run only when named)");
   add_options(t, o.sift);
 }
 

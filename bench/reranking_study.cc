@@ -55,6 +55,7 @@ void rank_whole_shortlists(const CascadeMatches& whole, const ShortlistDistances
 
 ShortlistDistances search_pq_distances(const CascadeMatches& whole) {
   return [&whole](size_t list, std::span<const uint32_t> ids, float* out) {
+    VISLOC_CHECK(ids.data() == whole.many_points.data() + whole.many_offsets[list], "not list's own ids");
     const float* d = whole.many_distances.data() + whole.many_offsets[list];
     for (size_t k = 0; k < ids.size(); ++k) out[k] = d[k] * d[k];
   };
@@ -79,7 +80,8 @@ ShortlistDistances exact_distances(const CascadeMatches& whole, const Descriptor
 
 void FaissPqReranker::Options::validate() const {
   if (subquantizers < 1 || subquantizers > kDescriptorDim || kDescriptorDim % subquantizers != 0)
-    throw_error(ErrorCode::kInvalidArgument, "FaissPqReranker.subquantizers must divide 128, got ", subquantizers);
+    throw_error(ErrorCode::kInvalidArgument, "FaissPqReranker.subquantizers must be a divisor of 128, got ",
+                subquantizers);
   if (opq_iterations < 1)
     throw_error(ErrorCode::kInvalidArgument, "FaissPqReranker.opq_iterations must be >= 1, got ", opq_iterations);
 }
@@ -95,7 +97,7 @@ std::unique_ptr<faiss::ProductQuantizer> make_pq(int subquantizers) {
 
 }  // namespace
 
-FaissPqReranker::FaissPqReranker(const float* points, size_t n, const Options& options) : points_(n) {
+FaissPqReranker::FaissPqReranker(const float* points, size_t n, const Options& options) : num_points_(n) {
   options.validate();
   if (n < 256)
     throw_error(ErrorCode::kInvalidArgument, "FaissPqReranker: ", n,
@@ -106,9 +108,10 @@ FaissPqReranker::FaissPqReranker(const float* points, size_t n, const Options& o
     rotation_ = std::make_unique<faiss::OPQMatrix>(kDescriptorDim, options.subquantizers);
     rotation_->verbose = false;
     rotation_->niter = options.opq_iterations;
-    rotation_pq_ = make_pq(options.subquantizers);
-    rotation_->pq = rotation_pq_.get();
+    const auto training_pq = make_pq(options.subquantizers);
+    rotation_->pq = training_pq.get();  // used by train() only
     rotation_->train(count, points);
+    rotation_->pq = nullptr;
     rotation_->apply_noalloc(count, points, train.data());
   }
   pq_ = make_pq(options.subquantizers);
@@ -132,7 +135,7 @@ void FaissPqReranker::transform(const float* query, float* out) const {
 }
 
 void FaissPqReranker::reconstruct(uint32_t id, float* out) const {
-  VISLOC_CHECK(id < points_, "point id out of range");
+  VISLOC_CHECK(id < num_points_, "point id out of range");
   pq_->decode(codes_.data() + size_t(id) * pq_->code_size, out);
 }
 
@@ -141,7 +144,7 @@ void FaissPqReranker::distances(const float* query, std::span<const uint32_t> id
   pq_->compute_distance_table(rotated_.data(), table_.data());
   const size_t m = pq_->M, k = pq_->ksub;
   for (size_t i = 0; i < ids.size(); ++i) {
-    VISLOC_CHECK(ids[i] < points_, "point id out of range");
+    VISLOC_CHECK(ids[i] < num_points_, "point id out of range");
     const uint8_t* c = codes_.data() + size_t(ids[i]) * m;
     float d = 0;
     for (size_t j = 0; j < m; ++j) d += table_[j * k + c[j]];

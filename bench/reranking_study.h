@@ -4,14 +4,14 @@
 // distance, or every candidate of a shorter coarse list) ranked by another
 // distance, then Lowe's 1-1 ratio test, scored against the exact method's 1-1
 // matches. The rankers (ShortlistRanker):
-//   pq16        the search's own 16-byte PQ distances: repeats ccs-full-r1,
-//               the check of the harness
-//   exact       L2 on the points' descriptors: the bound of any re-ranking of
-//               the same short lists
-//   faiss-pq16  FAISS PQ 16 × 8 bits, trained here: the control of opq16
-//   pq32        FAISS PQ 32 × 8 bits (16 bytes per point more)
-//   opq16       FAISS OPQ, a learnt 128 × 128 rotation (64 KiB per map),
-//               before PQ 16 × 8 bits (no byte per point more)
+//   search-pq16  the search's own 16-byte PQ distances: repeats ccs-full-r1,
+//                the check of the harness
+//   exact        L2 on the points' descriptors: the bound of any re-ranking
+//                of the same short lists
+//   faiss-pq16   FAISS PQ 16 × 8 bits, trained here: the control of faiss-opq16
+//   faiss-pq32   FAISS PQ 32 × 8 bits (16 bytes per point more)
+//   faiss-opq16  FAISS OPQ, a learnt 128 × 128 rotation (64 KiB per map),
+//                before PQ 16 × 8 bits (no byte per point more)
 // A feature whose two nearest search PQ distances tie has no short list here
 // (the search's 1-1 test rejects it as well), so every ranker misses it: the
 // finer rankers' recall is, if anything, slightly low.
@@ -57,6 +57,8 @@ using ShortlistDistances = std::function<void(size_t list, std::span<const uint3
 void rank_whole_shortlists(const CascadeMatches& whole, const ShortlistDistances& distances, float ratio,
                            std::vector<uint32_t>& features, std::vector<uint32_t>& points);
 
+// The returned functions keep references to their arguments, which must
+// outlive them.
 // The search's own distances, squared back (the search reports their roots).
 ShortlistDistances search_pq_distances(const CascadeMatches& whole);
 // Exact squared L2 between query features (rows of `queries`, by
@@ -92,9 +94,8 @@ class FaissPqReranker {
 
  private:
   std::unique_ptr<faiss::OPQMatrix> rotation_;
-  std::unique_ptr<faiss::ProductQuantizer> rotation_pq_;  // the PQ the rotation is trained with
   std::unique_ptr<faiss::ProductQuantizer> pq_;
-  size_t points_ = 0;
+  size_t num_points_ = 0;
   std::vector<uint8_t> codes_;
   std::vector<float> table_, rotated_;
 };

@@ -4,9 +4,11 @@
 
 #include <algorithm>
 #include <array>
+#include <cmath>
 #include <map>
 #include <random>
 #include <set>
+#include <tuple>
 #include <utility>
 
 #include "visloc/baselines/faiss_baselines.h"
@@ -139,9 +141,18 @@ TEST(RerankingStudy, FaissDistancesAreThoseToTheDecodedPoints) {
       EXPECT_EQ(moved, 0.0);
     EXPECT_GE(found, 18u);
   }
-  EXPECT_EQ(error_of([&] { FaissPqReranker(points.data(), 255, {}); }).find("at least 256") != std::string::npos, true);
-  EXPECT_NE(error_of([&] { FaissPqReranker(points.data(), db.rows(), {.subquantizers = 12}); }).find("divide 128"),
-            std::string::npos);
+  for (const auto& [points_given, options, message] :
+       {std::tuple{size_t(255), FaissPqReranker::Options{}, "at least 256"},
+        std::tuple{db.rows(), FaissPqReranker::Options{.subquantizers = 12}, "a divisor of 128"},
+        std::tuple{db.rows(), FaissPqReranker::Options{.opq_rotation = true, .opq_iterations = 0}, "opq_iterations"}}) {
+    try {
+      FaissPqReranker(points.data(), points_given, options);
+      ADD_FAILURE() << "no error: " << message;
+    } catch (const Error& e) {
+      EXPECT_EQ(e.code(), ErrorCode::kInvalidArgument);
+      EXPECT_NE(std::string(e.what()).find(message), std::string::npos) << e.what();
+    }
+  }
 }
 
 // The harness's check: the whole short lists ranked by the search's own PQ
@@ -210,14 +221,47 @@ TEST(RerankingStudy, ExactDistancesAndTheirRanking) {
       EXPECT_EQ(d[k], float(want));
     }
   }
-  auto right = [&](const ShortlistDistances& distances) {
-    std::vector<uint32_t> f, p;
-    rank_whole_shortlists(whole, distances, 0.8f, f, p);
-    size_t n = 0;
-    for (size_t i = 0; i < f.size(); ++i) n += p[i] == fx.sources[f[i]];
-    return n;
-  };
-  const size_t by_pq = right(search_pq_distances(whole)), by_exact = right(exact);
-  EXPECT_GT(by_pq, 300u);
-  EXPECT_GE(by_exact, by_pq);
+  // A near copy (the first 400 queries: ±12 per dimension, where points of a
+  // cluster lie ±35 from its centre) is nearer its point than any other, so
+  // exact ranking picks the point wherever the short list holds it.
+  std::vector<uint32_t> f, p;
+  rank_whole_shortlists(whole, exact, 0.8f, f, p);
+  std::map<uint32_t, uint32_t> matched;
+  for (size_t i = 0; i < f.size(); ++i) matched[f[i]] = p[i];
+  size_t lists_with_source = 0;
+  for (size_t i = 0; i < whole.many_query.size(); ++i) {
+    const uint32_t feature = whole.many_query[i];
+    if (feature >= 400) continue;
+    const auto first = whole.many_points.begin() + whole.many_offsets[i],
+               last = whole.many_points.begin() + whole.many_offsets[i + 1];
+    if (std::find(first, last, fx.sources[feature]) == last) continue;
+    ++lists_with_source;
+    EXPECT_EQ(matched.count(feature) ? matched[feature] : UINT32_MAX, fx.sources[feature]) << "feature " << feature;
+  }
+  EXPECT_GT(lists_with_source, 300u);
+}
+
+// faiss_distances gives a short list the reranker's distances of its own
+// feature's descriptor (whole.many_query, not the list's index).
+TEST(RerankingStudy, FaissDistancesOfAShortListAreItsFeatures) {
+  const SearchFixture fx;
+  CascadeMatcher matcher(fx.view(), fx.codebook);
+  const CascadeMatches whole = matcher.match(fx.queries, whole_shortlist_options(40));
+  ASSERT_GT(whole.many_query.size(), 100u);
+  const std::vector<float> points = to_float(fx.db);
+  FaissPqReranker reranker(points.data(), fx.db.rows(), {.subquantizers = 32});
+  const ShortlistDistances faiss = faiss_distances(whole, fx.queries, reranker);
+  size_t lists_not_in_order = 0;
+  for (size_t i = 0; i < whole.many_query.size(); i += 23) {
+    lists_not_in_order += whole.many_query[i] != i;
+    const uint32_t begin = whole.many_offsets[i], end = whole.many_offsets[i + 1];
+    const std::span<const uint32_t> ids(whole.many_points.data() + begin, end - begin);
+    std::vector<float> got(ids.size()), want(ids.size()), q(kDescriptorDim);
+    faiss(i, ids, got.data());
+    const uint8_t* row = fx.queries.row(whole.many_query[i]);
+    std::copy(row, row + kDescriptorDim, q.begin());
+    reranker.distances(q.data(), ids, want.data());
+    EXPECT_EQ(got, want);
+  }
+  EXPECT_GT(lists_not_in_order, 0u);  // the test tells a list's index from its feature
 }

@@ -413,13 +413,13 @@ void CascadeMatcher::match(const DescriptorMatrix& queries, const CascadeSearchO
 // the Hamming pass 8.4, the short list and ADC 16.6. Measured there and not
 // kept: each table's codes stored beside its ids in bucket order, so the
 // gather takes the Hamming distances from contiguous memory (8 × 16 bytes
-// per point more; 81.1 against 43.1 ms, the larger tables miss the cache
-// more); the ranked candidates' PQ codes prefetched before the ADC (3-9%
-// faster in the copy, but this search measured slower with it: 43.0-45.5
-// against 32.8-37.6 ms in 3 alternated process pairs, unexplained on a noisy
-// machine); the lookup and workspace in transparent huge pages
-// (glibc.malloc.hugetlb=1, 20-290 MB of huge pages seen in the process: no
-// change beyond the noise in 6 alternated pairs).
+// per point more; 81.1 against 43.1 ms, presumably as the larger tables
+// miss the cache more); the ranked candidates' PQ codes prefetched before the
+// ADC (3-9% faster in the copy; in this search inconclusive: 43.0-45.5 with
+// against 32.8-37.6 ms without in 3 alternated process pairs, a baseline far
+// below this search's other runs); glibc.malloc.hugetlb=1, which puts large
+// allocations in transparent huge pages (20-290 MB of them seen in the
+// process: no change beyond the noise in 6 alternated pairs).
 void CascadeMatcher::match_hashed(const DescriptorMatrix& queries, std::span<const HashCode> codes,
                                   const CascadeSearchOptions& options, CascadeMatches& out) {
   options.validate();
