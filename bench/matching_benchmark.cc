@@ -465,6 +465,9 @@ void run_reranking(const SceneQueries& s, const LoadedMap& m, const std::functio
     return;
   const Segment& seg = *m.segment;
   const size_t np = m.points;
+  if (m.map.codebook().subvectors() != kPqSubvectors)
+    throw_error(ErrorCode::kInvalidArgument, "the rerank-* methods study the short lists of a 16-byte PQ map; ",
+                "this map has ", m.map.codebook().code_bytes(), "-byte codes (map import --pq-bytes 16)");
   std::vector<std::unique_ptr<FaissPqReranker>> faiss_rerankers(std::size(kShortlistRankers));
   for (size_t r = 0; r < faiss_rerankers.size(); ++r) {
     const ShortlistRanker& ranker = kShortlistRankers[r];

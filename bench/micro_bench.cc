@@ -79,7 +79,8 @@ void BM_PqAdcLookup(benchmark::State& state) {
   for (auto& t : table) t = u(rng);
   for (auto _ : state) {
     float sum = 0;
-    for (size_t i = 0; i < kPoints; ++i) sum += visloc::adc_distance(table.data(), codes.data() + i * visloc::kPqCodeBytes);
+    for (size_t i = 0; i < kPoints; ++i)
+      sum += visloc::adc_distance(table.data(), codes.data() + i * visloc::kPqCodeBytes, visloc::kPqSubvectors);
     benchmark::DoNotOptimize(sum);
   }
   state.SetItemsProcessed(state.iterations() * kPoints);
@@ -144,13 +145,15 @@ void BM_KernelHamming(benchmark::State& state) {
 BENCHMARK(BM_KernelHamming)->DenseRange(0, 2);
 
 // Centroids and a query with values in [0, 120), drawn from `rng` in that order.
-visloc::PqCodebook random_codebook_and_query(std::mt19937& rng, std::vector<float>& query) {
+// `subvectors`: 16 or 32 (bytes per code).
+visloc::PqCodebook random_codebook_and_query(std::mt19937& rng, std::vector<float>& query,
+                                             int subvectors = visloc::kPqSubvectors) {
   std::uniform_real_distribution<float> u(0, 120);
-  std::vector<float> c(size_t(visloc::kPqTableSize) * visloc::kPqSubDim);
+  std::vector<float> c(visloc::kPqCentroidFloats);
   for (auto& x : c) x = u(rng);
   query.resize(128);
   for (auto& x : query) x = u(rng);
-  return visloc::PqCodebook(c);
+  return visloc::PqCodebook(c, subvectors);
 }
 
 // One query's 16 × 256 ADC table (once per searched feature).
@@ -162,7 +165,7 @@ void BM_KernelAdcTable(benchmark::State& state) {
   const visloc::PqCodebook cb = random_codebook_and_query(rng, q);
   std::vector<float> table(visloc::kPqTableSize);
   for (auto _ : state) {
-    k->adc_table(cb.centroids_transposed(), q.data(), table.data());
+    k->adc16.table(cb.centroids_transposed(), q.data(), table.data());
     benchmark::DoNotOptimize(table.data());
   }
   state.SetItemsProcessed(state.iterations());
@@ -181,7 +184,7 @@ void BM_KernelAdcDistances(benchmark::State& state) {
   std::vector<uint32_t> ids(kPoints);
   for (auto& i : ids) i = rng() % kPoints;
   for (auto _ : state) {
-    k->adc_distances(table.data(), codes.data(), ids.data(), kPoints, out.data());
+    k->adc16.distances(table.data(), codes.data(), ids.data(), kPoints, out.data());
     benchmark::DoNotOptimize(out.data());
   }
   state.SetItemsProcessed(state.iterations() * kPoints);
@@ -189,32 +192,36 @@ void BM_KernelAdcDistances(benchmark::State& state) {
 BENCHMARK(BM_KernelAdcDistances)->DenseRange(0, 2);
 
 // ADC distances of 40 candidates (L_R) without a table, against the table
-// and its lookups (argument 3..5: the same levels, table path).
+// and its lookups (argument 3..5: the same levels, table path); second
+// argument: bytes per code (16 or 32).
 void BM_KernelAdcDirect40(benchmark::State& state) {
   const bool table_path = state.range(0) >= 3;
   const auto* k = kernels_or_skip(state, state.range(0) % 3);
   if (!k) return;
-  state.SetLabel(std::string(visloc::to_string(k->level)) + (table_path ? " table+lookups" : " direct"));
+  const int subvectors = static_cast<int>(state.range(1));
+  state.SetLabel(std::string(visloc::to_string(k->level)) + (table_path ? " table+lookups" : " direct") + " " +
+                 std::to_string(subvectors) + " B");
   std::mt19937 rng(9);
   std::vector<float> q;
-  const visloc::PqCodebook cb = random_codebook_and_query(rng, q);
-  std::vector<float> table(visloc::kPqTableSize);
-  auto codes = random_bytes(kPoints * visloc::kPqCodeBytes, 10);
+  const visloc::PqCodebook cb = random_codebook_and_query(rng, q, subvectors);
+  const visloc::AdcKernels& adc = k->adc(subvectors);
+  std::vector<float> table(cb.table_size());
+  auto codes = random_bytes(kPoints * size_t(subvectors), 10);
   std::vector<uint32_t> ids(40);
   for (auto& i : ids) i = rng() % kPoints;
   std::vector<float> out(40);
   for (auto _ : state) {
     if (table_path) {
-      k->adc_table(cb.centroids_transposed(), q.data(), table.data());
-      k->adc_distances(table.data(), codes.data(), ids.data(), ids.size(), out.data());
+      adc.table(cb.centroids_transposed(), q.data(), table.data());
+      adc.distances(table.data(), codes.data(), ids.data(), ids.size(), out.data());
     } else {
-      k->adc_direct(cb.centroids().data(), q.data(), codes.data(), ids.data(), ids.size(), out.data());
+      adc.direct(cb.centroids().data(), q.data(), codes.data(), ids.data(), ids.size(), out.data());
     }
     benchmark::DoNotOptimize(out.data());
   }
   state.SetItemsProcessed(state.iterations() * 40);
 }
-BENCHMARK(BM_KernelAdcDirect40)->DenseRange(0, 5);
+BENCHMARK(BM_KernelAdcDirect40)->ArgsProduct({{0, 1, 2, 3, 4, 5}, {16, 32}});
 
 // Hash codes of 1024 centred descriptors.
 void BM_KernelHashCodes(benchmark::State& state) {

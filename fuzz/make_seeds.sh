@@ -68,6 +68,9 @@ SEG_DB="$MAP/work/seg0001/database.db"
 note "importing one segment's COLMAP model (segment hash rotation)"
 quietly "$VISLOC" map import --colmap "$SEG_MODEL" --database "$SEG_DB" --pq-train-database "$SEG_DB" \
   --itq-iterations 10 --out "$WORK/imported"
+note "importing it again with 32-byte PQ codes (segment format version 4, codebook version 2)"
+quietly "$VISLOC" map import --colmap "$SEG_MODEL" --database "$SEG_DB" --pq-train-database "$SEG_DB" \
+  --itq-iterations 10 --pq-bytes 32 --point-coordinates int16 --out "$WORK/imported32"
 
 # --- 4. A small retrieval map of the street's images.
 note "building a small retrieval map"
@@ -79,16 +82,18 @@ mkdir -p "$REF/map" "$REF/colmap"
 cp -r "$MAP/manifest.json" "$MAP/pq_codebook.vlpq" "$MAP/hash_rotation.vlitq" "$MAP/segments" \
   "$MAP/descriptors" "$REF/map/"
 cp -r "$WORK/retrieval" "$REF/map/retrieval"
+cp "$WORK/imported32/pq_codebook.vlpq" "$REF/pq32_codebook.vlpq"
 cp "$SEG_MODEL"/*.bin "$REF/colmap/"
 quietly colmap model_converter --input_path "$SEG_MODEL" --output_path "$REF/colmap" --output_type TXT
 
 # --- Section files.
-for f in "$MAP"/segments/*.vlseg "$WORK"/imported/segments/*.vlseg; do
+for f in "$MAP"/segments/*.vlseg "$WORK"/imported/segments/*.vlseg "$WORK"/imported32/segments/*.vlseg; do
   seed segment "$f" "$(basename "$(dirname "$(dirname "$f")")")-$(basename "$f")"
   seed segment_map_rotation "$f" "$(basename "$(dirname "$(dirname "$f")")")-$(basename "$f")"
 done
 seed pq_codebook "$MAP/pq_codebook.vlpq" map.vlpq
 seed pq_codebook "$WORK/imported/pq_codebook.vlpq" imported.vlpq
+seed pq_codebook "$WORK/imported32/pq_codebook.vlpq" imported32.vlpq
 seed hash_rotation "$MAP/hash_rotation.vlitq"
 for f in "$MAP"/descriptors/*.vldesc "$WORK"/imported/descriptors/*.vldesc; do
   seed point_descriptors "$f" "$(basename "$(dirname "$(dirname "$f")")")-$(basename "$f")"

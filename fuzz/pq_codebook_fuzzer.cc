@@ -16,11 +16,11 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     const PqCodebook codebook = PqCodebook::read(path, &meta);
     std::array<float, 128> query{};
     for (size_t i = 0; i < query.size(); ++i) query[i] = float(i % 7) * 10.0f;
-    std::vector<float> table(kPqTableSize);
+    std::vector<float> table(codebook.table_size());
     codebook.distance_table(query.data(), table.data());
-    std::array<uint8_t, kPqCodeBytes> code{};
+    std::array<uint8_t, kPqMaxSubvectors> code{};
     codebook.encode(query.data(), 1, code.data());
-    const float d = adc_distance(table.data(), code.data());
+    const float d = adc_distance(table.data(), code.data(), codebook.subvectors());
     if (!(codebook.reconstruction_sqdist(code.data(), query.data()) >= 0) && d == d)
       fuzz::report_bug("negative squared distance", path.string());
   });

@@ -15,6 +15,7 @@ VISLOC_FUZZ_SECTION_FILE_MUTATOR()
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   static const PqCodebook codebook = PqCodebook::read(fuzz::scratch_copy_of_reference("map/pq_codebook.vlpq"));
+  static const PqCodebook codebook32 = PqCodebook::read(fuzz::scratch_copy_of_reference("pq32_codebook.vlpq"));
 #ifdef VISLOC_FUZZ_MAP_ROTATION
   static const auto map_hasher = std::make_shared<const BinaryHasher>(
       read_hash_rotation_file(fuzz::scratch_copy_of_reference(std::string("map/") + kHashRotationFileName)));
@@ -33,7 +34,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     for (int radius : {0, 1}) {
       CascadeSearchOptions options;
       options.lut_radius = radius;
-      CascadeMatcher matcher(segment->index(), codebook);
+      CascadeMatcher matcher(segment->index(), segment->index().pq_subvectors == 32 ? codebook32 : codebook);
       const CascadeMatches matches = matcher.match(queries, options);
       for (uint32_t p : matches.point)
         if (p >= segment->num_points()) fuzz::report_bug("a match names a point outside the segment", std::to_string(p));

@@ -7,6 +7,7 @@
 #include "visloc/eval/confidence_fit.h"
 #include "visloc/eval/evaluation_run.h"
 #include "visloc/eval/segment_study.h"
+#include "visloc/map_building/map_builder.h"
 #include "visloc/util/option_table.h"
 
 namespace visloc {
@@ -78,6 +79,7 @@ void add_options(OptionTable& t, SegmentStudyOptions& o) {
       "Segments built at once (0: cores)");
   t.add("--max-queries", o.max_queries, "Localize at most this many queries per data set, evenly spread (0: all)");
   t.flag("--keep-maps", o.keep_maps, "Keep every configuration's map (default: only its result)");
+  add_pq_bytes_option(t, o.map.pq);
   add_options(t, o.localizer);
 }
 

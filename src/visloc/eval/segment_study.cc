@@ -165,21 +165,24 @@ void link_files(const fs::path& from, const fs::path& to) {
 nlohmann::json study_fingerprint(const StudyDataset& d, const SegmentStudyOptions& o) {
   nlohmann::json queries = nlohmann::json::array();
   for (const auto& q : d.queries) queries.push_back(q.image.filename().string() + ":" + q.kind);
-  return {{"dataset", d.name},
-          {"images", fs::absolute(d.images_dir).string()},
-          {"gps", fs::absolute(d.gps_csv).string()},
-          {"gps_bytes", fs::exists(d.gps_csv) ? fs::file_size(d.gps_csv) : 0},
-          {"queries", queries},
-          {"setting", to_string(o.localizer.setting)},
-          {"top_images", o.localizer.top_images},
-          {"max_segments", o.localizer.max_segments},
-          {"fallback_segments", o.localizer.fallback_segments},
-          {"accept_inliers", o.localizer.accept_inliers},
-          {"min_inliers", o.localizer.ransac.min_inliers},
-          {"threshold_px", o.localizer.ransac.threshold_px},
-          {"sift", nlohmann::json::parse(o.map.sift.to_json())},
-          {"wrong_position_m", o.wrong_position_m},
-          {"wrong_rotation_deg", o.wrong_rotation_deg}};
+  nlohmann::json fingerprint = {{"dataset", d.name},
+                                {"images", fs::absolute(d.images_dir).string()},
+                                {"gps", fs::absolute(d.gps_csv).string()},
+                                {"gps_bytes", fs::exists(d.gps_csv) ? fs::file_size(d.gps_csv) : 0},
+                                {"queries", queries},
+                                {"setting", to_string(o.localizer.setting)},
+                                {"top_images", o.localizer.top_images},
+                                {"max_segments", o.localizer.max_segments},
+                                {"fallback_segments", o.localizer.fallback_segments},
+                                {"accept_inliers", o.localizer.accept_inliers},
+                                {"min_inliers", o.localizer.ransac.min_inliers},
+                                {"threshold_px", o.localizer.ransac.threshold_px},
+                                {"sift", nlohmann::json::parse(o.map.sift.to_json())},
+                                {"wrong_position_m", o.wrong_position_m},
+                                {"wrong_rotation_deg", o.wrong_rotation_deg}};
+  // Results of 16-byte maps, made before the choice existed, stay reusable.
+  if (o.map.pq.subvectors != kPqSubvectors) fingerprint["pq_bytes"] = o.map.pq.subvectors;
+  return fingerprint;
 }
 
 const char* const kRowKeys[] = {"placemarks_per_segment", "overlap", "segments", "points", "segment_bytes",

@@ -149,6 +149,10 @@ std::unique_ptr<Segment> Map::open_segment(size_t index) const {
     throw_error(ErrorCode::kFormat, (dir_ / e.file).string(), ": segment does not match the manifest (",
                 s->bytes().file, " bytes, ", s->num_points(), " points, id ", s->id(), "; manifest says ",
                 e.file_bytes, " bytes, ", e.points, " points, id ", e.id, ")");
+  if (s->index().pq_subvectors != codebook_.subvectors())
+    throw_error(ErrorCode::kFormat, (dir_ / e.file).string(), ": PQ codes of ", s->index().pq_subvectors,
+                " bytes, but the map's codebook (", (dir_ / manifest_.pq_codebook_file).string(), ") makes ",
+                codebook_.code_bytes(), "-byte codes");
   return s;
 }
 

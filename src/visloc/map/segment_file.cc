@@ -164,7 +164,10 @@ void write_segment_file(const std::filesystem::path& path, const SegmentData& s,
   const size_t n = s.num_points();
   VISLOC_CHECK(s.xyz.size() == 3 * n);
   VISLOC_CHECK(s.codes.size() == n, "codes");
-  VISLOC_CHECK(s.pq_codes.size() == n * kPqCodeBytes, "pq codes");
+  if (!valid_pq_subvectors(s.pq_subvectors))
+    throw_error(ErrorCode::kInvalidArgument, "segment ", s.segment_id, ": PQ codes of ", s.pq_subvectors,
+                " bytes (16 or 32)");
+  VISLOC_CHECK(s.pq_codes.size() == n * size_t(s.pq_subvectors), "pq codes");
   const bool own_hasher = !s.hasher.mean.empty();
   if (own_hasher)
     VISLOC_CHECK(s.hasher.mean.size() == kDescriptorDim && s.hasher.projection.size() == kHashBits * kDescriptorDim);
@@ -174,13 +177,16 @@ void write_segment_file(const std::filesystem::path& path, const SegmentData& s,
   meta["images"] = s.images.size();
   meta["hash"] = {{"bits", kHashBits}, {"tables", kHashTables}, {"table_bits", kHashTableBits}, {"method", "itq"}};
   meta["hash_rotation"] = own_hasher ? "segment" : "map";
-  meta["pq"] = {{"subvectors", kPqSubvectors}, {"bits", 8}};
+  meta["pq"] = {{"subvectors", s.pq_subvectors}, {"bits", 8}};
   const std::optional<XyzQuantization> quantization = choose_xyz_quantization(s, options);
   meta.erase("xyz_quantization");
   if (quantization) meta["xyz_quantization"] = quantization->to_json();
   nlohmann::json images = nlohmann::json::array();
   for (const auto& im : s.images) images.push_back(to_json(im));
-  SectionFileWriter w(path, "SEGM", quantization ? kSegmentFileVersion : kFloatXyzSegmentFileVersion);
+  const uint32_t version = s.pq_subvectors != kPqSubvectors ? kSegmentFileVersion
+                           : quantization                   ? kInt16XyzSegmentFileVersion
+                                                            : kFloatXyzSegmentFileVersion;
+  SectionFileWriter w(path, "SEGM", version);
   w.add_text("META", meta.dump());
   if (quantization)
     w.add_array<uint16_t>("XYZ16", quantization->encode(s.xyz));
@@ -225,9 +231,15 @@ std::unique_ptr<Segment> Segment::open(const std::filesystem::path& path,
     if (has_crc)
       expected_crc = static_cast<uint32_t>(meta.at("hash_rotation_crc32c").unsigned_integer(std::numeric_limits<uint32_t>::max()));
     if (meta.has("enu_from_segment")) s->enu_from_segment_ = similarity_from_json(meta.at("enu_from_segment"));
-    if (meta.has("xyz_quantization") != (r.kind_version() >= 3))
+    if (r.kind_version() < 4 && meta.has("xyz_quantization") != (r.kind_version() >= 3))
       throw_error(ErrorCode::kFormat, name, ": META ", r.kind_version() >= 3 ? "lacks" : "has",
                   " xyz_quantization in a version ", r.kind_version(), " segment file");
+    if (r.kind_version() >= 4) {
+      const int64_t m = meta.at("pq").at("subvectors").integer(kPqSubvectors, kPqFineSubvectors);
+      if (!valid_pq_subvectors(int(m)))
+        meta.at("pq").at("subvectors").fail("must be 16 or 32 (bytes per PQ code), found ", m);
+      s->index_.pq_subvectors = int(m);
+    }
     if (meta.has("xyz_quantization")) s->xyz_quantization_ = XyzQuantization::from_json(meta.at("xyz_quantization"));
   }
   if (s->num_points_ > CascadeLookup::kMaxPoints)
@@ -251,7 +263,7 @@ std::unique_ptr<Segment> Segment::open(const std::filesystem::path& path,
   v.num_points = s->num_points_;
   auto codes = r.array<HashCode>("CODE", n);
   v.codes = codes.data();
-  v.pq_codes = r.array<uint8_t>("PQ", n * kPqCodeBytes).data();
+  v.pq_codes = r.array<uint8_t>("PQ", n * v.pq_subvectors).data();
   SegmentBytes& b = s->bytes_;
   const bool own_rotation = r.has("ITQMEAN") || r.has("ITQW");
   if (own_rotation != (scope == "segment"))

@@ -1,10 +1,14 @@
 // Segment files (.vlseg): one 3D sub-model with compressed descriptors only,
 // the unit the localizer maps into memory (DESIGN.md "map/"; Tran et al.
-// section III-B). A SectionFile of kind "SEGM", kind version 3 or 2
+// section III-B). A SectionFile of kind "SEGM", kind version 4, 3 or 2
 // (version 1 is still read); every section 64-byte aligned and CRC32C-checked
 // (util/section_file.h). Version 3 differs from 2 only in the points'
 // coordinates: XYZ16 instead of XYZ (the writer writes version 3 only then,
-// so files with float32 coordinates stay readable by version-2 readers):
+// so files with float32 coordinates stay readable by version-2 readers).
+// Version 4 has 32-byte PQ codes (META "pq": {"subvectors": 32}), with the
+// coordinates in XYZ16 when META has xyz_quantization, else in XYZ; the
+// writer writes it only for 32-byte codes, so 16-byte maps stay readable by
+// version-3 readers, and those reject a 32-byte map by its version:
 //
 //   META    JSON: segment id, point and image counts, hash/PQ parameters,
 //           "hash_rotation": "segment" (ITQ sections present) or "map" (the
@@ -15,13 +19,15 @@
 //           per axis, computed in double (the segment's bounding box in
 //           65,536 steps: rounding error ≤ step / 2 per axis)
 //   CODE    N × 16 bytes ITQ hash codes (HashCode: 2 × uint64 little-endian)
-//   PQ      N × 16 bytes PQ codes (codebook shared by the map: pq_codebook.vlpq)
+//   PQ      N × M bytes PQ codes, M = 16 (versions 1-3) or META's pq.subvectors,
+//           16 or 32 (version 4); the codebook is the map's: pq_codebook.vlpq
 //   ITQMEAN 128 float32 mean subtracted before hashing   } only with a
 //   ITQW    128 × 128 float32 projection, row-major       } segment rotation
 //   IMAGES  JSON array of the segment's images: name, camera {model, width,
 //           height, params}, cam_from_world {q_wxyz, t}
 //
-// Bytes per point on disk: XYZ 12 (XYZ16 6) + CODE 16 + PQ 16 = 44 (38), plus META and
+// Bytes per point on disk: XYZ 12 (XYZ16 6) + CODE 16 + PQ 16 = 44 (38), or
+// 60 (54) with 32-byte PQ codes, plus META and
 // IMAGES (and 64.5 KiB of ITQ with a segment rotation). The lookup tables of
 // the cascade are a function of the codes: Segment::open builds them in
 // memory (CascadeLookup: ~8 × (2 B id + bucket) per point + 96 KiB, and 1 MiB of
@@ -51,8 +57,9 @@
 
 namespace visloc {
 
-inline constexpr uint32_t kSegmentFileVersion = 3;          // newest version read and written
-inline constexpr uint32_t kFloatXyzSegmentFileVersion = 2;  // written when coordinates are float32
+inline constexpr uint32_t kSegmentFileVersion = 4;          // newest version read and written (32-byte PQ)
+inline constexpr uint32_t kInt16XyzSegmentFileVersion = 3;  // written for 16-byte PQ with int16 coordinates
+inline constexpr uint32_t kFloatXyzSegmentFileVersion = 2;  // written for 16-byte PQ with float32 coordinates
 inline constexpr uint32_t kOldestSegmentFileVersion = 1;
 
 struct SegmentImage {
@@ -79,7 +86,8 @@ struct SegmentData {
   std::vector<float> xyz;  // N × 3
   BinaryHasher hasher;            // empty: the codes use the map's hash rotation
   std::vector<HashCode> codes;
-  std::vector<uint8_t> pq_codes;  // N × 16
+  std::vector<uint8_t> pq_codes;      // N × pq_subvectors
+  int pq_subvectors = kPqSubvectors;  // bytes per PQ code: 16 or 32 (version 4 file)
   std::vector<SegmentImage> images;
   nlohmann::json extra_meta = nlohmann::json::object();  // merged into META (e.g. enu_from_segment)
   size_t num_points() const { return xyz.size() / 3; }

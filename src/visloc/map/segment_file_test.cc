@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <functional>
 #include <map>
@@ -11,6 +12,7 @@
 #include "visloc/map/map.h"
 #include "visloc/map/segment_file.h"
 #include "visloc/util/error.h"
+#include "visloc/util/file_io.h"
 #include "visloc/util/random.h"
 #include "visloc/util/test_support.h"
 
@@ -265,4 +267,83 @@ TEST(SegmentCoordinates, MapInfoReportsQuantization) {
   EXPECT_EQ(j["segments"][2]["xyz_coordinates"], "float32");
   EXPECT_EQ(j["segments"][2]["xyz_rounding_error"].get<double>(), 0.0);
   EXPECT_TRUE(mentions(info.summary("m"), "int16 (0.5 mm)")) << info.summary("m");
+}
+
+// 32-byte PQ codes: version 4 whatever the coordinates (16-byte segments keep
+// versions 2 and 3), META's pq.subvectors, the codes read back byte for byte,
+// and 16 more bytes per point.
+TEST(SegmentPqCodes, ThirtyTwoByteCodesAreVersion4) {
+  const auto dir = temp_dir("pq32");
+  const size_t n = 700;
+  SegmentData s = segment(n, 20, 1.0);
+  RandomGenerator rng(5);
+  s.pq_subvectors = 32;
+  s.pq_codes.clear();
+  for (size_t i = 0; i < n * 32; ++i) s.pq_codes.push_back(static_cast<uint8_t>(rng.next()));
+  for (const auto& [coordinates, bytes_per_point] :
+       {std::pair{PointCoordinates::kFloat32, 60u}, std::pair{PointCoordinates::kInt16, 54u}}) {
+    write_segment_file(dir / "p.vlseg", s, SegmentWriteOptions{.coordinates = coordinates});
+    auto seg = Segment::open(dir / "p.vlseg");
+    EXPECT_EQ(seg->format_version(), 4u);
+    EXPECT_EQ(seg->index().pq_subvectors, 32);
+    EXPECT_EQ(seg->meta().at("pq").at("subvectors"), 32);
+    EXPECT_EQ(seg->xyz_quantization().has_value(), coordinates == PointCoordinates::kInt16);
+    EXPECT_EQ(0, std::memcmp(seg->index().pq_codes, s.pq_codes.data(), s.pq_codes.size()));
+    EXPECT_EQ(seg->bytes().per_point, bytes_per_point * n);
+  }
+  // The 16-byte segment of the same points: versions 2 and 3, 16 bytes per code.
+  const SegmentData s16 = segment(n, 20, 1.0);
+  EXPECT_EQ(written_version(s16, coordinates(PointCoordinates::kFloat32), dir), 2u);
+  EXPECT_EQ(written_version(s16, coordinates(PointCoordinates::kInt16), dir), 3u);
+  EXPECT_EQ(Segment::open(dir / "v.vlseg")->index().pq_subvectors, 16);
+  // The writer refuses other code sizes.
+  SegmentData bad = s;
+  bad.pq_subvectors = 24;
+  EXPECT_THROW(write_segment_file(dir / "bad.vlseg", bad), Error);
+}
+
+TEST(SegmentPqCodes, RejectsCodeSizesThatDisagree) {
+  const auto dir = temp_dir("pq32_bad");
+  const size_t n = 300;
+  SegmentData s = segment(n, 20, 1.0);
+  s.pq_subvectors = 32;
+  s.pq_codes.assign(n * 32, 7);
+  write_segment_file(dir / "ok.vlseg", s, coordinates(PointCoordinates::kFloat32));
+  ASSERT_EQ(open_error(dir / "ok.vlseg"), "");
+  // META says 24, or nothing, in a version 4 file.
+  rewrite(dir / "ok.vlseg", dir / "m24.vlseg", 4,
+          [](nlohmann::json& meta, Sections&) { meta["pq"]["subvectors"] = 24; });
+  EXPECT_TRUE(mentions(open_error(dir / "m24.vlseg"), "16 or 32")) << open_error(dir / "m24.vlseg");
+  rewrite(dir / "ok.vlseg", dir / "none.vlseg", 4, [](nlohmann::json& meta, Sections&) { meta.erase("pq"); });
+  EXPECT_TRUE(mentions(open_error(dir / "none.vlseg"), "pq")) << open_error(dir / "none.vlseg");
+  // META says 16 over 32-byte codes; a version 3 reader's view of 32-byte codes.
+  rewrite(dir / "ok.vlseg", dir / "m16.vlseg", 4,
+          [](nlohmann::json& meta, Sections&) { meta["pq"]["subvectors"] = 16; });
+  EXPECT_TRUE(mentions(open_error(dir / "m16.vlseg"), "'PQ'")) << open_error(dir / "m16.vlseg");
+  rewrite(dir / "ok.vlseg", dir / "v2.vlseg", 2, [](nlohmann::json&, Sections&) {});
+  EXPECT_TRUE(mentions(open_error(dir / "v2.vlseg"), "'PQ'")) << open_error(dir / "v2.vlseg");
+  // A map whose codebook makes 16-byte codes refuses a 32-byte segment.
+  fs::create_directories(dir / "map" / "segments");
+  write_segment_file(dir / "map" / "segments" / "0004.vlseg", s, coordinates(PointCoordinates::kFloat32));
+  std::vector<float> c(kPqCentroidFloats);
+  for (size_t i = 0; i < c.size(); ++i) c[i] = float(i % 97);
+  PqCodebook(c).write(dir / "map" / "pq_codebook.vlpq", "{}");
+  MapManifest man;
+  MapSegmentEntry entry;
+  entry.id = 4;
+  entry.file = "segments/0004.vlseg";
+  entry.points = n;
+  entry.images = 1;
+  entry.file_bytes = fs::file_size(dir / "map" / "segments" / "0004.vlseg");
+  man.segments.push_back(entry);
+  write_file_atomic(dir / "map" / "manifest.json", man.to_json().dump());
+  try {
+    Map::open(dir / "map").open_segment(0);
+    ADD_FAILURE() << "a 32-byte segment opened in a 16-byte map";
+  } catch (const Error& e) {
+    EXPECT_TRUE(mentions(e.what(), "0004.vlseg") && mentions(e.what(), "32 bytes") && mentions(e.what(), "16-byte"))
+        << e.what();
+  }
+  PqCodebook(c, 32).write(dir / "map" / "pq_codebook.vlpq", "{}");
+  EXPECT_EQ(Map::open(dir / "map").open_segment(0)->index().pq_subvectors, 32);
 }

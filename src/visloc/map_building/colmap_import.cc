@@ -199,7 +199,7 @@ void import_model_map(ColmapModel model, const ModelSource& source, const fs::pa
     write_point_descriptor_file(out_dir / desc_file, round_descriptors(desc.mean), desc.track_size);
   }
   nlohmann::json pq_meta = {{"dimension", kDescriptorDim},
-                            {"subvectors", kPqSubvectors},
+                            {"subvectors", codebook.subvectors()},
                             {"bits", 8},
                             {"training_descriptors", res.pq_training_descriptors},
                             {"training_source", res.pq_training_source},

@@ -1145,7 +1145,14 @@ void MapBuilder::train_codebook() {
   s.codebook_path = s.map_dir / "pq_codebook.vlpq";
   s.rotation_path = s.map_dir / kHashRotationFileName;
   const bool map_rotation = opt.hash_rotation == HashRotationScope::kMap;
-  if (fs::exists(s.codebook_path)) ctx.codebook = PqCodebook::read(s.codebook_path);
+  if (fs::exists(s.codebook_path)) {
+    ctx.codebook = PqCodebook::read(s.codebook_path);
+    if (ctx.codebook.code_bytes() != opt.pq.subvectors)
+      throw_error(ErrorCode::kInvalidArgument, s.map_dir.string(), ": the map being resumed has ",
+                  ctx.codebook.code_bytes(), "-byte PQ codes (", s.codebook_path.string(),
+                  "); resume it with --pq-bytes ", ctx.codebook.code_bytes(), ", or start a new map (--overwrite) for ",
+                  opt.pq.subvectors, "-byte codes");
+  }
   if (map_rotation && fs::exists(s.rotation_path))
     ctx.map_hasher = std::make_shared<const BinaryHasher>(read_hash_rotation_file(s.rotation_path));
   if (!ctx.codebook.empty() && (!map_rotation || ctx.map_hasher)) return;
@@ -1165,7 +1172,9 @@ void MapBuilder::train_codebook() {
   const size_t training_count = sample.size() / kDescriptorDim;
   if (ctx.codebook.empty()) {
     ctx.codebook = PqCodebook::train(sample.data(), training_count, opt.pq);
-    nlohmann::json pq_meta = {{"dimension", kDescriptorDim}, {"subvectors", kPqSubvectors}, {"bits", 8},
+    nlohmann::json pq_meta = {{"dimension", kDescriptorDim},
+                              {"subvectors", ctx.codebook.subvectors()},
+                              {"bits", 8},
                               {"training_descriptors", training_count},
                               {"training_source", "image descriptors sampled across the map"},
                               {"seed", opt.pq.seed}};
@@ -1246,7 +1255,7 @@ void MapBuilder::write_current_manifest() {
                       {"itq_iterations", opt.itq.iterations},
                       {"seed", opt.itq.seed},
                       {"rotation", to_string(opt.hash_rotation.value_or(HashRotationScope::kMap))}}},
-                    {"pq", {{"subvectors", kPqSubvectors}, {"bits", 8}, {"seed", opt.pq.seed}}},
+                    {"pq", {{"subvectors", s.ctx.codebook.subvectors()}, {"bits", 8}, {"seed", opt.pq.seed}}},
                     {"point_descriptor", "mean of track"},
                     {"sift", nlohmann::json::parse(opt.sift.to_json())},
                     {"segments",

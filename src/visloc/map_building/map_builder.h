@@ -136,8 +136,10 @@ class OptionTable;
 // --known-poses, --known-intrinsics, --matcher, --sampson, --executor, --slurm-*, --jobs, --colmap,
 // --colmap-threads, --exhaustive-max, --spatial-neighbors, the placemark plan's, --chain-order,
 // --registration-threshold, --retrieval-dims, --no-retrieval, --pq-training-images, --hash-rotation,
-// --point-coordinates, SIFT's.
+// --point-coordinates, --pq-bytes, SIFT's.
 void add_options(OptionTable& table, MapBuildOptions& options);
+// --pq-bytes 16|32 into options.subvectors (map build, map import, bench segments).
+void add_pq_bytes_option(OptionTable& table, PqTrainingOptions& options);
 
 struct SegmentBuildResult {
   int id = 0;

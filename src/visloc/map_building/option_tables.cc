@@ -24,6 +24,14 @@ void add_point_coordinates(OptionTable& t, SegmentWriteOptions& o) {
 
 }  // namespace
 
+void add_pq_bytes_option(OptionTable& t, PqTrainingOptions& o) {
+  t.choice("--pq-bytes", o.subvectors, {{"16", kPqSubvectors}, {"32", kPqFineSubvectors}},
+           "Bytes per PQ code of a map point: 16 (the paper's; 44 bytes per point with float32 coordinates, "
+           "38 with int16) or 32 (16 bytes more per point; a finer ranking of the candidates: bench matching "
+           "measured 0.90 of exact matching's 1-1 matches against 0.755 on the Strecha scenes). "
+           "32-byte maps are segment format version 4");
+}
+
 void add_options(OptionTable& t, MapBuildOptions& o) {
   t.add("--images", o.images_dir, "Directory of the map's images").require();
   // 'exif' (no CSV): GPS from each image's EXIF.
@@ -99,6 +107,7 @@ void add_options(OptionTable& t, MapBuildOptions& o) {
       "hashed once, and the localizer can vote for segments with the query's local features) or 'segment' "
       "(one per segment, in its file); default: the existing map's, 'map' for a new map");
   add_point_coordinates(t, o.segment_file);
+  add_pq_bytes_option(t, o.pq);
   add_options(t, o.sift);
 }
 
@@ -130,6 +139,7 @@ void add_options(OptionTable& t, ColmapImportOptions& o) {
   add_hash_rotation(t, o.hash_rotation,
                     "ITQ hash rotation stored in the segment ('segment') or in MAP/hash_rotation.vlitq ('map')");
   add_point_coordinates(t, o.segment_file);
+  add_pq_bytes_option(t, o.pq);
   t.add("--seed", o.itq.seed, "Seed of ITQ's initial rotation and of PQ training");
   t.action("--no-descriptors", [&o] { o.keep_descriptors = false; },
            "Do not keep the mean descriptors (descriptors/*.vldesc; needed by the raw-SIFT baselines)");

@@ -33,7 +33,8 @@ SegmentData make_segment_data(const ColmapModel& model, const PointDescriptors& 
     seg.hasher = std::move(itq.hasher);
     encode_hash(seg.hasher.view(), desc.mean.data(), desc.num_points, seg.codes.data(), workspace);
   }
-  seg.pq_codes.resize(desc.num_points * kPqCodeBytes);
+  seg.pq_subvectors = codebook.subvectors();
+  seg.pq_codes.resize(desc.num_points * size_t(codebook.code_bytes()));
   codebook.encode(desc.mean.data(), desc.num_points, seg.pq_codes.data());
   for (const auto& im : model.images) {
     const auto& cam = model.cameras[model.camera_index(im.camera_id)];

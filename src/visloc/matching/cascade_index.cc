@@ -16,6 +16,8 @@ void CascadeIndexView::validate(const std::string& what) const {
   if (num_points > CascadeLookup::kMaxPoints)
     throw_error(ErrorCode::kFormat, what, ": too many points (", num_points, ", at most ", CascadeLookup::kMaxPoints,
                 ")");
+  if (!valid_pq_subvectors(pq_subvectors))
+    throw_error(ErrorCode::kFormat, what, ": PQ codes of ", pq_subvectors, " bytes (16 or 32)");
   if (lookup && lookup->num_points() != num_points)
     throw_error(ErrorCode::kFormat, what, ": lookup tables of ", lookup->num_points(), " points for ", num_points,
                 " codes");
@@ -146,6 +148,9 @@ void check_searchable(const CascadeIndexView& index, const PqCodebook& codebook)
   VISLOC_CHECK(index.num_points == 0 || index.lookup != nullptr);
   VISLOC_CHECK(index.lookup == nullptr || index.lookup->num_points() == index.num_points,
                "(lookup tables built for another point count)");
+  if (index.pq_subvectors != codebook.subvectors())
+    throw_error(ErrorCode::kInvalidArgument, "the index's PQ codes have ", index.pq_subvectors,
+                " bytes, the codebook's ", codebook.code_bytes());
 }
 
 }  // namespace
@@ -450,7 +455,8 @@ void CascadeMatcher::match_hashed(const DescriptorMatrix& queries, std::span<con
   // 2. Per feature: coarse → refined → precise.
   t.reset();
   if (ws.seen.size() < np) ws.seen.resize(np, 0);
-  ws.table.resize(kPqTableSize);
+  ws.table.resize(codebook_->table_size());
+  const AdcKernels& adc = kernels.adc(codebook_->subvectors());
   const int keep = std::max(options.max_one_to_many, 1) + 1;  // ranks needed by both rules
   float best_d[65];
   uint32_t best_id[65];
@@ -490,15 +496,15 @@ void CascadeMatcher::match_hashed(const DescriptorMatrix& queries, std::span<con
     const uint8_t* q = queries.row(f);
     for (int j = 0; j < kDescriptorDim; ++j) qf[j] = q[j];
     // A short list (L_R = 40 after the refined step) costs less without the
-    // 16 × 256 table; the two paths' distances differ by float rounding only,
+    // M × 256 table; the two paths' distances differ by float rounding only,
     // and every candidate of a feature takes the same path.
     ws.ranked_distances.resize(ranked.size());
     if (ranked.size() <= kDirectAdcMaxCandidates) {
-      kernels.adc_direct(codebook_->centroids().data(), qf, index_.pq_codes, ranked.data(), ranked.size(),
-                         ws.ranked_distances.data());
+      adc.direct(codebook_->centroids().data(), qf, index_.pq_codes, ranked.data(), ranked.size(),
+                 ws.ranked_distances.data());
     } else {
-      kernels.adc_table(codebook_->centroids_transposed(), qf, ws.table.data());
-      kernels.adc_distances(ws.table.data(), index_.pq_codes, ranked.data(), ranked.size(), ws.ranked_distances.data());
+      adc.table(codebook_->centroids_transposed(), qf, ws.table.data());
+      adc.distances(ws.table.data(), index_.pq_codes, ranked.data(), ranked.size(), ws.ranked_distances.data());
     }
     int filled = 0;
     for (size_t r = 0; r < ranked.size(); ++r) {

@@ -10,7 +10,7 @@
 //            buckets' point ids, deduplicated, is the list L_C.
 //   refined  Hamming distance (XOR + popcount) on the full 128-bit code;
 //            the L_R = 40 nearest by a counting sort over distances 0..128.
-//   precise  PQ asymmetric distance (16 × 256 table per query feature) to the
+//   precise  PQ asymmetric distance (M × 256 table per query feature) to the
 //            L_R candidates; Lowe's ratio test on distances (not squared).
 //
 // Output, per query feature that passed:
@@ -29,7 +29,7 @@
 // matches are found. Without prioritization every feature is searched.
 //
 // Index layout (CascadeIndexView): codes (N × 16 bytes) and pq_codes
-// (N × 16 bytes), usually in a mapped segment file, and a CascadeLookup built
+// (N × M bytes, M = 16 or 32), usually in a mapped segment file, and a CascadeLookup built
 // from the codes when the segment is opened (the lookup tables are not stored:
 // they are a function of the codes).
 //
@@ -144,8 +144,9 @@ struct CascadeIndexView {
   size_t num_points = 0;
   BinaryHasherView hasher;
   const HashCode* codes = nullptr;
-  const uint8_t* pq_codes = nullptr;
+  const uint8_t* pq_codes = nullptr;      // N × pq_subvectors bytes
   const CascadeLookup* lookup = nullptr;  // built from `codes`
+  int pq_subvectors = kPqSubvectors;      // bytes per PQ code, 16 or 32: must equal the codebook's
   // Checks that the arrays are present and the lookup matches the codes' count.
   // Throws Error(kFormat) with `what` (e.g. a file name) in the message.
   void validate(const std::string& what) const;

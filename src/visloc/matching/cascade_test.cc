@@ -17,6 +17,7 @@
 #include "visloc/matching/search_kernels.h"
 #include "visloc/util/error.h"
 #include "visloc/util/file_io.h"
+#include "visloc/util/section_file.h"
 #include "visloc/util/test_support.h"
 
 using namespace visloc;
@@ -64,20 +65,24 @@ struct TestIndex {
   std::vector<HashCode> codes;
   std::vector<uint8_t> pq;
   CascadeLookup lookup;
-  CascadeIndexView view() const { return {codes.size(), hasher.view(), codes.data(), pq.data(), &lookup}; }
+  CascadeIndexView view() const {
+    return {codes.size(), hasher.view(), codes.data(), pq.data(), &lookup, codebook.subvectors()};
+  }
 };
 
-// The hasher and codebook are trained on the first `train_rows` rows (0: all).
-TestIndex make_index(const DescriptorMatrix& db, bool lsh = false, size_t train_rows = 0) {
+// The hasher and codebook are trained on the first `train_rows` rows (0: all);
+// PQ codes of `pq_subvectors` bytes.
+TestIndex make_index(const DescriptorMatrix& db, bool lsh = false, size_t train_rows = 0,
+                     int pq_subvectors = kPqSubvectors) {
   TestIndex t;
   auto f = to_float(db);
   const size_t n_train = train_rows > 0 ? std::min(train_rows, db.rows()) : db.rows();
   t.hasher = lsh ? make_lsh_hasher(f.data(), n_train, 5) : train_itq(f.data(), n_train, {.iterations = 10}).hasher;
-  t.codebook = PqCodebook::train(f.data(), n_train, {.iterations = 10});
+  t.codebook = PqCodebook::train(f.data(), n_train, {.subvectors = pq_subvectors, .iterations = 10});
   t.codes.resize(db.rows());
   HashWorkspace ws;
   encode_hash(t.hasher.view(), db.data(), db.rows(), t.codes.data(), ws);
-  t.pq.resize(db.rows() * kPqCodeBytes);
+  t.pq.resize(db.rows() * size_t(pq_subvectors));
   t.codebook.encode(f.data(), db.rows(), t.pq.data());
   t.lookup = CascadeLookup(t.codes);
   return t;
@@ -217,7 +222,7 @@ TEST(ProductQuantizer, AdcEqualsBruteForceDistanceAndFileRoundTrips) {
     cb.distance_table(&qf[i * 128], table.data());
     for (size_t p = 0; p < d.rows(); p += 37) {
       const double ref = cb.reconstruction_sqdist(&codes[p * 16], &qf[i * 128]);
-      EXPECT_NEAR(adc_distance(table.data(), &codes[p * 16]), ref, 1e-4 * ref + 1e-3);
+      EXPECT_NEAR(adc_distance(table.data(), &codes[p * 16], kPqSubvectors), ref, 1e-4 * ref + 1e-3);
     }
   }
   // Encoding picks the nearest centroid: the reconstruction error is below
@@ -238,6 +243,77 @@ TEST(ProductQuantizer, AdcEqualsBruteForceDistanceAndFileRoundTrips) {
   bytes[bytes.size() / 2] ^= 0x10;
   write_file_atomic(path, bytes);
   EXPECT_THROW(PqCodebook::read(path), Error);
+}
+
+// 32-byte codes: 32 sub-vectors of 4 dimensions. Encoding, ADC and the file
+// as with 16, the codes closer to the data than 16-byte ones, the file
+// version 2 with the sub-vector count (16-byte codebooks stay version 1).
+TEST(ProductQuantizer, ThirtyTwoByteCodesEncodeCloserAndRoundTrip) {
+  DescriptorMatrix d = clustered_descriptors(3000, 5);
+  auto f = to_float(d);
+  const PqCodebook cb16 = PqCodebook::train(f.data(), d.rows(), {.iterations = 8});
+  const PqCodebook cb32 = PqCodebook::train(f.data(), d.rows(), {.subvectors = 32, .iterations = 8});
+  ASSERT_EQ(cb32.subvectors(), 32);
+  EXPECT_EQ(cb32.code_bytes(), 32);
+  EXPECT_EQ(cb32.sub_dimension(), 4);
+  EXPECT_EQ(cb32.table_size(), 32 * 256);
+  std::vector<uint8_t> c16(d.rows() * 16), c32(d.rows() * 32);
+  cb16.encode(f.data(), d.rows(), c16.data());
+  cb32.encode(f.data(), d.rows(), c32.data());
+  double e16 = 0, e32 = 0;
+  for (size_t p = 0; p < d.rows(); ++p) {
+    e16 += cb16.reconstruction_sqdist(&c16[p * 16], &f[p * 128]);
+    e32 += cb32.reconstruction_sqdist(&c32[p * 32], &f[p * 128]);
+  }
+  EXPECT_LT(e32, 0.8 * e16) << "32 sub-quantizers reconstruct no better than 16";
+  // ADC with the 32 × 256 table equals the reconstruction distance; encoding
+  // picks each sub-space's nearest centroid (changing any byte is no closer).
+  std::vector<float> table(cb32.table_size());
+  cb32.distance_table(&f[0], table.data());
+  for (size_t p = 0; p < d.rows(); p += 41) {
+    const double ref = cb32.reconstruction_sqdist(&c32[p * 32], &f[0]);
+    EXPECT_NEAR(adc_distance(table.data(), &c32[p * 32], 32), ref, 1e-4 * ref + 1e-3);
+  }
+  for (size_t p = 0; p < 20; ++p)
+    for (int m : {0, 17, 31}) {
+      std::vector<uint8_t> other(c32.begin() + p * 32, c32.begin() + p * 32 + 32);
+      other[m] = static_cast<uint8_t>(other[m] + 1);
+      EXPECT_LE(cb32.reconstruction_sqdist(&c32[p * 32], &f[p * 128]),
+                cb32.reconstruction_sqdist(other.data(), &f[p * 128]) + 1e-3);
+    }
+  const fs::path path = unique_temp_path("visloc_cascade_test32.vlpq");
+  cb32.write(path, "{}");
+  EXPECT_EQ(SectionFileReader(path, "PQCB", 1, 2).kind_version(), 2u);
+  const PqCodebook back = PqCodebook::read(path);
+  EXPECT_EQ(back.subvectors(), 32);
+  EXPECT_TRUE(std::equal(back.centroids().begin(), back.centroids().end(), cb32.centroids().begin()));
+  cb16.write(path, "{}");
+  EXPECT_EQ(SectionFileReader(path, "PQCB", 1, 2).kind_version(), 1u);
+  EXPECT_EQ(PqCodebook::read(path).subvectors(), 16);
+  // Bad sub-vector counts, in the options, the constructor and the file.
+  EXPECT_THROW(PqCodebook::train(f.data(), d.rows(), {.subvectors = 8}), Error);
+  EXPECT_THROW(PqCodebook(std::vector<float>(kPqCentroidFloats, 1.f), 64), Error);
+  for (uint32_t m : {0u, 8u, 64u}) {
+    SectionFileWriter w(path, "PQCB", 2);
+    w.add_text("META", "{}");
+    w.add_array<float>("CENT", cb32.centroids());
+    w.add_array<uint32_t>("SUBVEC", std::span<const uint32_t>(&m, 1));
+    w.commit();
+    try {
+      PqCodebook::read(path);
+      ADD_FAILURE() << m << " sub-vectors accepted";
+    } catch (const Error& e) {
+      EXPECT_EQ(e.code(), ErrorCode::kFormat);
+      EXPECT_NE(std::string(e.what()).find("SUBVEC"), std::string::npos) << e.what();
+    }
+  }
+  {
+    SectionFileWriter w(path, "PQCB", 2);  // version 2 without SUBVEC
+    w.add_text("META", "{}");
+    w.add_array<float>("CENT", cb32.centroids());
+    w.commit();
+    EXPECT_THROW(PqCodebook::read(path), Error);
+  }
 }
 
 // Every point once per table, in the bucket of its sub-code, ids increasing
@@ -716,13 +792,13 @@ void reference_search(const TestIndex& t, const std::vector<std::vector<uint64_t
   float qf[kDescriptorDim];
   for (int j = 0; j < kDescriptorDim; ++j) qf[j] = q.row(f)[j];
   std::vector<float> d(ranked.size());
-  const SearchKernels& scalar = search_kernels(SimdLevel::kScalar);
+  const AdcKernels& scalar = search_kernels(SimdLevel::kScalar).adc(t.codebook.subvectors());
   if (ranked.size() <= 160) {
-    scalar.adc_direct(t.codebook.centroids().data(), qf, t.pq.data(), ranked.data(), ranked.size(), d.data());
+    scalar.direct(t.codebook.centroids().data(), qf, t.pq.data(), ranked.data(), ranked.size(), d.data());
   } else {
-    std::vector<float> table(kPqTableSize);
-    scalar.adc_table(t.codebook.centroids_transposed(), qf, table.data());
-    scalar.adc_distances(table.data(), t.pq.data(), ranked.data(), ranked.size(), d.data());
+    std::vector<float> table(t.codebook.table_size());
+    scalar.table(t.codebook.centroids_transposed(), qf, table.data());
+    scalar.distances(table.data(), t.pq.data(), ranked.data(), ranked.size(), d.data());
   }
   std::vector<size_t> order(ranked.size());
   for (size_t i = 0; i < order.size(); ++i) order[i] = i;
@@ -750,13 +826,19 @@ void reference_search(const TestIndex& t, const std::vector<std::vector<uint64_t
 // definition does, in index order with the best-ratio rule (the prioritized
 // order, early stop and group rule are tested above): the guard for any later
 // change of the search loop that is meant to be lossless. Segments with
-// crowded buckets (clustered descriptors, LSH codes) and with 32-bit ids, at
-// both radii, with and without the refined step (so both ADC paths), at every
-// kernel level.
+// crowded buckets (clustered descriptors, LSH codes) and with 32-bit ids, and
+// one with 32-byte PQ codes, at both radii, with and without the refined step
+// (so both ADC paths), at every kernel level.
 TEST(CascadeSearch, SameMatchesAsThePlainDefinition) {
-  for (const auto& [points, lsh] : {std::pair<size_t, bool>{5000, false}, {4500, true}, {66000, false}}) {
+  struct Case {
+    size_t points;
+    bool lsh;
+    int pq_subvectors;
+  };
+  for (const auto& [points, lsh, pq_subvectors] :
+       {Case{5000, false, 16}, Case{4500, true, 16}, Case{66000, false, 16}, Case{5000, false, 32}}) {
     DescriptorMatrix db = clustered_descriptors(points, 31, 12);
-    TestIndex t = make_index(db, lsh, 5000);
+    TestIndex t = make_index(db, lsh, 5000, pq_subvectors);
     std::vector<std::vector<uint64_t>> keyed(kHashTables);
     for (int k = 0; k < kHashTables; ++k) {
       for (uint32_t p = 0; p < t.codes.size(); ++p) keyed[k].push_back(uint64_t(hash_subcode(t.codes[p], k)) << 32 | p);
@@ -770,8 +852,8 @@ TEST(CascadeSearch, SameMatchesAsThePlainDefinition) {
     encode_hash(t.hasher.view(), q.data(), q.rows(), codes.data(), hws);
     for (int radius : {0, 1})
       for (bool refined : {true, false}) {
-        SCOPED_TRACE(::testing::Message()
-                     << points << " points, lsh " << lsh << ", radius " << radius << ", refined " << refined);
+        SCOPED_TRACE(::testing::Message() << points << " points, lsh " << lsh << ", " << pq_subvectors
+                                          << "-byte PQ, radius " << radius << ", refined " << refined);
         CascadeSearchOptions o;
         o.lut_radius = radius;
         o.refined = refined;
@@ -803,6 +885,40 @@ TEST(CascadeSearch, SameMatchesAsThePlainDefinition) {
         }
       }
   }
+}
+
+// 32-byte codes find the planted matches as 16-byte ones do, with no fewer
+// correct ones; an index and a codebook of different code sizes are refused.
+TEST(CascadeSearch, ThirtyTwoByteCodesFindPlantedMatchesAndMustMatchTheCodebook) {
+  DescriptorMatrix db = clustered_descriptors(6000, 5);
+  std::vector<size_t> planted;
+  for (size_t i = 0; i < 400; ++i) planted.push_back(i * 13 % 6000);
+  const DescriptorMatrix q = perturbed(db, planted, 4, 6);
+  size_t correct_by_size[2] = {0, 0};
+  for (int s = 0; s < 2; ++s) {
+    const TestIndex t = make_index(db, false, 0, s == 0 ? 16 : 32);
+    CascadeSearchOptions o;
+    o.prioritize = false;
+    const CascadeMatches m = CascadeMatcher(t.view(), t.codebook).match(q, o);
+    size_t wrong = 0;
+    for (size_t i = 0; i < m.query.size(); ++i) (m.point[i] == planted[m.query[i]] ? correct_by_size[s] : wrong)++;
+    EXPECT_LE(wrong, 10u);
+  }
+  EXPECT_GE(correct_by_size[0], 340u);
+  EXPECT_GE(correct_by_size[1], correct_by_size[0]);
+  const TestIndex t16 = make_index(clustered_descriptors(1000, 6));
+  const TestIndex t32 = make_index(clustered_descriptors(1000, 6), false, 0, 32);
+  try {
+    CascadeMatcher(t16.view(), t32.codebook);
+    ADD_FAILURE() << "a 16-byte index searched with a 32-byte codebook";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.code(), ErrorCode::kInvalidArgument);
+    EXPECT_NE(std::string(e.what()).find("16 bytes, the codebook's 32"), std::string::npos) << e.what();
+  }
+  EXPECT_THROW(CascadeMatcher(t32.view(), t16.codebook), Error);
+  CascadeIndexView bad = t16.view();
+  bad.pq_subvectors = 24;
+  EXPECT_THROW(bad.validate("test"), Error);
 }
 
 TEST(FaissBaselines, IvfAdcAndImiFindPlantedMatches) {

@@ -27,43 +27,53 @@ void hamming_scalar(const HashCode& q, const HashCode* codes, const uint32_t* id
   }
 }
 
+// M sub-vectors of D = 128 / M dimensions (pq_codebook.h).
+template <int M>
+constexpr int kSubDim = kDescriptorDim / M;
+
+template <int M>
 void adc_table_scalar(const float* ct, const float* q, float* table) {
-  for (int m = 0; m < kPqSubvectors; ++m)
+  constexpr int D = kSubDim<M>;
+  for (int m = 0; m < M; ++m)
     for (int k = 0; k < kPqCentroids; ++k) {
       float d = 0;
-      for (int j = 0; j < kPqSubDim; ++j) {
-        const float e = q[m * kPqSubDim + j] - ct[(m * kPqSubDim + j) * kPqCentroids + k];
+      for (int j = 0; j < D; ++j) {
+        const float e = q[m * D + j] - ct[(m * D + j) * kPqCentroids + k];
         d += e * e;
       }
       table[m * kPqCentroids + k] = d;
     }
 }
 
+template <int M>
 void adc_distances_scalar(const float* table, const uint8_t* pq, const uint32_t* ids, size_t n, float* out) {
-  for (size_t i = 0; i < n; ++i) out[i] = adc_distance(table, pq + size_t(ids[i]) * kPqCodeBytes);
+  for (size_t i = 0; i < n; ++i) out[i] = adc_distance(table, pq + size_t(ids[i]) * M, M);
 }
 
-// The direct distance's own order, which its SIMD variant follows lane for
-// lane: per dimension j, two partial sums over the sub-vectors (even m, odd
-// m, each in increasing m), added; then the 8 dimensions by a fixed tree
+// The direct distance's own order, which its SIMD variants follow lane for
+// lane. The 128 dimensions are 16 rows of 8 lanes (row r = dimensions 8r ..
+// 8r + 7): with M = 16 a row is one sub-vector's centroid, with M = 32 the
+// centroids of sub-vectors 2r and 2r + 1 side by side. Per lane, two partial
+// sums of squared differences over the rows (even r, odd r, each in
+// increasing r), added; then the 8 lanes by a fixed tree
 // ((0+4)+(2+6)) + ((1+5)+(3+7)).
-void adc_direct_scalar(const float* c, const float* q, const uint8_t* pq, const uint32_t* ids, size_t n,
-                       float* out) {
+template <int M>
+void adc_direct_scalar(const float* c, const float* q, const uint8_t* pq, const uint32_t* ids, size_t n, float* out) {
+  constexpr int D = kSubDim<M>;
+  constexpr int kRows = 16, kLanes = 8;
   for (size_t i = 0; i < n; ++i) {
-    const uint8_t* code = pq + size_t(ids[i]) * kPqCodeBytes;
-    float even[kPqSubDim] = {}, odd[kPqSubDim] = {};
-    for (int m = 0; m < kPqSubvectors; m += 2) {
-      const float* c0 = c + (size_t(m) * kPqCentroids + code[m]) * kPqSubDim;
-      const float* c1 = c + (size_t(m + 1) * kPqCentroids + code[m + 1]) * kPqSubDim;
-      for (int j = 0; j < kPqSubDim; ++j) {
-        const float e0 = q[m * kPqSubDim + j] - c0[j];
-        const float e1 = q[(m + 1) * kPqSubDim + j] - c1[j];
-        even[j] = even[j] + e0 * e0;
-        odd[j] = odd[j] + e1 * e1;
+    const uint8_t* code = pq + size_t(ids[i]) * M;
+    float even[kLanes] = {}, odd[kLanes] = {};
+    for (int r = 0; r < kRows; ++r) {
+      float* acc = r % 2 == 0 ? even : odd;
+      for (int l = 0; l < kLanes; ++l) {
+        const int dim = r * kLanes + l, m = dim / D;
+        const float e = q[dim] - c[(size_t(m) * kPqCentroids + code[m]) * D + dim % D];
+        acc[l] = acc[l] + e * e;
       }
     }
-    float s[kPqSubDim];
-    for (int j = 0; j < kPqSubDim; ++j) s[j] = even[j] + odd[j];
+    float s[kLanes];
+    for (int l = 0; l < kLanes; ++l) s[l] = even[l] + odd[l];
     const float h0 = s[0] + s[4], h1 = s[1] + s[5], h2 = s[2] + s[6], h3 = s[3] + s[7];
     out[i] = (h0 + h2) + (h1 + h3);
   }
@@ -140,15 +150,17 @@ __attribute__((target("popcnt"))) void hamming_popcnt(const HashCode& q, const H
 
 // Four blocks of 8 centroids at a time: independent sums, so the adds of
 // different blocks overlap (one block alone waits on its add chain).
+template <int M>
 __attribute__((target("avx2"))) void adc_table_avx2(const float* ct, const float* q, float* table) {
-  for (int m = 0; m < kPqSubvectors; ++m) {
-    __m256 qj[kPqSubDim];
-    for (int j = 0; j < kPqSubDim; ++j) qj[j] = _mm256_set1_ps(q[m * kPqSubDim + j]);
+  constexpr int D = kSubDim<M>;
+  for (int m = 0; m < M; ++m) {
+    __m256 qj[D];
+    for (int j = 0; j < D; ++j) qj[j] = _mm256_set1_ps(q[m * D + j]);
     for (int k = 0; k < kPqCentroids; k += 32) {
       __m256 acc[4];
       for (auto& a : acc) a = _mm256_setzero_ps();
-      for (int j = 0; j < kPqSubDim; ++j) {
-        const float* c = ct + (m * kPqSubDim + j) * kPqCentroids + k;
+      for (int j = 0; j < D; ++j) {
+        const float* c = ct + (m * D + j) * kPqCentroids + k;
         for (int u = 0; u < 4; ++u) {
           const __m256 e = _mm256_sub_ps(qj[j], _mm256_loadu_ps(c + 8 * u));
           acc[u] = _mm256_add_ps(acc[u], _mm256_mul_ps(e, e));
@@ -160,16 +172,19 @@ __attribute__((target("avx2"))) void adc_table_avx2(const float* ct, const float
 }
 
 // Eight candidates at a time: their codes' 32-bit words and then the table
-// entries are gathered; the sum runs over m = 0..15 in order, as the reference.
+// entries are gathered; the sum runs over m = 0..M-1 in order, as the reference.
+template <int M>
 __attribute__((target("avx2"))) void adc_distances_avx2(const float* table, const uint8_t* pq, const uint32_t* ids,
                                                         size_t n, float* out) {
+  static_assert(M == 16 || M == 32);
+  constexpr int kWordShift = M == 16 ? 2 : 3;  // a code is M / 4 32-bit words
   const int* words = reinterpret_cast<const int*>(pq);
   const __m256i byte_mask = _mm256_set1_epi32(0xFF);
   size_t i = 0;
   for (; i + 8 <= n; i += 8) {
-    const __m256i base = _mm256_slli_epi32(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(ids + i)), 2);
+    const __m256i base = _mm256_slli_epi32(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(ids + i)), kWordShift);
     __m256 acc = _mm256_setzero_ps();
-    for (int w = 0; w < kPqCodeBytes / 4; ++w) {
+    for (int w = 0; w < M / 4; ++w) {
       const __m256i code_word = _mm256_i32gather_epi32(words, _mm256_add_epi32(base, _mm256_set1_epi32(w)), 4);
       for (int b = 0; b < 4; ++b) {
         const int m = 4 * w + b;
@@ -180,7 +195,7 @@ __attribute__((target("avx2"))) void adc_distances_avx2(const float* table, cons
     }
     _mm256_storeu_ps(out + i, acc);
   }
-  adc_distances_scalar(table, pq, ids + i, n - i, out + i);
+  adc_distances_scalar<M>(table, pq, ids + i, n - i, out + i);
 }
 
 // One row at a time: 16 accumulators of 8 outputs, the sum over j in order.
@@ -238,28 +253,43 @@ __attribute__((target("avx2"))) void hash_codes_avx2(const float* wt, const floa
   hash_codes_avx2_rows(wt, x + r0 * kDescriptorDim, n - r0, codes + r0);
 }
 
-// Lanes are the 8 dimensions: each centroid row is one 8-float load, the
-// sub-vectors accumulate into two registers (even and odd m), and one
+// Row r of the centroids of one code (adc_direct_scalar's rows): with
+// M = 16 one 8-float load, with M = 32 two 4-float loads side by side.
+template <int M>
+__attribute__((target("avx2"), always_inline)) inline __m256 centroid_row(const float* c, const uint8_t* code, int r) {
+  if constexpr (M == 16) {
+    return _mm256_loadu_ps(c + (size_t(r) * kPqCentroids + code[r]) * 8);
+  } else {
+    static_assert(M == 32);
+    const int m = 2 * r;
+    const __m128 lo = _mm_loadu_ps(c + (size_t(m) * kPqCentroids + code[m]) * 4);
+    const __m128 hi = _mm_loadu_ps(c + (size_t(m + 1) * kPqCentroids + code[m + 1]) * 4);
+    return _mm256_insertf128_ps(_mm256_castps128_ps256(lo), hi, 1);
+  }
+}
+
+// Lanes are the 8 dimensions of a row: each row of centroids is one 8-float
+// register, the rows accumulate into two registers (even and odd r), and one
 // horizontal sum per candidate follows adc_direct_scalar's tree.
 // The body of adc_direct_avx2, also compiled into the AVX-512 level's
-// function, where 32 vector registers hold the query's sub-vectors and the
+// function, where 32 vector registers hold the query's rows and the
 // accumulators with at most one reload per candidate (AVX2 has 16 registers,
-// and reloads most of the 16 sub-vectors from the stack).
+// and reloads most of the 16 rows from the stack).
+template <int M>
 __attribute__((target("avx2"), always_inline)) inline void adc_direct_ymm(const float* c, const float* q,
                                                                           const uint8_t* pq, const uint32_t* ids,
                                                                           size_t n, float* out) {
-  __m256 qm[kPqSubvectors];
-  for (int m = 0; m < kPqSubvectors; ++m) qm[m] = _mm256_loadu_ps(q + m * kPqSubDim);
+  constexpr int kRows = 16;
+  __m256 qm[kRows];
+  for (int r = 0; r < kRows; ++r) qm[r] = _mm256_loadu_ps(q + r * 8);
   constexpr size_t kAhead = 4;  // the codes of a later candidate are fetched while this one is summed
   for (size_t i = 0; i < n; ++i) {
-    if (i + kAhead < n)
-      _mm_prefetch(reinterpret_cast<const char*>(pq + size_t(ids[i + kAhead]) * kPqCodeBytes), _MM_HINT_T0);
-    const uint8_t* code = pq + size_t(ids[i]) * kPqCodeBytes;
+    if (i + kAhead < n) _mm_prefetch(reinterpret_cast<const char*>(pq + size_t(ids[i + kAhead]) * M), _MM_HINT_T0);
+    const uint8_t* code = pq + size_t(ids[i]) * M;
     __m256 even = _mm256_setzero_ps(), odd = _mm256_setzero_ps();
-    for (int m = 0; m < kPqSubvectors; m += 2) {
-      const __m256 e0 = _mm256_sub_ps(qm[m], _mm256_loadu_ps(c + (size_t(m) * kPqCentroids + code[m]) * kPqSubDim));
-      const __m256 e1 =
-          _mm256_sub_ps(qm[m + 1], _mm256_loadu_ps(c + (size_t(m + 1) * kPqCentroids + code[m + 1]) * kPqSubDim));
+    for (int r = 0; r < kRows; r += 2) {
+      const __m256 e0 = _mm256_sub_ps(qm[r], centroid_row<M>(c, code, r));
+      const __m256 e1 = _mm256_sub_ps(qm[r + 1], centroid_row<M>(c, code, r + 1));
       even = _mm256_add_ps(even, _mm256_mul_ps(e0, e0));
       odd = _mm256_add_ps(odd, _mm256_mul_ps(e1, e1));
     }
@@ -270,9 +300,10 @@ __attribute__((target("avx2"), always_inline)) inline void adc_direct_ymm(const 
   }
 }
 
+template <int M>
 __attribute__((target("avx2"))) void adc_direct_avx2(const float* c, const float* q, const uint8_t* pq,
                                                      const uint32_t* ids, size_t n, float* out) {
-  adc_direct_ymm(c, q, pq, ids, n, out);
+  adc_direct_ymm<M>(c, q, pq, ids, n, out);
 }
 
 // Blocks of 4 rows × 16 outputs (8 accumulators of 8 int32): per pair of
@@ -326,20 +357,23 @@ __attribute__((target("avx2"))) void hash_codes_u8_avx2(const QuantizedHashProje
 // ---- x86-64: AVX-512F ------------------------------------------------------------
 
 // adc_direct_avx2's code with AVX-512VL's 32 vector registers.
+template <int M>
 __attribute__((target("avx512f,avx512vl"))) void adc_direct_avx512(const float* c, const float* q, const uint8_t* pq,
                                                                    const uint32_t* ids, size_t n, float* out) {
-  adc_direct_ymm(c, q, pq, ids, n, out);
+  adc_direct_ymm<M>(c, q, pq, ids, n, out);
 }
 
+template <int M>
 __attribute__((target("avx512f"))) void adc_table_avx512(const float* ct, const float* q, float* table) {
-  for (int m = 0; m < kPqSubvectors; ++m) {
-    __m512 qj[kPqSubDim];
-    for (int j = 0; j < kPqSubDim; ++j) qj[j] = _mm512_set1_ps(q[m * kPqSubDim + j]);
+  constexpr int D = kSubDim<M>;
+  for (int m = 0; m < M; ++m) {
+    __m512 qj[D];
+    for (int j = 0; j < D; ++j) qj[j] = _mm512_set1_ps(q[m * D + j]);
     for (int k = 0; k < kPqCentroids; k += 64) {
       __m512 acc[4];
       for (auto& a : acc) a = _mm512_setzero_ps();
-      for (int j = 0; j < kPqSubDim; ++j) {
-        const float* c = ct + (m * kPqSubDim + j) * kPqCentroids + k;
+      for (int j = 0; j < D; ++j) {
+        const float* c = ct + (m * D + j) * kPqCentroids + k;
         for (int u = 0; u < 4; ++u) {
           const __m512 e = _mm512_sub_ps(qj[j], _mm512_loadu_ps(c + 16 * u));
           acc[u] = _mm512_add_ps(acc[u], _mm512_mul_ps(e, e));
@@ -350,14 +384,17 @@ __attribute__((target("avx512f"))) void adc_table_avx512(const float* ct, const 
   }
 }
 
-__attribute__((target("avx512f"))) void adc_distances_avx512(const float* table, const uint8_t* pq,
-                                                              const uint32_t* ids, size_t n, float* out) {
+template <int M>
+__attribute__((target("avx512f"))) void adc_distances_avx512(const float* table, const uint8_t* pq, const uint32_t* ids,
+                                                             size_t n, float* out) {
+  static_assert(M == 16 || M == 32);
+  constexpr int kWordShift = M == 16 ? 2 : 3;  // a code is M / 4 32-bit words
   const __m512i byte_mask = _mm512_set1_epi32(0xFF);
   size_t i = 0;
   for (; i + 16 <= n; i += 16) {
-    const __m512i base = _mm512_slli_epi32(_mm512_loadu_si512(ids + i), 2);
+    const __m512i base = _mm512_slli_epi32(_mm512_loadu_si512(ids + i), kWordShift);
     __m512 acc = _mm512_setzero_ps();
-    for (int w = 0; w < kPqCodeBytes / 4; ++w) {
+    for (int w = 0; w < M / 4; ++w) {
       const __m512i code_word = _mm512_i32gather_epi32(_mm512_add_epi32(base, _mm512_set1_epi32(w)), pq, 4);
       for (int b = 0; b < 4; ++b) {
         const int m = 4 * w + b;
@@ -368,7 +405,7 @@ __attribute__((target("avx512f"))) void adc_distances_avx512(const float* table,
     }
     _mm512_storeu_ps(out + i, acc);
   }
-  adc_distances_avx2(table, pq, ids + i, n - i, out + i);
+  adc_distances_avx2<M>(table, pq, ids + i, n - i, out + i);
 }
 
 // Blocks of 8 rows × 32 outputs (16 accumulators): the 16 KiB slice of W
@@ -449,13 +486,25 @@ __attribute__((target("avx512f,avx512bw"))) void hash_codes_u8_avx512(const Quan
 
 #endif  // VISLOC_X86_KERNELS
 
-constexpr SearchKernels kScalarKernels{SimdLevel::kScalar, hamming_scalar,    adc_table_scalar,    adc_distances_scalar,
-                                       adc_direct_scalar,  hash_codes_scalar, hash_codes_u8_scalar};
+constexpr SearchKernels kScalarKernels{SimdLevel::kScalar,
+                                       hamming_scalar,
+                                       {adc_table_scalar<16>, adc_distances_scalar<16>, adc_direct_scalar<16>},
+                                       {adc_table_scalar<32>, adc_distances_scalar<32>, adc_direct_scalar<32>},
+                                       hash_codes_scalar,
+                                       hash_codes_u8_scalar};
 #ifdef VISLOC_X86_KERNELS
-constexpr SearchKernels kAvx2Kernels{SimdLevel::kAvx2, hamming_popcnt,  adc_table_avx2,    adc_distances_avx2,
-                                     adc_direct_avx2,  hash_codes_avx2, hash_codes_u8_avx2};
-constexpr SearchKernels kAvx512Kernels{SimdLevel::kAvx512, hamming_popcnt,    adc_table_avx512,    adc_distances_avx512,
-                                       adc_direct_avx512,  hash_codes_avx512, hash_codes_u8_avx512};
+constexpr SearchKernels kAvx2Kernels{SimdLevel::kAvx2,
+                                     hamming_popcnt,
+                                     {adc_table_avx2<16>, adc_distances_avx2<16>, adc_direct_avx2<16>},
+                                     {adc_table_avx2<32>, adc_distances_avx2<32>, adc_direct_avx2<32>},
+                                     hash_codes_avx2,
+                                     hash_codes_u8_avx2};
+constexpr SearchKernels kAvx512Kernels{SimdLevel::kAvx512,
+                                       hamming_popcnt,
+                                       {adc_table_avx512<16>, adc_distances_avx512<16>, adc_direct_avx512<16>},
+                                       {adc_table_avx512<32>, adc_distances_avx512<32>, adc_direct_avx512<32>},
+                                       hash_codes_avx512,
+                                       hash_codes_u8_avx512};
 #endif
 
 SimdLevel best_level() {
@@ -465,6 +514,12 @@ SimdLevel best_level() {
 }
 
 }  // namespace
+
+const AdcKernels& SearchKernels::adc(int subvectors) const {
+  if (subvectors == kPqSubvectors) return adc16;
+  if (subvectors == kPqFineSubvectors) return adc32;
+  throw_error(ErrorCode::kInvalidArgument, "no ADC kernels for ", subvectors, " PQ sub-vectors (16 or 32)");
+}
 
 const char* to_string(SimdLevel level) {
   switch (level) {

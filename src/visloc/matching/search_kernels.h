@@ -13,15 +13,18 @@
 //   hamming_distances  d_i = popcount(q ⊕ codes[ids_i]) over 2 × 64-bit words,
 //                      and a histogram of d over 0..128 (the refined step's
 //                      counting sort)
-//   adc_table          the query's 16 × 256 table of squared sub-distances,
+//   adc(M)             the PQ kernels for M = 16 or 32 sub-vectors (M-byte
+//                      codes, pq_codebook.h), one set per M:
+//     .table           the query's M × 256 table of squared sub-distances,
 //                      from centroids transposed to [m][j][k] (PqCodebook)
-//   adc_distances      d_i = Σ_m table[m·256 + pq_codes[ids_i·16 + m]]
-//   adc_direct         the same distances as adc_table + adc_distances, up to
-//                      float rounding, without the table: per candidate, its
-//                      16 centroid rows ([m][k][j]) are loaded whole and the
-//                      squares summed over m per dimension, then over the 8
-//                      dimensions (adc_direct_scalar gives the order). Cheaper
-//                      when a feature ranks fewer than ~100 candidates.
+//     .distances       d_i = Σ_m table[m·256 + pq_codes[ids_i·M + m]]
+//     .direct          the same distances as table + distances, up to float
+//                      rounding, without the table: per candidate, its
+//                      centroids ([m][k][j]) are loaded as 16 rows of 8
+//                      floats and the squares summed over the rows per lane,
+//                      then over the 8 lanes (adc_direct_scalar gives the
+//                      order). Cheaper when a feature ranks fewer than ~100
+//                      candidates.
 //   hash_codes         bit i of row r = [Σ_j Wᵀ[j][i] · x_rj > 0] over j = 0..127
 //                      in order (x centred): the ITQ/LSH projection's signs
 //   hash_codes_u8      the same signs for uint8 descriptors in exact integer
@@ -58,19 +61,27 @@ bool cpu_supports(SimdLevel level);
 // kScalar first, then every SIMD level this CPU supports, in increasing order.
 std::vector<SimdLevel> supported_simd_levels();
 
+// The ADC kernels of one PQ layout (M sub-vectors).
+struct AdcKernels {
+  void (*table)(const float* centroids_transposed, const float* query, float* table) = nullptr;
+  void (*distances)(const float* table, const uint8_t* pq_codes, const uint32_t* ids, size_t n,
+                    float* distances) = nullptr;
+  void (*direct)(const float* centroids /* [m][k][j] */, const float* query, const uint8_t* pq_codes,
+                 const uint32_t* ids, size_t n, float* distances) = nullptr;
+};
+
 struct SearchKernels {
   SimdLevel level = SimdLevel::kScalar;
   void (*hamming_distances)(const HashCode& query, const HashCode* codes, const uint32_t* ids, size_t n,
                             uint8_t* distances, uint32_t* histogram /* 129 bins, added to */) = nullptr;
-  void (*adc_table)(const float* centroids_transposed, const float* query, float* table) = nullptr;
-  void (*adc_distances)(const float* table, const uint8_t* pq_codes, const uint32_t* ids, size_t n,
-                        float* distances) = nullptr;
-  void (*adc_direct)(const float* centroids /* [m][k][j] */, const float* query, const uint8_t* pq_codes,
-                     const uint32_t* ids, size_t n, float* distances) = nullptr;
+  AdcKernels adc16;  // 16-byte codes
+  AdcKernels adc32;  // 32-byte codes
   void (*hash_codes)(const float* projection_transposed /* [j][i], 128 × 128 */, const float* centred /* n × 128 */,
                      size_t n, HashCode* codes) = nullptr;
   void (*hash_codes_u8)(const QuantizedHashProjection& projection, const uint8_t* descriptors /* n × 128 */, size_t n,
                         HashCode* codes) = nullptr;
+  // adc16 or adc32 by the codes' sub-vector count; else Error(kInvalidArgument).
+  const AdcKernels& adc(int subvectors) const;
 };
 
 // The kernels of one level; throws kInvalidArgument when the CPU lacks it.

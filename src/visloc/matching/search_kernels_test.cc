@@ -14,15 +14,17 @@ using namespace visloc;
 
 namespace {
 
-PqCodebook random_codebook(uint32_t seed) {
+PqCodebook random_codebook(uint32_t seed, int subvectors = kPqSubvectors) {
   std::mt19937 rng(seed);
   std::uniform_real_distribution<float> u(0, 120);
-  std::vector<float> c(size_t(kPqTableSize) * kPqSubDim);
+  std::vector<float> c(kPqCentroidFloats);
   for (auto& x : c) x = u(rng);
-  return PqCodebook(c);
+  return PqCodebook(c, subvectors);
 }
 
 const size_t kLengths[] = {0, 1, 7, 8, 9, 15, 16, 17, 31, 40, 100, 257};
+// Both PQ layouts: 16-byte and 32-byte codes.
+const int kLayouts[] = {kPqSubvectors, kPqFineSubvectors};
 
 }  // namespace
 
@@ -74,55 +76,79 @@ TEST(SearchKernels, HammingMatchesTheReference) {
 }
 
 TEST(SearchKernels, AdcTableIsBitIdenticalToTheCodebooksTable) {
-  const PqCodebook cb = random_codebook(2);
-  std::mt19937 rng(3);
-  std::uniform_real_distribution<float> u(0, 160);
-  std::vector<float> q(128), reference(kPqTableSize), table(kPqTableSize);
-  for (int trial = 0; trial < 5; ++trial) {
-    for (auto& x : q) x = std::round(u(rng));  // SIFT is integer-valued
-    if (trial == 4) q.assign(128, 0.37f);
-    cb.distance_table(q.data(), reference.data());
-    // An independent reference from the codebook's own layout, in double.
-    const auto c = cb.centroids();
-    for (int m = 0; m < kPqSubvectors; ++m)
-      for (int k = 0; k < kPqCentroids; ++k) {
-        double d = 0;
-        for (int j = 0; j < kPqSubDim; ++j) {
-          const double e = double(q[m * 8 + j]) - c[(size_t(m) * kPqCentroids + k) * kPqSubDim + j];
-          d += e * e;
+  for (const int subvectors : kLayouts) {
+    SCOPED_TRACE(std::to_string(subvectors) + "-byte codes");
+    const PqCodebook cb = random_codebook(2, subvectors);
+    const int dims = 128 / subvectors;
+    std::mt19937 rng(3);
+    std::uniform_real_distribution<float> u(0, 160);
+    std::vector<float> q(128), reference(cb.table_size()), table(cb.table_size() + 1);
+    for (int trial = 0; trial < 5; ++trial) {
+      for (auto& x : q) x = std::round(u(rng));  // SIFT is integer-valued
+      if (trial == 4) q.assign(128, 0.37f);
+      cb.distance_table(q.data(), reference.data());
+      // An independent reference from the codebook's own layout, in double.
+      const auto c = cb.centroids();
+      for (int m = 0; m < subvectors; ++m)
+        for (int k = 0; k < kPqCentroids; ++k) {
+          double d = 0;
+          for (int j = 0; j < dims; ++j) {
+            const double e = double(q[m * dims + j]) - c[(size_t(m) * kPqCentroids + k) * dims + j];
+            d += e * e;
+          }
+          ASSERT_NEAR(reference[m * kPqCentroids + k], d, 1e-5 * d + 1e-3);
         }
-        ASSERT_NEAR(reference[m * kPqCentroids + k], d, 1e-5 * d + 1e-3);
+      for (SimdLevel level : supported_simd_levels()) {
+        std::fill(table.begin(), table.end(), -1.f);
+        search_kernels(level).adc(subvectors).table(cb.centroids_transposed(), q.data(), table.data());
+        ASSERT_EQ(0, std::memcmp(reference.data(), table.data(), reference.size() * 4)) << to_string(level);
+        EXPECT_EQ(table.back(), -1.f) << "wrote past the table";
       }
-    for (SimdLevel level : supported_simd_levels()) {
-      std::fill(table.begin(), table.end(), -1.f);
-      search_kernels(level).adc_table(cb.centroids_transposed(), q.data(), table.data());
-      ASSERT_EQ(0, std::memcmp(reference.data(), table.data(), table.size() * 4)) << to_string(level);
     }
   }
 }
 
 TEST(SearchKernels, AdcDistancesAreBitIdenticalToTheReference) {
-  std::mt19937 rng(4);
-  std::uniform_real_distribution<float> u(0, 1e4f);
-  std::vector<float> table(kPqTableSize);
-  for (auto& t : table) t = u(rng);
-  const size_t points = 1000;
-  std::vector<uint8_t> pq(points * kPqCodeBytes);
-  for (auto& b : pq) b = static_cast<uint8_t>(rng());
-  std::vector<uint32_t> ids(300);
-  for (auto& i : ids) i = rng() % points;
-  ids[1] = points - 1;  // the last code: no read past the array
-  for (SimdLevel level : supported_simd_levels()) {
-    for (size_t n : kLengths) {
-      n = std::min(n, ids.size());
-      std::vector<float> out(n + 1, -7.f);
-      search_kernels(level).adc_distances(table.data(), pq.data(), ids.data(), n, out.data());
-      for (size_t i = 0; i < n; ++i) {
-        const float ref = adc_distance(table.data(), pq.data() + size_t(ids[i]) * kPqCodeBytes);
-        ASSERT_EQ(0, std::memcmp(&ref, &out[i], 4)) << to_string(level) << " n=" << n << " i=" << i;
+  for (const int subvectors : kLayouts) {
+    SCOPED_TRACE(std::to_string(subvectors) + "-byte codes");
+    std::mt19937 rng(4);
+    std::uniform_real_distribution<float> u(0, 1e4f);
+    std::vector<float> table(size_t(subvectors) * kPqCentroids);
+    for (auto& t : table) t = u(rng);
+    const size_t points = 1000;
+    std::vector<uint8_t> pq(points * subvectors);
+    for (auto& b : pq) b = static_cast<uint8_t>(rng());
+    std::vector<uint32_t> ids(300);
+    for (auto& i : ids) i = rng() % points;
+    ids[1] = points - 1;  // the last code: no read past the array
+    for (SimdLevel level : supported_simd_levels()) {
+      for (size_t n : kLengths) {
+        n = std::min(n, ids.size());
+        std::vector<float> out(n + 1, -7.f);
+        search_kernels(level).adc(subvectors).distances(table.data(), pq.data(), ids.data(), n, out.data());
+        for (size_t i = 0; i < n; ++i) {
+          // The sum of every one of the code's bytes' entries, in increasing m.
+          float ref = 0;
+          for (int m = 0; m < subvectors; ++m) ref += table[m * kPqCentroids + pq[size_t(ids[i]) * subvectors + m]];
+          ASSERT_EQ(0, std::memcmp(&ref, &out[i], 4)) << to_string(level) << " n=" << n << " i=" << i;
+        }
+        EXPECT_EQ(out[n], -7.f) << "wrote past the end";
       }
-      EXPECT_EQ(out[n], -7.f) << "wrote past the end";
     }
+  }
+}
+
+TEST(SearchKernels, AdcKernelsAreChosenByTheCodeSize) {
+  const SearchKernels& k = search_kernels(SimdLevel::kScalar);
+  EXPECT_EQ(k.adc(16).table, k.adc16.table);
+  EXPECT_EQ(k.adc(32).direct, k.adc32.direct);
+  EXPECT_NE(k.adc16.distances, k.adc32.distances);
+  try {
+    k.adc(24);
+    ADD_FAILURE() << "24 sub-vectors accepted";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.code(), ErrorCode::kInvalidArgument);
+    EXPECT_NE(std::string(e.what()).find("24 PQ sub-vectors"), std::string::npos) << e.what();
   }
 }
 
@@ -220,33 +246,42 @@ TEST(SearchKernels, HashCodesU8MatchTheReference) {
 // they are the table's distances summed in another order, so equal to them
 // within float rounding (relative 1e-5).
 TEST(SearchKernels, AdcDirectEqualsItsReferenceAndTheTableWithinRounding) {
-  const PqCodebook cb = random_codebook(7);
-  std::mt19937 rng(8);
-  std::uniform_real_distribution<float> u(0, 160);
-  std::vector<float> q(128), table(kPqTableSize);
-  for (auto& x : q) x = std::round(u(rng));
-  const size_t points = 700;
-  std::vector<uint8_t> pq(points * kPqCodeBytes);
-  for (auto& b : pq) b = static_cast<uint8_t>(rng());
-  for (size_t m = 0; m < 16; ++m) pq[m] = 255, pq[16 + m] = 0;  // the last and first centroid of every sub-space
-  std::vector<uint32_t> ids(120);
-  for (auto& i : ids) i = rng() % points;
-  ids[0] = 0, ids[1] = 1, ids[2] = points - 1;
-  const SearchKernels& ref = search_kernels(SimdLevel::kScalar);
-  ref.adc_table(cb.centroids_transposed(), q.data(), table.data());
-  std::vector<float> via_table(ids.size()), direct(ids.size());
-  ref.adc_distances(table.data(), pq.data(), ids.data(), ids.size(), via_table.data());
-  ref.adc_direct(cb.centroids().data(), q.data(), pq.data(), ids.data(), ids.size(), direct.data());
-  for (size_t i = 0; i < ids.size(); ++i) {
-    ASSERT_GT(via_table[i], 0.f);
-    EXPECT_NEAR(direct[i], via_table[i], 1e-5 * via_table[i]) << "candidate " << i;
-  }
-  for (SimdLevel level : supported_simd_levels())
-    for (size_t n : kLengths) {
-      n = std::min(n, ids.size());
-      std::vector<float> out(n + 1, -3.f);
-      search_kernels(level).adc_direct(cb.centroids().data(), q.data(), pq.data(), ids.data(), n, out.data());
-      ASSERT_EQ(0, std::memcmp(direct.data(), out.data(), n * 4)) << to_string(level) << " n=" << n;
-      EXPECT_EQ(out[n], -3.f) << "wrote past the end";
+  for (const int subvectors : kLayouts) {
+    SCOPED_TRACE(std::to_string(subvectors) + "-byte codes");
+    const PqCodebook cb = random_codebook(7, subvectors);
+    std::mt19937 rng(8);
+    std::uniform_real_distribution<float> u(0, 160);
+    std::vector<float> q(128), table(cb.table_size());
+    for (auto& x : q) x = std::round(u(rng));
+    const size_t points = 700;
+    std::vector<uint8_t> pq(points * subvectors);
+    for (auto& b : pq) b = static_cast<uint8_t>(rng());
+    for (int m = 0; m < subvectors; ++m)
+      pq[m] = 255, pq[subvectors + m] = 0;  // the last and first centroid of every sub-space
+    std::vector<uint32_t> ids(120);
+    for (auto& i : ids) i = rng() % points;
+    ids[0] = 0, ids[1] = 1, ids[2] = points - 1;
+    const AdcKernels& ref = search_kernels(SimdLevel::kScalar).adc(subvectors);
+    ref.table(cb.centroids_transposed(), q.data(), table.data());
+    std::vector<float> via_table(ids.size()), direct(ids.size());
+    ref.distances(table.data(), pq.data(), ids.data(), ids.size(), via_table.data());
+    ref.direct(cb.centroids().data(), q.data(), pq.data(), ids.data(), ids.size(), direct.data());
+    for (size_t i = 0; i < ids.size(); ++i) {
+      ASSERT_GT(via_table[i], 0.f);
+      EXPECT_NEAR(direct[i], via_table[i], 1e-5 * via_table[i]) << "candidate " << i;
+      // The codebook's own reconstruction distance, in double.
+      const double exact = cb.reconstruction_sqdist(pq.data() + size_t(ids[i]) * subvectors, q.data());
+      EXPECT_NEAR(direct[i], exact, 1e-5 * exact) << "candidate " << i;
     }
+    for (SimdLevel level : supported_simd_levels())
+      for (size_t n : kLengths) {
+        n = std::min(n, ids.size());
+        std::vector<float> out(n + 1, -3.f);
+        search_kernels(level)
+            .adc(subvectors)
+            .direct(cb.centroids().data(), q.data(), pq.data(), ids.data(), n, out.data());
+        ASSERT_EQ(0, std::memcmp(direct.data(), out.data(), n * 4)) << to_string(level) << " n=" << n;
+        EXPECT_EQ(out[n], -3.f) << "wrote past the end";
+      }
+  }
 }

@@ -50,52 +50,61 @@ TEST(Localizer, MissingMapIsAClearError) {
 TEST(Localizer, LocalizesHeldOutFountainImages) {
   const fs::path scene = fs::path(VISLOC_SHARED_DATA_DIR) / "strecha" / "fountain-P11";
   if (!fs::exists(scene / "colmap" / "database.db")) GTEST_SKIP() << "shared data absent: " << scene;
-  const fs::path map_dir = unique_temp_path("visloc_pipeline_test_fountain");
-  fs::remove_all(map_dir);
-  ColmapImportOptions io;
-  io.holdout_images = read_name_list(scene / "queries.txt");
-  io.itq.iterations = 10;
-  io.pq.max_training = 20000;
-  io.pq.iterations = 10;
-  import_colmap_map(scene / "colmap" / "sparse", scene / "colmap" / "database.db", map_dir, io);
-  std::map<std::string, CameraPose> truth;
-  for (const auto& p : read_pose_list(map_dir / "holdout.txt")) truth[p.name] = p.cam_from_world;
-  ASSERT_FALSE(truth.empty());
+  // 16-byte PQ codes in both paper settings; 32-byte codes (segment format
+  // version 4) in the default one.
+  for (const int pq_bytes : {16, 32}) {
+    SCOPED_TRACE(std::to_string(pq_bytes) + "-byte PQ codes");
+    const fs::path map_dir = unique_temp_path("visloc_pipeline_test_fountain_pq" + std::to_string(pq_bytes));
+    fs::remove_all(map_dir);
+    ColmapImportOptions io;
+    io.holdout_images = read_name_list(scene / "queries.txt");
+    io.itq.iterations = 10;
+    io.pq.max_training = 20000;
+    io.pq.iterations = 10;
+    io.pq.subvectors = pq_bytes;
+    import_colmap_map(scene / "colmap" / "sparse", scene / "colmap" / "database.db", map_dir, io);
+    ASSERT_EQ(Map::open(map_dir).open_segment(0)->index().pq_subvectors, pq_bytes);
+    std::map<std::string, CameraPose> truth;
+    for (const auto& p : read_pose_list(map_dir / "holdout.txt")) truth[p.name] = p.cam_from_world;
+    ASSERT_FALSE(truth.empty());
 
-  ColmapDatabase db(scene / "colmap" / "database.db");
-  const auto cams = db.cameras();
-  ASSERT_FALSE(cams.empty());
-  PinholeCamera cam = PinholeCamera::centered(static_cast<int>(cams[0].width), static_cast<int>(cams[0].height));
-  // PINHOLE fx fy cx cy
-  cam.focal = 0.5 * (cams[0].params[0] + cams[0].params[1]);
-  cam.cx = cams[0].params[2];
-  cam.cy = cams[0].params[3];
-  cam.has_focal = true;
+    ColmapDatabase db(scene / "colmap" / "database.db");
+    const auto cams = db.cameras();
+    ASSERT_FALSE(cams.empty());
+    PinholeCamera cam = PinholeCamera::centered(static_cast<int>(cams[0].width), static_cast<int>(cams[0].height));
+    // PINHOLE fx fy cx cy
+    cam.focal = 0.5 * (cams[0].params[0] + cams[0].params[1]);
+    cam.cx = cams[0].params[2];
+    cam.cy = cams[0].params[3];
+    cam.has_focal = true;
 
-  for (PaperSetting setting : {PaperSetting::k1, PaperSetting::k3Plus}) {
-    LocalizerOptions o;
-    o.setting = setting;
-    Localizer loc(map_dir, o);
-    EXPECT_FALSE(loc.has_retrieval());
-    for (const auto& [name, pose] : truth) {
-      auto img = db.image_by_name(name);
-      ASSERT_TRUE(img.has_value());
-      LocalizationResult r = loc.localize_features(db.features(img->image_id), cam);
-      EXPECT_TRUE(r.registered) << name << " setting " << to_string(setting);
-      EXPECT_GE(r.inliers, 12u) << name;
-      EXPECT_LT(position_error(r.cam_from_segment, pose), 0.10) << name << " setting " << to_string(setting);
-      EXPECT_LT(rotation_error_deg(r.cam_from_segment, pose), 1.0) << name;
-      nlohmann::json j = to_json(r);
-      EXPECT_EQ(j["q_wxyz"].size(), 4u);
-      EXPECT_FALSE(j.contains("center_enu"));  // an imported model is not geo-registered
+    for (PaperSetting setting : {PaperSetting::k1, PaperSetting::k3Plus}) {
+      if (pq_bytes == 32 && setting != LocalizerOptions{}.setting) continue;
+      LocalizerOptions o;
+      o.setting = setting;
+      Localizer loc(map_dir, o);
+      EXPECT_FALSE(loc.has_retrieval());
+      for (const auto& [name, pose] : truth) {
+        auto img = db.image_by_name(name);
+        ASSERT_TRUE(img.has_value());
+        LocalizationResult r = loc.localize_features(db.features(img->image_id), cam);
+        EXPECT_TRUE(r.registered) << name << " setting " << to_string(setting);
+        EXPECT_GE(r.inliers, 12u) << name;
+        EXPECT_LT(position_error(r.cam_from_segment, pose), 0.10) << name << " setting " << to_string(setting);
+        EXPECT_LT(rotation_error_deg(r.cam_from_segment, pose), 1.0) << name;
+        nlohmann::json j = to_json(r);
+        EXPECT_EQ(j["q_wxyz"].size(), 4u);
+        EXPECT_FALSE(j.contains("center_enu"));  // an imported model is not geo-registered
+      }
+      // Unknown focal: DLT estimates it.
+      PinholeCamera uncal = cam;
+      uncal.has_focal = false;
+      const auto& [name, pose] = *truth.begin();
+      LocalizationResult r = loc.localize_features(db.features(db.image_by_name(name)->image_id), uncal);
+      EXPECT_TRUE(r.registered) << name;
+      EXPECT_NEAR(r.focal_px, cam.focal, 0.02 * cam.focal);
     }
-    // Unknown focal: DLT estimates it.
-    PinholeCamera uncal = cam;
-    uncal.has_focal = false;
-    const auto& [name, pose] = *truth.begin();
-    LocalizationResult r = loc.localize_features(db.features(db.image_by_name(name)->image_id), uncal);
-    EXPECT_TRUE(r.registered) << name;
-    EXPECT_NEAR(r.focal_px, cam.focal, 0.02 * cam.focal);
+    fs::remove_all(map_dir);
   }
 }
 
@@ -178,6 +187,21 @@ void expect_point_votes_choose_the_segment(const fs::path& dir, const MapBuildOp
   EXPECT_THROW(Localizer(dir / "map", one), Error);
 }
 
+// A 16-byte map is not resumed as a 32-byte one: a clear refusal that names
+// the option to give, and nothing changed (the next build reuses its segments).
+void expect_other_pq_bytes_refused(const fs::path& map_dir, const MapBuildOptions& built) {
+  MapBuildOptions finer = built;
+  finer.pq.subvectors = 32;
+  try {
+    build_map(map_dir, finer);
+    ADD_FAILURE() << "a 16-byte map resumed with 32-byte codes";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("--pq-bytes 16"), std::string::npos) << e.what();
+  }
+  EXPECT_EQ(Map::open(map_dir).codebook().subvectors(), 16);
+  EXPECT_TRUE(build_map(map_dir, built).segments[0].reused);
+}
+
 TEST(Localizer, EndToEndOnSyntheticStreet) {
   if (!program_exists("colmap")) GTEST_SKIP() << "colmap is not installed";
   const fs::path dir = unique_temp_path("visloc_pipeline_test_city");
@@ -247,6 +271,7 @@ TEST(Localizer, EndToEndOnSyntheticStreet) {
   ASSERT_TRUE(fs::exists(dir / "map" / kHashRotationFileName));
   EXPECT_EQ(read_manifest(dir / "map").hash_rotation_file, kHashRotationFileName);
   EXPECT_TRUE(build_map(dir / "map", shared).segments[0].reused);
+  expect_other_pq_bytes_refused(dir / "map", shared);
   if (rotated.segments.size() > 1) {
     MapBuildOptions update = mb;  // scope: segment
     update.only_segments = {0};
