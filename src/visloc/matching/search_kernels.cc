@@ -60,17 +60,26 @@ void adc_distances_scalar(const float* table, const uint8_t* pq, const uint32_t*
 template <int M>
 void adc_direct_scalar(const float* c, const float* q, const uint8_t* pq, const uint32_t* ids, size_t n, float* out) {
   constexpr int D = kSubDim<M>;
-  constexpr int kRows = 16, kLanes = 8;
+  constexpr int kRows = 16, kLanes = 8, kPerRow = kLanes / D;  // sub-vectors per row
   for (size_t i = 0; i < n; ++i) {
     const uint8_t* code = pq + size_t(ids[i]) * M;
     float even[kLanes] = {}, odd[kLanes] = {};
-    for (int r = 0; r < kRows; ++r) {
-      float* acc = r % 2 == 0 ? even : odd;
+    // Row r's 8 lanes: the centroid rows of its kPerRow sub-vectors, side by side.
+    auto add_row = [&](int r, float* acc) {
+      float row[kLanes];
+      for (int h = 0; h < kPerRow; ++h) {
+        const int m = r * kPerRow + h;
+        const float* centroid = c + (size_t(m) * kPqCentroids + code[m]) * D;
+        for (int j = 0; j < D; ++j) row[h * D + j] = centroid[j];
+      }
       for (int l = 0; l < kLanes; ++l) {
-        const int dim = r * kLanes + l, m = dim / D;
-        const float e = q[dim] - c[(size_t(m) * kPqCentroids + code[m]) * D + dim % D];
+        const float e = q[r * kLanes + l] - row[l];
         acc[l] = acc[l] + e * e;
       }
+    };
+    for (int r = 0; r < kRows; r += 2) {
+      add_row(r, even);
+      add_row(r + 1, odd);
     }
     float s[kLanes];
     for (int l = 0; l < kLanes; ++l) s[l] = even[l] + odd[l];
