@@ -116,6 +116,7 @@ inline std::filesystem::path write_scratch_file(const std::filesystem::path& rel
 // fuzz build (VISLOC_FUZZ_DEFAULT_REFERENCE). Layout:
 //   map/      a small real map (hash rotation "map", with retrieval/)
 //   colmap/   a small real COLMAP model, binary and text
+//   pq32_codebook.vlpq  a 32-byte PQ codebook (version-4 segments' searches)
 inline std::filesystem::path reference_dir() {
   if (const char* r = std::getenv("VISLOC_FUZZ_REFERENCE"); r && *r) return r;
 #ifdef VISLOC_FUZZ_DEFAULT_REFERENCE

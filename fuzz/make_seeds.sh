@@ -7,6 +7,7 @@
 #   OUT_DIR/reference/map/        a small real map (hash rotation "map", 2 segments)
 #   OUT_DIR/reference/map/retrieval/  a small retrieval map (k = 4, 16-D)
 #   OUT_DIR/reference/colmap/     a small real COLMAP model, .bin and .txt
+#   OUT_DIR/reference/pq32_codebook.vlpq  the segment imported with 32-byte PQ codes: its codebook
 # Sources: a tiny synthetic street rendered, mapped (COLMAP triangulates the
 # known poses) and imported with the project's own CLI, about a minute on 2
 # cores; and real files from ../shared/data, read in place, when present.

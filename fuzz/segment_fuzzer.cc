@@ -13,9 +13,18 @@ using namespace visloc;
 
 VISLOC_FUZZ_SECTION_FILE_MUTATOR()
 
+namespace {
+// The reference 32-byte codebook, read when a version-4 segment first needs
+// it (a reference directory made before it existed serves the other inputs).
+const PqCodebook& codebook32() {
+  static const PqCodebook codebook = PqCodebook::read(fuzz::scratch_copy_of_reference("pq32_codebook.vlpq"));
+  return codebook;
+}
+}  // namespace
+
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   static const PqCodebook codebook = PqCodebook::read(fuzz::scratch_copy_of_reference("map/pq_codebook.vlpq"));
-  static const PqCodebook codebook32 = PqCodebook::read(fuzz::scratch_copy_of_reference("pq32_codebook.vlpq"));
+
 #ifdef VISLOC_FUZZ_MAP_ROTATION
   static const auto map_hasher = std::make_shared<const BinaryHasher>(
       read_hash_rotation_file(fuzz::scratch_copy_of_reference(std::string("map/") + kHashRotationFileName)));
@@ -34,7 +43,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     for (int radius : {0, 1}) {
       CascadeSearchOptions options;
       options.lut_radius = radius;
-      CascadeMatcher matcher(segment->index(), segment->index().pq_subvectors == 32 ? codebook32 : codebook);
+      CascadeMatcher matcher(segment->index(), segment->index().pq_subvectors == 32 ? codebook32() : codebook);
       const CascadeMatches matches = matcher.match(queries, options);
       for (uint32_t p : matches.point)
         if (p >= segment->num_points()) fuzz::report_bug("a match names a point outside the segment", std::to_string(p));

@@ -161,6 +161,7 @@ MapInfo map_info(const fs::path& dir) {
   Map map = Map::open(dir);
   info.manifest = map.manifest();
   info.codebook_bytes = fs::file_size(dir / map.manifest().pq_codebook_file);
+  info.pq_code_bytes = map.codebook().code_bytes();
   info.total_bytes = info.codebook_bytes;
   if (!map.manifest().hash_rotation_file.empty()) {
     info.hash_rotation_bytes = fs::file_size(dir / map.manifest().hash_rotation_file);
@@ -211,6 +212,7 @@ nlohmann::json MapInfo::to_json() const {
             {"file_bytes_per_point", double(total_bytes) / n},
             {"bytes", total_bytes},
             {"pq_codebook_bytes", codebook_bytes},
+            {"pq_code_bytes", pq_code_bytes},
             {"hash_rotation_bytes", hash_rotation_bytes}}},
           {"holdout_images", manifest.holdout_images}};
 }
@@ -243,8 +245,8 @@ std::string MapInfo::summary(const std::string& map_name) const {
         << "  " << xyz_summary(s) << "\n";
   const double n = total_points ? double(total_points) : 1.0;
   out << std::fixed << std::setprecision(1) << "total: " << double(total_per_point_bytes) / n
-      << " bytes/point in per-point sections (xyz 12, or 6 quantized, + hash 16 + PQ 16); " << double(total_bytes) / n
-      << " bytes/point in all files: segments (images, metadata"
+      << " bytes/point in per-point sections (xyz 12, or 6 quantized, + hash 16 + PQ " << pq_code_bytes << "); "
+      << double(total_bytes) / n << " bytes/point in all files: segments (images, metadata"
       << (hash_rotation_bytes ? "" : ", a hash rotation each") << "), the shared PQ codebook (" << codebook_bytes
       << " bytes)"
       << (hash_rotation_bytes ? " and the shared hash rotation (" + std::to_string(hash_rotation_bytes) + " bytes)"

@@ -346,4 +346,8 @@ TEST(SegmentPqCodes, RejectsCodeSizesThatDisagree) {
   }
   PqCodebook(c, 32).write(dir / "map" / "pq_codebook.vlpq", "{}");
   EXPECT_EQ(Map::open(dir / "map").open_segment(0)->index().pq_subvectors, 32);
+  const MapInfo info = map_info(dir / "map");
+  EXPECT_EQ(info.pq_code_bytes, 32);
+  EXPECT_EQ(info.to_json().at("total").at("pq_code_bytes"), 32);
+  EXPECT_TRUE(mentions(info.summary("map"), "+ PQ 32)")) << info.summary("map");
 }

@@ -74,6 +74,8 @@ void MapBuildOptions::validate() const {
   pair_verification.validate();
   slurm.validate();
   itq.validate();
+  if (pq_code_bytes && !valid_pq_subvectors(*pq_code_bytes))
+    throw_error(ErrorCode::kInvalidArgument, "map build: --pq-bytes must be 16 or 32, got ", *pq_code_bytes);
   pq.validate();
   registration.validate();
   embedding.validate();
@@ -884,7 +886,8 @@ SegmentBuildResult build_and_record_segment(const BuildContext& ctx, int id, con
 // A segment finished by an earlier run, reused only if its codes were made
 // with the rotation this build uses (`map_hasher`, or its own when null).
 std::optional<SegmentBuildResult> finished_segment(const fs::path& map_dir, int id,
-                                                   const std::shared_ptr<const BinaryHasher>& map_hasher) {
+                                                   const std::shared_ptr<const BinaryHasher>& map_hasher,
+                                                   int pq_code_bytes) {
   const fs::path result_file = segment_result_file(map_dir, id);
   if (!fs::exists(result_file) || !fs::exists(segment_file(map_dir, id))) return std::nullopt;
   try {
@@ -892,6 +895,7 @@ std::optional<SegmentBuildResult> finished_segment(const fs::path& map_dir, int 
     if (!r.ok || r.id != id) return std::nullopt;
     auto seg = Segment::open(segment_file(map_dir, id), map_hasher);  // rejects another map rotation
     if (seg->uses_map_hasher() != (map_hasher != nullptr)) return std::nullopt;  // the other scope: rebuild
+    if (seg->index().pq_subvectors != pq_code_bytes) return std::nullopt;        // another codebook's codes: rebuild
     return r;
   } catch (const std::exception&) {
   }
@@ -932,6 +936,13 @@ HashRotationScope resolve_hash_rotation(const fs::path& map_dir, const std::opti
   if (fs::exists(map_dir / kHashRotationFileName)) return HashRotationScope::kMap;
   if (fs::exists(map_dir / "manifest.json")) return HashRotationScope::kSegment;
   return HashRotationScope::kMap;
+}
+
+int resolve_pq_code_bytes(const fs::path& map_dir, const MapBuildOptions& options) {
+  if (options.pq_code_bytes) return *options.pq_code_bytes;
+  const fs::path codebook = map_dir / "pq_codebook.vlpq";
+  if (fs::exists(codebook)) return PqCodebook::read(codebook).code_bytes();
+  return options.pq.subvectors;
 }
 
 SegmentBuildResult build_planned_segment(const fs::path& map_dir, const MapBuildOptions& options, int segment) {
@@ -1062,6 +1073,7 @@ MapBuildResult MapBuilder::run() {
   s.total = Timer();
   s.jobs = s.opt.jobs > 0 ? s.opt.jobs : std::max(1u, std::thread::hardware_concurrency());
   s.opt.hash_rotation = resolve_hash_rotation(s.map_dir, s.opt.hash_rotation);
+  s.opt.pq.subvectors = resolve_pq_code_bytes(s.map_dir, s.opt);
   fs::create_directories(s.map_dir / "work" / "features");
   const BuildLock lock(s.map_dir / "work" / "build.lock");
   check_earlier_slurm_arrays();
@@ -1150,8 +1162,8 @@ void MapBuilder::train_codebook() {
     if (ctx.codebook.code_bytes() != opt.pq.subvectors)
       throw_error(ErrorCode::kInvalidArgument, s.map_dir.string(), ": the map being resumed has ",
                   ctx.codebook.code_bytes(), "-byte PQ codes (", s.codebook_path.string(),
-                  "); resume it with --pq-bytes ", ctx.codebook.code_bytes(), ", or start a new map (--overwrite) for ",
-                  opt.pq.subvectors, "-byte codes");
+                  "); resume it without --pq-bytes (or with --pq-bytes ", ctx.codebook.code_bytes(), "), or build ",
+                  opt.pq.subvectors, "-byte codes into a new directory");
   }
   if (map_rotation && fs::exists(s.rotation_path))
     ctx.map_hasher = std::make_shared<const BinaryHasher>(read_hash_rotation_file(s.rotation_path));
@@ -1211,7 +1223,7 @@ void MapBuilder::select_segments() {
   for (size_t k = 0; k < s.n_segments; ++k) {
     const int id = static_cast<int>(k);
     if (!s.only.count(id)) {
-      if (auto r = finished_segment(s.map_dir, id, s.ctx.map_hasher)) {
+      if (auto r = finished_segment(s.map_dir, id, s.ctx.map_hasher, s.ctx.codebook.code_bytes())) {
         s.result.segments[k] = *r;
         s.result.segments[k].reused = true;
         ++s.segments_done;

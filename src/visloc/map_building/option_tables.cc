@@ -13,6 +13,12 @@ void add_hash_rotation(OptionTable& t, HashRotationScope& scope, std::string hel
            std::move(help));
 }
 
+constexpr const char* kPqBytesHelp =
+    "Bytes per PQ code of a map point (the codes that rank a feature's candidates; not the retrieval "
+    "index's): 16 (the paper's; 44 bytes per point with float32 coordinates, 38 with int16) or 32 (16 bytes "
+    "more per point, a finer ranking: bench matching measured 0.90 of exact matching's 1-1 matches against "
+    "0.755 on the Strecha scenes; segment format version 4)";
+
 void add_point_coordinates(OptionTable& t, SegmentWriteOptions& o) {
   t.choice(
       "--point-coordinates", o.coordinates,
@@ -25,11 +31,7 @@ void add_point_coordinates(OptionTable& t, SegmentWriteOptions& o) {
 }  // namespace
 
 void add_pq_bytes_option(OptionTable& t, PqTrainingOptions& o) {
-  t.choice("--pq-bytes", o.subvectors, {{"16", kPqSubvectors}, {"32", kPqFineSubvectors}},
-           "Bytes per PQ code of a map point: 16 (the paper's; 44 bytes per point with float32 coordinates, "
-           "38 with int16) or 32 (16 bytes more per point; a finer ranking of the candidates: bench matching "
-           "measured 0.90 of exact matching's 1-1 matches against 0.755 on the Strecha scenes). "
-           "32-byte maps are segment format version 4");
+  t.choice("--pq-bytes", o.subvectors, {{"16", kPqSubvectors}, {"32", kPqFineSubvectors}}, kPqBytesHelp);
 }
 
 void add_options(OptionTable& t, MapBuildOptions& o) {
@@ -107,7 +109,16 @@ void add_options(OptionTable& t, MapBuildOptions& o) {
       "hashed once, and the localizer can vote for segments with the query's local features) or 'segment' "
       "(one per segment, in its file); default: the existing map's, 'map' for a new map");
   add_point_coordinates(t, o.segment_file);
-  add_pq_bytes_option(t, o.pq);
+  t.text(
+      "--pq-bytes", "",
+      [&o](const std::string& text) {
+        if (text.empty()) return;
+        const int64_t bytes = parse_whole_number(text, "--pq-bytes", 0, 64);
+        if (!valid_pq_subvectors(int(bytes)))
+          throw_error(ErrorCode::kInvalidArgument, "--pq-bytes: '", text, "' is not one of the choices (16, 32)");
+        o.pq_code_bytes = int(bytes);
+      },
+      std::string(kPqBytesHelp) + "; default: the existing map's, 16 for a new map");
   add_options(t, o.sift);
 }
 

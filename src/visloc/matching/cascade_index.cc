@@ -174,7 +174,14 @@ namespace {
 // kernels; a direct distance ~7 ns with AVX2 and ~42 ns scalar. One bound for
 // every level: the two paths round differently, and every level must give the
 // same matches (so the scalar kernels pay up to ~2× between 60 and 160).
+// Measured with 16-byte codes. With 32-byte ones, 40 direct distances took
+// 1.6× and the table path 1.3× as long (AVX-512, BM_KernelAdcDirect40/*/32),
+// which moves the break-even point down a little; the same bound is kept.
 constexpr size_t kDirectAdcMaxCandidates = 160;
+
+// The SIMD ADC kernels gather a code's 32-bit words at int32 indices
+// id · M / 4 + w (search_kernels.cc): they must not wrap at 32-byte codes.
+static_assert(CascadeLookup::kMaxPoints * (kPqMaxSubvectors / 4) <= (size_t(1) << 31));
 
 // The probes of one table: the exact bucket, then (radius 1) the 16 buckets
 // one bit away, in that order.

@@ -314,6 +314,21 @@ TEST(ProductQuantizer, ThirtyTwoByteCodesEncodeCloserAndRoundTrip) {
     w.commit();
     EXPECT_THROW(PqCodebook::read(path), Error);
   }
+  {
+    const uint32_t m = 32;  // version 1 is 16 sub-vectors: a SUBVEC there is refused, not read
+    SectionFileWriter w(path, "PQCB", 1);
+    w.add_text("META", "{}");
+    w.add_array<float>("CENT", cb32.centroids());
+    w.add_array<uint32_t>("SUBVEC", std::span<const uint32_t>(&m, 1));
+    w.commit();
+    try {
+      PqCodebook::read(path);
+      ADD_FAILURE() << "a version 1 codebook with SUBVEC accepted";
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find("version 1 codebook has no section 'SUBVEC'"), std::string::npos)
+          << e.what();
+    }
+  }
 }
 
 // Every point once per table, in the bucket of its sub-code, ids increasing

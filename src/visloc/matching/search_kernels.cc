@@ -187,6 +187,8 @@ __attribute__((target("avx2"))) void adc_distances_avx2(const float* table, cons
                                                         size_t n, float* out) {
   static_assert(M == 16 || M == 32);
   constexpr int kWordShift = M == 16 ? 2 : 3;  // a code is M / 4 32-bit words
+  // The word indices id · M / 4 + w are int32 lanes (< 2^31 while ids stay
+  // below CascadeLookup::kMaxPoints: a static_assert in cascade_index.cc).
   const int* words = reinterpret_cast<const int*>(pq);
   const __m256i byte_mask = _mm256_set1_epi32(0xFF);
   size_t i = 0;

@@ -188,10 +188,14 @@ void expect_point_votes_choose_the_segment(const fs::path& dir, const MapBuildOp
 }
 
 // A 16-byte map is not resumed as a 32-byte one: a clear refusal that names
-// the option to give, and nothing changed (the next build reuses its segments).
+// the option to give, and nothing changed (the next build reuses its
+// segments). Without --pq-bytes a build keeps the map's code size.
 void expect_other_pq_bytes_refused(const fs::path& map_dir, const MapBuildOptions& built) {
   MapBuildOptions finer = built;
   finer.pq.subvectors = 32;
+  EXPECT_EQ(resolve_pq_code_bytes(map_dir, finer), 16);
+  finer.pq_code_bytes = 32;
+  EXPECT_EQ(resolve_pq_code_bytes(map_dir, finer), 32);
   try {
     build_map(map_dir, finer);
     ADD_FAILURE() << "a 16-byte map resumed with 32-byte codes";

@@ -482,6 +482,16 @@ const char* point_coordinates_name(PointCoordinates c) {
   return c == PointCoordinates::kInt16 ? "int16" : c == PointCoordinates::kFloat32 ? "float32" : "auto";
 }
 
+// The keyword `pq_bytes` (16 or 32), if given, into `bytes`.
+bool take_pq_bytes(Kwargs& k, const std::string& where, int& bytes) {
+  int given = 0;
+  if (!k.take("pq_bytes", given)) return false;
+  if (!valid_pq_subvectors(given))
+    raise_error(ErrorCode::kInvalidArgument, where + ": pq_bytes must be 16 or 32, got " + std::to_string(given));
+  bytes = given;
+  return true;
+}
+
 // The keyword `point_coordinates` ('auto', 'float32', 'int16'), if given.
 void take_point_coordinates(Kwargs& k, SegmentWriteOptions& o) {
   std::string name;
@@ -530,6 +540,7 @@ nlohmann::json build_record(const MapBuildOptions& o, const fs::path& map_dir) {
   add("--pq-training-images", std::to_string(o.pq_training_images));
   if (o.hash_rotation) add("--hash-rotation", to_string(*o.hash_rotation));
   add("--point-coordinates", point_coordinates_name(o.segment_file.coordinates));
+  if (o.pq_code_bytes) add("--pq-bytes", std::to_string(*o.pq_code_bytes));
   add("--max-side", std::to_string(o.sift.max_image_side));
   add("--max-features", std::to_string(o.sift.max_features));
   add("--contrast-threshold", number_text(o.sift.contrast_threshold));
@@ -893,6 +904,7 @@ void bind_build_map(py::module_& m) {
         if (k.take_choice("hash_rotation", hash_rotation, {"segment", "map"}))
           o.hash_rotation = parse_hash_rotation_scope(hash_rotation);
         take_point_coordinates(k, o.segment_file);
+        if (int bytes = 0; take_pq_bytes(k, "build_map", bytes)) o.pq_code_bytes = bytes;
         k.take("keep_work", o.keep_work);
         take_sift_options(k, o.sift);
         k.finish();
@@ -941,8 +953,9 @@ Keywords as the CLI's flags: gps ('exif' or a CSV), gps_subset, poses ('sfm' or
 'twoview'), sampson, pair_ransac ('classic', '1m', '1m-sprt'), pair_threshold, jobs, colmap, colmap_threads, exhaustive_max, spatial_neighbors,
 min_placemarks, max_placemarks, overlap, placemark_radius, chain_order,
 registration_threshold, retrieval, retrieval_dims, pq_training_images,
-hash_rotation, point_coordinates ('auto', 'float32', 'int16'), keep_work and the
-SIFT options. progress(dict) is called as the
+hash_rotation, point_coordinates ('auto', 'float32', 'int16'), pq_bytes (16 or
+32; default: an existing map's, 16 for a new one), keep_work and the SIFT
+options. progress(dict) is called as the
 build advances. Local executor only (Slurm builds: the CLI). Segments are
 built `jobs` at a time (default: one per core), each SIFT on OpenCV's
 process-wide pool: call visloc.set_opencv_threads(1) first, as the CLI does,
@@ -965,6 +978,7 @@ void bind_import_colmap(py::module_& m) {
         if (k.take_choice("hash_rotation", hash_rotation, {"segment", "map"}))
           o.hash_rotation = parse_hash_rotation_scope(hash_rotation);
         take_point_coordinates(k, o.segment_file);
+        take_pq_bytes(k, "import_colmap", o.pq.subvectors);
         k.take("itq_iterations", o.itq.iterations);
         k.take("seed", o.itq.seed);
         k.take("keep_descriptors", o.keep_descriptors);
@@ -985,7 +999,7 @@ void bind_import_colmap(py::module_& m) {
 `visloc map import --colmap`. Keywords: holdout (names or a file of names:
 removed from the model, kept as queries), pq_train_database,
 pq_train_images, hash_rotation ('segment' or 'map'), point_coordinates ('auto',
-'float32', 'int16'), itq_iterations, seed, keep_descriptors, overwrite. Returns the import statistics as a dict.)doc");
+'float32', 'int16'), pq_bytes (16 or 32), itq_iterations, seed, keep_descriptors, overwrite. Returns the import statistics as a dict.)doc");
 }
 
 // visloc.evaluate.

@@ -104,6 +104,10 @@ def test_bad_build_and_import_options(tmp_path):
         visloc.import_colmap(tmp_path, tmp_path / "db", tmp_path / "map", holdot=["a"])
     with pytest.raises(visloc.Error):
         visloc.import_colmap(tmp_path / "model", tmp_path / "database.db", tmp_path / "map")
+    with pytest.raises(ValueError, match="build_map: pq_bytes must be 16 or 32, got 24"):
+        visloc.build_map(tmp_path, tmp_path / "map", pq_bytes=24)
+    with pytest.raises(ValueError, match="import_colmap: pq_bytes must be 16 or 32, got 8"):
+        visloc.import_colmap(tmp_path, tmp_path / "db", tmp_path / "map", pq_bytes=8)
     with pytest.raises(ValueError, match="queries and truth"):
         visloc.evaluate(tmp_path, tmp_path / "out", images=tmp_path)
 
@@ -351,6 +355,12 @@ def test_import_colmap_and_evaluate(fountain, tmp_path):
                                  keep_descriptors=False)
     assert stats["holdout"]["images_removed"] == len(fountain["queries"])
     assert stats["points"] > 1000
+    assert visloc.Map(tmp_path / "map").info()["total"]["pq_code_bytes"] == 16
+    visloc.import_colmap(FOUNTAIN / "colmap" / "sparse", FOUNTAIN / "colmap" / "database.db", tmp_path / "map32",
+                         holdout=FOUNTAIN / "queries.txt", itq_iterations=3, pq_bytes=32, keep_descriptors=False)
+    info32 = visloc.Map(tmp_path / "map32").info()
+    assert info32["total"]["pq_code_bytes"] == 32
+    assert info32["segments"][0]["format_version"] == 4
     with pytest.raises(visloc.Error, match="overwrite|exists|not empty"):
         visloc.import_colmap(FOUNTAIN / "colmap" / "sparse", FOUNTAIN / "colmap" / "database.db",
                              tmp_path / "map", holdout=fountain["queries"])
