@@ -4,6 +4,9 @@
 // Built twice: segment_fuzzer opens without a map hash rotation;
 // segment_map_rotation_fuzzer (VISLOC_FUZZ_MAP_ROTATION) passes the
 // reference map's hash_rotation.vlitq, as a map with a shared rotation does.
+#include <filesystem>
+#include <optional>
+
 #include "fuzz_harness.h"
 #include "visloc/map/segment_file.h"
 #include "visloc/matching/cascade_index.h"
@@ -14,16 +17,20 @@ using namespace visloc;
 VISLOC_FUZZ_SECTION_FILE_MUTATOR()
 
 namespace {
-// The reference 32-byte codebook, read when a version-4 segment first needs
-// it (a reference directory made before it existed serves the other inputs).
-const PqCodebook& codebook32() {
-  static const PqCodebook codebook = PqCodebook::read(fuzz::scratch_copy_of_reference("pq32_codebook.vlpq"));
-  return codebook;
+// The reference 32-byte codebook, read once before any input (outside
+// fuzz::accepts, so a damaged reference stops the run rather than passing
+// for rejected inputs); absent from a reference directory made before it
+// existed: version-4 segments are then opened and walked, not searched.
+std::optional<PqCodebook> reference_codebook32() {
+  const std::filesystem::path path = fuzz::reference_dir() / "pq32_codebook.vlpq";
+  if (!std::filesystem::exists(path)) return std::nullopt;
+  return PqCodebook::read(fuzz::scratch_copy_of_reference("pq32_codebook.vlpq"));
 }
 }  // namespace
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   static const PqCodebook codebook = PqCodebook::read(fuzz::scratch_copy_of_reference("map/pq_codebook.vlpq"));
+  static const std::optional<PqCodebook> codebook32 = reference_codebook32();
 
 #ifdef VISLOC_FUZZ_MAP_ROTATION
   static const auto map_hasher = std::make_shared<const BinaryHasher>(
@@ -43,7 +50,9 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     for (int radius : {0, 1}) {
       CascadeSearchOptions options;
       options.lut_radius = radius;
-      CascadeMatcher matcher(segment->index(), segment->index().pq_subvectors == 32 ? codebook32() : codebook);
+      const bool fine = segment->index().pq_subvectors == kPqFineSubvectors;
+      if (fine && !codebook32) break;
+      CascadeMatcher matcher(segment->index(), fine ? *codebook32 : codebook);
       const CascadeMatches matches = matcher.match(queries, options);
       for (uint32_t p : matches.point)
         if (p >= segment->num_points()) fuzz::report_bug("a match names a point outside the segment", std::to_string(p));

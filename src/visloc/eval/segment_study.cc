@@ -254,6 +254,7 @@ StudyMapBuild build_study_map(const fs::path& map_dir, const fs::path& study_dir
   if (fs::exists(shared_codebook) && !fs::exists(map_dir / "pq_codebook.vlpq"))
     link_or_copy(shared_codebook, map_dir / "pq_codebook.vlpq");
   MapBuildOptions mb = opt.map;
+  mb.pq_code_bytes = opt.map.pq.subvectors;  // the study's choice (its fingerprint), never a leftover codebook's
   mb.images_dir = dataset.images_dir;
   mb.gps_csv = dataset.gps_csv;
   mb.gps_lists_subset = true;  // e.g. KITTI's even frames of a folder of all frames

@@ -939,16 +939,21 @@ HashRotationScope resolve_hash_rotation(const fs::path& map_dir, const std::opti
 }
 
 int resolve_pq_code_bytes(const fs::path& map_dir, const MapBuildOptions& options) {
-  if (options.pq_code_bytes) return *options.pq_code_bytes;
-  const fs::path codebook = map_dir / "pq_codebook.vlpq";
-  if (fs::exists(codebook)) return PqCodebook::read(codebook).code_bytes();
-  return options.pq.subvectors;
+  const fs::path codebook_path = map_dir / "pq_codebook.vlpq";
+  if (!fs::exists(codebook_path)) return options.pq_code_bytes.value_or(options.pq.subvectors);
+  const int existing = PqCodebook::read(codebook_path).code_bytes();
+  if (options.pq_code_bytes && *options.pq_code_bytes != existing)
+    throw_error(ErrorCode::kInvalidArgument, map_dir.string(), ": the map has ", existing, "-byte PQ codes (",
+                codebook_path.string(), "); build it without --pq-bytes (or with --pq-bytes ", existing, "), or build ",
+                *options.pq_code_bytes, "-byte codes into a new directory");
+  return existing;
 }
 
 SegmentBuildResult build_planned_segment(const fs::path& map_dir, const MapBuildOptions& options, int segment) {
   MapBuildOptions opt = options;
   opt.hash_rotation = resolve_hash_rotation(map_dir, options.hash_rotation);
   opt.validate();
+  opt.pq.subvectors = resolve_pq_code_bytes(map_dir, opt);  // refuses an explicit size unlike the map's
   const fs::path codebook_path = map_dir / "pq_codebook.vlpq";
   if (!fs::exists(map_dir / "manifest.json") || !fs::exists(codebook_path))
     throw_error(ErrorCode::kNotFound, map_dir.string(),
@@ -1073,7 +1078,7 @@ MapBuildResult MapBuilder::run() {
   s.total = Timer();
   s.jobs = s.opt.jobs > 0 ? s.opt.jobs : std::max(1u, std::thread::hardware_concurrency());
   s.opt.hash_rotation = resolve_hash_rotation(s.map_dir, s.opt.hash_rotation);
-  s.opt.pq.subvectors = resolve_pq_code_bytes(s.map_dir, s.opt);
+  s.opt.pq.subvectors = resolve_pq_code_bytes(s.map_dir, s.opt);  // before anything is written
   fs::create_directories(s.map_dir / "work" / "features");
   const BuildLock lock(s.map_dir / "work" / "build.lock");
   check_earlier_slurm_arrays();
@@ -1159,11 +1164,7 @@ void MapBuilder::train_codebook() {
   const bool map_rotation = opt.hash_rotation == HashRotationScope::kMap;
   if (fs::exists(s.codebook_path)) {
     ctx.codebook = PqCodebook::read(s.codebook_path);
-    if (ctx.codebook.code_bytes() != opt.pq.subvectors)
-      throw_error(ErrorCode::kInvalidArgument, s.map_dir.string(), ": the map being resumed has ",
-                  ctx.codebook.code_bytes(), "-byte PQ codes (", s.codebook_path.string(),
-                  "); resume it without --pq-bytes (or with --pq-bytes ", ctx.codebook.code_bytes(), "), or build ",
-                  opt.pq.subvectors, "-byte codes into a new directory");
+    VISLOC_CHECK(ctx.codebook.code_bytes() == opt.pq.subvectors, "(resolve_pq_code_bytes ran before)");
   }
   if (map_rotation && fs::exists(s.rotation_path))
     ctx.map_hasher = std::make_shared<const BinaryHasher>(read_hash_rotation_file(s.rotation_path));
@@ -1230,11 +1231,12 @@ void MapBuilder::select_segments() {
         continue;
       }
       // An update keeps the other segments as they are: one that cannot be
-      // kept (another hash rotation) would drop out of the map.
+      // kept (another hash rotation or code size) would drop out of the map.
       if (!s.only.empty() && fs::exists(segment_file(s.map_dir, id)))
         throw_error(ErrorCode::kInvalidArgument, "segment ", id, " of ", s.map_dir.string(),
                     " was built with another hash rotation than --hash-rotation ", to_string(*s.opt.hash_rotation),
-                    " gives; update with the same option, or rebuild the map with 'map build'");
+                    " gives, or with PQ codes of another size than the map's ", s.ctx.codebook.code_bytes(),
+                    " bytes (or is damaged); update with the same options, or rebuild the map with 'map build'");
     }
     if (s.only.empty() || s.only.count(id)) s.to_build.push_back(id);
   }

@@ -109,7 +109,8 @@ struct MapBuildOptions {
   SegmentWriteOptions segment_file;  // point coordinates: float32, int16 or auto
   // Bytes per PQ code (--pq-bytes): 16 or 32. Empty (default): the existing
   // map's (its codebook's), else pq.subvectors for a new map
-  // (resolve_pq_code_bytes); given and unlike the existing map's: refused.
+  // (resolve_pq_code_bytes); given and unlike the existing map's: refused
+  // before anything is written.
   std::optional<int> pq_code_bytes;
   PqTrainingOptions pq;
   size_t pq_training_descriptors = 100000;  // sampled across the training images:
@@ -211,8 +212,10 @@ SegmentBuildResult build_planned_segment(const std::filesystem::path& map_dir, c
 // map built with a rotation per segment, kSegment), else kMap for a new map.
 HashRotationScope resolve_hash_rotation(const std::filesystem::path& map_dir,
                                         const std::optional<HashRotationScope>& given);
-// The PQ code size a build of `map_dir` uses: options.pq_code_bytes, else the
-// existing map's codebook's, else options.pq.subvectors.
+// The PQ code size a build of `map_dir` uses: the existing map's codebook's,
+// else options.pq_code_bytes, else options.pq.subvectors. An explicit
+// pq_code_bytes unlike the existing map's throws Error(kInvalidArgument)
+// naming --pq-bytes; an unreadable codebook throws the reader's error.
 int resolve_pq_code_bytes(const std::filesystem::path& map_dir, const MapBuildOptions& options);
 
 MapBuildResult build_map(const std::filesystem::path& map_dir, const MapBuildOptions& options,

@@ -3,6 +3,7 @@
 #include <filesystem>
 
 #include "visloc/map_building/map_builder.h"
+#include "visloc/matching/pq_codebook.h"
 #include "visloc/util/error.h"
 #include "visloc/util/file_io.h"
 #include "visloc/util/test_support.h"
@@ -45,5 +46,54 @@ TEST(MapBuildOptions, HashRotationDefaultsToTheExistingMaps) {
   write_file_atomic(dir / kHashRotationFileName, "x");
   EXPECT_EQ(resolve_hash_rotation(dir, std::nullopt), HashRotationScope::kMap);
   EXPECT_EQ(resolve_hash_rotation(dir, HashRotationScope::kSegment), HashRotationScope::kSegment);
+  fs::remove_all(dir);
+}
+
+// The PQ code size of a build: the existing map's codebook's whatever
+// pq.subvectors says; an explicit --pq-bytes unlike it is refused, naming the
+// flag, before the build writes anything; a new map takes the explicit value,
+// else pq.subvectors; an unreadable codebook is its reader's error.
+TEST(MapBuildOptions, PqCodeBytesFollowTheExistingMapsCodebook) {
+  const fs::path dir = unique_temp_dir("visloc_pq_code_bytes");
+  MapBuildOptions o;
+  o.images_dir = dir;
+  EXPECT_EQ(resolve_pq_code_bytes(dir, o), 16);
+  o.pq.subvectors = 32;
+  EXPECT_EQ(resolve_pq_code_bytes(dir, o), 32);
+  o.pq_code_bytes = 16;
+  EXPECT_EQ(resolve_pq_code_bytes(dir, o), 16);
+  std::vector<float> c(kPqCentroidFloats);
+  for (size_t i = 0; i < c.size(); ++i) c[i] = float(i % 89);
+  for (const int existing : {16, 32}) {
+    PqCodebook(c, existing).write(dir / "pq_codebook.vlpq", "{}");
+    for (const int subvectors : {16, 32}) {
+      MapBuildOptions resumed;
+      resumed.images_dir = dir;
+      resumed.pq.subvectors = subvectors;
+      EXPECT_EQ(resolve_pq_code_bytes(dir, resumed), existing);
+      resumed.pq_code_bytes = subvectors;
+      if (subvectors == existing) {
+        EXPECT_EQ(resolve_pq_code_bytes(dir, resumed), existing);
+        continue;
+      }
+      try {
+        build_map(dir, resumed);
+        ADD_FAILURE() << "an explicit " << subvectors << "-byte build of a " << existing << "-byte map";
+      } catch (const Error& e) {
+        EXPECT_EQ(e.code(), ErrorCode::kInvalidArgument);
+        EXPECT_NE(std::string(e.what()).find("--pq-bytes " + std::to_string(existing)), std::string::npos) << e.what();
+      }
+      EXPECT_FALSE(fs::exists(dir / "work")) << "the refused build wrote its work directory";
+    }
+  }
+  write_file_atomic(dir / "pq_codebook.vlpq", "not a codebook");
+  try {
+    resolve_pq_code_bytes(dir, o);
+    ADD_FAILURE() << "a damaged codebook read";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("pq_codebook.vlpq"), std::string::npos) << e.what();
+  }
+  o.pq_code_bytes = 24;
+  EXPECT_THROW(o.validate(), Error);
   fs::remove_all(dir);
 }

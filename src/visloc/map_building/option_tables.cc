@@ -1,6 +1,8 @@
 // The map building options as command-line options (util/option_table.h):
 // `visloc map build` (MapBuildOptions) and `visloc map import` (its sources
 // and ColmapImportOptions).
+#include <climits>
+
 #include "visloc/map_building/colmap_import.h"
 #include "visloc/map_building/map_builder.h"
 #include "visloc/util/option_table.h"
@@ -113,7 +115,7 @@ void add_options(OptionTable& t, MapBuildOptions& o) {
       "--pq-bytes", "",
       [&o](const std::string& text) {
         if (text.empty()) return;
-        const int64_t bytes = parse_whole_number(text, "--pq-bytes", 0, 64);
+        const int64_t bytes = parse_whole_number(text, "--pq-bytes", INT_MIN, INT_MAX);
         if (!valid_pq_subvectors(int(bytes)))
           throw_error(ErrorCode::kInvalidArgument, "--pq-bytes: '", text, "' is not one of the choices (16, 32)");
         o.pq_code_bytes = int(bytes);

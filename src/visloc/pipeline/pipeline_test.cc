@@ -195,7 +195,6 @@ void expect_other_pq_bytes_refused(const fs::path& map_dir, const MapBuildOption
   finer.pq.subvectors = 32;
   EXPECT_EQ(resolve_pq_code_bytes(map_dir, finer), 16);
   finer.pq_code_bytes = 32;
-  EXPECT_EQ(resolve_pq_code_bytes(map_dir, finer), 32);
   try {
     build_map(map_dir, finer);
     ADD_FAILURE() << "a 16-byte map resumed with 32-byte codes";
