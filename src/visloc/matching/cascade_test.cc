@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <bit>
 #include <filesystem>
+#include <optional>
 #include <random>
 
 #include "visloc/baselines/faiss_baselines.h"
@@ -293,12 +294,16 @@ TEST(ProductQuantizer, ThirtyTwoByteCodesEncodeCloserAndRoundTrip) {
   // Bad sub-vector counts, in the options, the constructor and the file.
   EXPECT_THROW(PqCodebook::train(f.data(), d.rows(), {.subvectors = 8}), Error);
   EXPECT_THROW(PqCodebook(std::vector<float>(kPqCentroidFloats, 1.f), 64), Error);
-  for (uint32_t m : {0u, 8u, 64u}) {
-    SectionFileWriter w(path, "PQCB", 2);
+  // A codebook file of kind version `version` with cb32's centroids and, when given, a SUBVEC of `m`.
+  auto write_codebook = [&](uint32_t version, std::optional<uint32_t> m) {
+    SectionFileWriter w(path, "PQCB", version);
     w.add_text("META", "{}");
     w.add_array<float>("CENT", cb32.centroids());
-    w.add_array<uint32_t>("SUBVEC", std::span<const uint32_t>(&m, 1));
+    if (m) w.add_array<uint32_t>("SUBVEC", std::span<const uint32_t>(&*m, 1));
     w.commit();
+  };
+  for (uint32_t m : {0u, 8u, 64u}) {
+    write_codebook(2, m);
     try {
       PqCodebook::read(path);
       ADD_FAILURE() << m << " sub-vectors accepted";
@@ -307,20 +312,10 @@ TEST(ProductQuantizer, ThirtyTwoByteCodesEncodeCloserAndRoundTrip) {
       EXPECT_NE(std::string(e.what()).find("SUBVEC"), std::string::npos) << e.what();
     }
   }
+  write_codebook(2, std::nullopt);  // version 2 without SUBVEC
+  EXPECT_THROW(PqCodebook::read(path), Error);
   {
-    SectionFileWriter w(path, "PQCB", 2);  // version 2 without SUBVEC
-    w.add_text("META", "{}");
-    w.add_array<float>("CENT", cb32.centroids());
-    w.commit();
-    EXPECT_THROW(PqCodebook::read(path), Error);
-  }
-  {
-    const uint32_t m = 32;  // version 1 is 16 sub-vectors: a SUBVEC there is refused, not read
-    SectionFileWriter w(path, "PQCB", 1);
-    w.add_text("META", "{}");
-    w.add_array<float>("CENT", cb32.centroids());
-    w.add_array<uint32_t>("SUBVEC", std::span<const uint32_t>(&m, 1));
-    w.commit();
+    write_codebook(1, 32);  // version 1 is 16 sub-vectors: a SUBVEC there is refused, not read
     try {
       PqCodebook::read(path);
       ADD_FAILURE() << "a version 1 codebook with SUBVEC accepted";
