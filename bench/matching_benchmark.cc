@@ -347,6 +347,12 @@ std::vector<CascadeConfig> cascade_configs(float ratio) {
     scalar.options.simd = SimdLevel::kScalar;
     configs.push_back(scalar);
   }
+  {
+    // Without software prefetching (its baseline; the same matches).
+    CascadeConfig plain{"ccs-full-r1-no-prefetch", false, opts(1, true, false, best)};
+    plain.options.prefetch = false;
+    configs.push_back(plain);
+  }
   configs.push_back({"ccs-full-r1-group1M", false, opts(1, true, false, group)});
   configs.push_back({"ccs-prioritized-r0", false, opts(0, true, true, best)});
   configs.push_back({"ccs-prioritized-r1", false, opts(1, true, true, best)});

@@ -223,30 +223,93 @@ struct ProbeRanges {
   uint32_t listed = 0;  // Σ bucket sizes (the coarse size, before deduplication)
 };
 
-VISLOC_POPCNT_CLONES
-void probe_ranges(const CascadeLookup& lookup, const HashCode& code, int probes, ProbeRanges& r) {
+// The probes' first step: the non-empty probed buckets and their ranks, from
+// the bitmap and rank words alone (`begin` holds the ranks). With
+// kPrefetchOffsets, each bucket's offsets are prefetched for probe_offsets.
+template <bool kPrefetchOffsets>
+VISLOC_POPCNT_CLONES void probe_ranks(const CascadeLookup& lookup, const HashCode& code, int probes, ProbeRanges& r) {
   int c = 0;
   for (int k = 0; k < kHashTables; ++k) {
     const uint32_t key = hash_subcode(code, k);
+    [[maybe_unused]] const uint32_t* o = lookup.table_offsets(k);
     for (int b = 0; b < probes; ++b) {
       uint32_t rank;
       const uint32_t non_empty = lookup.bucket_rank(k, probe_bucket(key, b), rank);
       r.begin[c] = rank;
       r.table[c] = static_cast<uint8_t>(k);
+      if constexpr (kPrefetchOffsets) __builtin_prefetch(o + rank);
       c += static_cast<int>(non_empty);
     }
   }
+  r.count = c;
+}
+
+// The second step: the ranks replaced by the buckets' [begin, end), and the
+// coarse size.
+void probe_offsets(const CascadeLookup& lookup, ProbeRanges& r) {
   uint32_t listed = 0;
-  for (int i = 0; i < c; ++i) {
+  for (int i = 0; i < r.count; ++i) {
     const uint32_t* o = lookup.table_offsets(r.table[i]);
     const uint32_t rank = r.begin[i];
     r.begin[i] = o[rank];
     r.end[i] = o[rank + 1];
     listed += r.end[i] - r.begin[i];
   }
-  r.count = c;
   r.listed = listed;
 }
+
+void probe_ranges(const CascadeLookup& lookup, const HashCode& code, int probes, ProbeRanges& r) {
+  probe_ranks<false>(lookup, code, probes, r);
+  probe_offsets(lookup, r);
+}
+
+// The probes of the features in search order, computed two features ahead so
+// that their memory is on its way before it is read: ranges(i) returns
+// position i's probes (offsets read) after it has read position i + 1's
+// offsets and prefetched the first ids of its buckets, and found position
+// i + 2's buckets and prefetched their offsets. Positions are asked for in
+// increasing order from 0. Measured on a 100K-point segment (10K features,
+// radius 1; with the codes' prefetches in the gather and before the ADC): see
+// the comment before CascadeMatcher::match_hashed.
+class ProbePipeline {
+ public:
+  ProbePipeline(const CascadeLookup& lookup, const HashCode* codes, std::span<const uint64_t> order, int probes)
+      : lookup_(lookup), codes_(codes), order_(order), probes_(probes) {
+    for (int k = 0; k < kHashTables; ++k) {
+      ids16_[k] = lookup.uses_16bit_ids() ? lookup.ids16(k) : nullptr;
+      ids32_[k] = lookup.uses_16bit_ids() ? nullptr : lookup.ids32(k);
+    }
+  }
+  const ProbeRanges& ranges(size_t i) {
+    if (i == 0) {
+      ranks(0);
+      probe_offsets(lookup_, slot(0));
+      if (order_.size() > 1) ranks(1);
+    }
+    if (i + 1 < order_.size()) {
+      ProbeRanges& next = slot(i + 1);
+      probe_offsets(lookup_, next);
+      for (int c = 0; c < next.count; ++c)
+        __builtin_prefetch(lookup_.uses_16bit_ids() ? static_cast<const void*>(ids16_[next.table[c]] + next.begin[c])
+                                                    : static_cast<const void*>(ids32_[next.table[c]] + next.begin[c]));
+    }
+    if (i + 2 < order_.size()) ranks(i + 2);
+    return slot(i);
+  }
+
+ private:
+  ProbeRanges& slot(size_t i) { return stages_[i % 3]; }
+  void ranks(size_t i) {
+    probe_ranks<true>(lookup_, codes_[static_cast<uint32_t>(order_[i] & 0xffffffffu)], probes_, slot(i));
+  }
+  const CascadeLookup& lookup_;
+  const HashCode* codes_;
+  std::span<const uint64_t> order_;
+  int probes_;
+  const uint16_t* ids16_[kHashTables];
+  const uint32_t* ids32_[kHashTables];
+  ProbeRanges stages_[3];
+};
 
 // Coarse: the union of the probed buckets, deduplicated by the `seen` bytes
 // (one per point), in probe order (within a bucket, increasing point id), into
@@ -263,12 +326,15 @@ void probe_ranges(const CascadeLookup& lookup, const HashCode& code, int probes,
 // for one; empty buckets dropped from the list: fountain-P11's full search at
 // radius 1 28.5 against 33.6 ms (`bench matching`, medians of 6 alternated
 // runs), but on a 100K-point segment, where 98.5 of a feature's 136 probes
-// hold points, no change beyond the noise (micro bench). Not faster, measured: prefetching the
-// next feature's first ids (the wait at 100K points is on cache misses either
-// way), and computing the Hamming distances here rather than in a pass of
-// their own (duplicates cost a distance each).
-template <typename Id>
-size_t gather_candidates(const Id* const* ids, const ProbeRanges& r, uint8_t* seen, uint32_t* out) {
+// hold points, no change beyond the noise (micro bench). Not faster, measured:
+// computing the Hamming distances here rather than in a pass of their own
+// (duplicates cost a distance each). Prefetching the next feature's first ids
+// alone measured no faster in separate runs; with the probes two features
+// ahead and the codes prefetched (kPrefetchCodes, ProbePipeline), timed
+// alternately in one process, it is (see match_hashed).
+template <typename Id, bool kPrefetchCodes>
+size_t gather_candidates(const Id* const* ids, const ProbeRanges& r, uint8_t* seen, uint32_t* out,
+                         [[maybe_unused]] const HashCode* codes) {
   size_t n = 0;
   for (int c = 0; c < r.count; ++c) {
     const Id* table_ids = ids[r.table[c]];
@@ -276,18 +342,21 @@ size_t gather_candidates(const Id* const* ids, const ProbeRanges& r, uint8_t* se
     const uint32_t first = table_ids[begin];
     const uint8_t was = seen[first];
     out[n] = first;
+    if constexpr (kPrefetchCodes) __builtin_prefetch(codes + first);
     n += static_cast<size_t>(was == 0);
     seen[first] = 1;
     const uint32_t second = table_ids[begin + 1];
     const uint8_t was2 = seen[second];
     const uint8_t two = begin + 1 < end;
     out[n] = second;
+    if constexpr (kPrefetchCodes) __builtin_prefetch(codes + second);
     n += static_cast<size_t>(two & (was2 == 0));
     seen[second] = was2 | two;
     for (uint32_t i = begin + 2; i < end; ++i) {
       const uint32_t id = table_ids[i];
       const uint8_t w = seen[id];
       out[n] = id;
+      if constexpr (kPrefetchCodes) __builtin_prefetch(codes + id);
       n += static_cast<size_t>(w == 0);
       seen[id] = 1;
     }
@@ -295,15 +364,19 @@ size_t gather_candidates(const Id* const* ids, const ProbeRanges& r, uint8_t* se
   return n;
 }
 
-size_t collect_all(const CascadeLookup& lookup, const ProbeRanges& r, uint8_t* seen, uint32_t* out) {
+// With `codes`, each listed id's hash code is prefetched for the Hamming pass.
+size_t collect_all(const CascadeLookup& lookup, const ProbeRanges& r, uint8_t* seen, uint32_t* out,
+                   const HashCode* codes) {
   if (lookup.uses_16bit_ids()) {
     const uint16_t* ids[kHashTables];
     for (int k = 0; k < kHashTables; ++k) ids[k] = lookup.ids16(k);
-    return gather_candidates(ids, r, seen, out);
+    return codes ? gather_candidates<uint16_t, true>(ids, r, seen, out, codes)
+                 : gather_candidates<uint16_t, false>(ids, r, seen, out, codes);
   }
   const uint32_t* ids[kHashTables];
   for (int k = 0; k < kHashTables; ++k) ids[k] = lookup.ids32(k);
-  return gather_candidates(ids, r, seen, out);
+  return codes ? gather_candidates<uint32_t, true>(ids, r, seen, out, codes)
+               : gather_candidates<uint32_t, false>(ids, r, seen, out, codes);
 }
 
 // Refined: the `list` nearest of the n candidates (more than `list`) by
@@ -432,6 +505,21 @@ void CascadeMatcher::match(const DescriptorMatrix& queries, const CascadeSearchO
 // below this search's other runs); glibc.malloc.hugetlb=1, which puts large
 // allocations in transparent huge pages (20-290 MB of them seen in the
 // process: no change beyond the noise in 6 alternated pairs).
+// Kept: software prefetching (CascadeSearchOptions::prefetch). Profiled
+// (perf, cpu-clock samples), 44% of the search's own time waited on the load
+// of each bucket's first id; the probes now run two features ahead
+// (ProbePipeline), the gather prefetches each candidate's hash code, and the
+// short list's PQ codes are prefetched before the ADC. The micro bench
+// BM_CascadeSearch100KPointsPrefetch times both in one process, alternated:
+// medians 33.0 / 33.1 / 37.8 ms with against 46.9 / 44.3 / 77.1 without in
+// three runs (1.3-2.0×: the more the machine's other load contends for the
+// cache, the larger the gain), the same matches; on fountain-P11 (`bench
+// matching`, ccs-full-r1 against ccs-full-r1-no-prefetch, 6 alternated runs)
+// 26.4-28.0 against 26.7-29.0 ms. Tried and not kept: the gather one feature
+// ahead as well (slower than the probes alone), and the features sorted by
+// their first table's key, so that neighbours share buckets (1.5× slower:
+// the next feature's loads of the deduplication bytes then wait on this
+// feature's stores to the same bytes).
 void CascadeMatcher::match_hashed(const DescriptorMatrix& queries, std::span<const HashCode> codes,
                                   const CascadeSearchOptions& options, CascadeMatches& out) {
   options.validate();
@@ -472,20 +560,24 @@ void CascadeMatcher::match_hashed(const DescriptorMatrix& queries, std::span<con
   const size_t early = options.prioritize && options.early_stop > 0 ? size_t(options.early_stop) : SIZE_MAX;
   const int probes = options.lut_radius == 1 ? kHashTableBits + 1 : 1;
   float qf[kDescriptorDim];
-  ProbeRanges ranges;
+  ProbeRanges plain_ranges;
+  ProbePipeline pipeline(lookup, codes.data(), ws.order, probes);
+  const HashCode* prefetched_codes = options.prefetch ? index_.codes : nullptr;
+  const size_t pq_bytes = size_t(index_.pq_subvectors);
   std::span<const uint32_t> ranked;
 
-  for (uint64_t entry : ws.order) {
+  for (size_t position = 0; position < ws.order.size(); ++position) {
     if (out.query.size() >= early) {
       out.stats.early_stopped = true;
       break;
     }
-    const uint32_t f = static_cast<uint32_t>(entry & 0xffffffffu);
+    const uint32_t f = static_cast<uint32_t>(ws.order[position] & 0xffffffffu);
     const HashCode code = codes[f];
-    probe_ranges(lookup, code, probes, ranges);
+    if (!options.prefetch) probe_ranges(lookup, code, probes, plain_ranges);
+    const ProbeRanges& ranges = options.prefetch ? pipeline.ranges(position) : plain_ranges;
     if (ranges.listed < 2) continue;  // not searched: no ratio test possible
     if (ws.candidates.size() < size_t(ranges.listed) + 1) ws.candidates.resize(size_t(ranges.listed) + 1);
-    const size_t n_candidates = collect_all(lookup, ranges, ws.seen.data(), ws.candidates.data());
+    const size_t n_candidates = collect_all(lookup, ranges, ws.seen.data(), ws.candidates.data(), prefetched_codes);
     for (size_t j = 0; j < n_candidates; ++j) ws.seen[ws.candidates[j]] = 0;
     out.stats.coarse_candidates += n_candidates;
     ++out.stats.features_searched;
@@ -498,6 +590,12 @@ void CascadeMatcher::match_hashed(const DescriptorMatrix& queries, std::span<con
       ranked = std::span<const uint32_t>(ws.shortlist.data(), size_t(options.refined_list));
     }
     out.stats.ranked_candidates += ranked.size();
+    if (options.prefetch)
+      for (uint32_t id : ranked) {
+        const uint8_t* pq = index_.pq_codes + size_t(id) * pq_bytes;
+        __builtin_prefetch(pq);
+        __builtin_prefetch(pq + pq_bytes - 1);  // a 32-byte code may straddle two lines
+      }
 
     // Precise: PQ asymmetric distances, the `keep` nearest by insertion.
     const uint8_t* q = queries.row(f);

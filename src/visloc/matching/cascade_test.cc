@@ -690,6 +690,8 @@ TEST(CascadeSearch, OneToManyRulesAndCorrespondenceSet) {
 // The search gives the same matches, distances and statistics with every
 // kernel level this CPU supports, and with a workspace reused across two
 // segments of different sizes and across calls.
+// (and software prefetching, whose pipeline runs two features ahead of the
+// search and must not change it, early stop included)
 TEST(CascadeSearch, EveryKernelLevelAndAReusedWorkspaceGiveTheSameMatches) {
   DescriptorMatrix db = clustered_descriptors(5000, 21);
   DescriptorMatrix small_db = clustered_descriptors(700, 22);
@@ -710,7 +712,9 @@ TEST(CascadeSearch, EveryKernelLevelAndAReusedWorkspaceGiveTheSameMatches) {
     o.refined = config.refined;
     o.refined_list = config.refined_list;
     o.simd = SimdLevel::kScalar;
+    o.prefetch = false;  // the reference; every level below prefetches
     const CascadeMatches ref = CascadeMatcher(t.view(), t.codebook).match(q, o);
+    o.prefetch = true;
     ASSERT_GT(ref.query.size(), 50u);
     CascadeWorkspace shared;
     for (SimdLevel level : supported_simd_levels()) {
@@ -877,22 +881,24 @@ TEST(CascadeSearch, SameMatchesAsThePlainDefinition) {
         // feature ranks more than 160 candidates (the ADC table path).
         if (refined) EXPECT_LT(expected.stats.ranked_candidates, expected.stats.coarse_candidates);
         if (!refined && radius == 1) EXPECT_GT(most_ranked, 160u);
-        for (SimdLevel level : supported_simd_levels()) {
-          SCOPED_TRACE(to_string(level));
-          o.simd = level;
-          CascadeMatches m;
-          CascadeMatcher(t.view(), t.codebook).match_hashed(q, codes, o, m);
-          EXPECT_EQ(m.query, expected.query);
-          EXPECT_EQ(m.point, expected.point);
-          EXPECT_EQ(m.distance, expected.distance);
-          EXPECT_EQ(m.many_query, expected.many_query);
-          EXPECT_EQ(m.many_offsets, expected.many_offsets);
-          EXPECT_EQ(m.many_points, expected.many_points);
-          EXPECT_EQ(m.many_distances, expected.many_distances);
-          EXPECT_EQ(m.stats.features_searched, expected.stats.features_searched);
-          EXPECT_EQ(m.stats.coarse_candidates, expected.stats.coarse_candidates);
-          EXPECT_EQ(m.stats.ranked_candidates, expected.stats.ranked_candidates);
-        }
+        for (SimdLevel level : supported_simd_levels())
+          for (bool prefetch : {true, false}) {
+            SCOPED_TRACE(::testing::Message() << to_string(level) << ", prefetch " << prefetch);
+            o.simd = level;
+            o.prefetch = prefetch;
+            CascadeMatches m;
+            CascadeMatcher(t.view(), t.codebook).match_hashed(q, codes, o, m);
+            EXPECT_EQ(m.query, expected.query);
+            EXPECT_EQ(m.point, expected.point);
+            EXPECT_EQ(m.distance, expected.distance);
+            EXPECT_EQ(m.many_query, expected.many_query);
+            EXPECT_EQ(m.many_offsets, expected.many_offsets);
+            EXPECT_EQ(m.many_points, expected.many_points);
+            EXPECT_EQ(m.many_distances, expected.many_distances);
+            EXPECT_EQ(m.stats.features_searched, expected.stats.features_searched);
+            EXPECT_EQ(m.stats.coarse_candidates, expected.stats.coarse_candidates);
+            EXPECT_EQ(m.stats.ranked_candidates, expected.stats.ranked_candidates);
+          }
       }
   }
 }
