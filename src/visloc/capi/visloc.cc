@@ -127,13 +127,11 @@ visloc::PinholeCamera camera_of(const visloc_intrinsics& k, int width, int heigh
   if (!(std::isfinite(k.fx) && std::isfinite(k.fy) && k.fx > 0 && k.fy > 0))
     visloc::throw_error(ErrorCode::kInvalidArgument, "intrinsics: fx and fy must be positive, got ", k.fx, " and ",
                         k.fy);
-  if (std::abs(k.fx - k.fy) > 0.01 * std::max(k.fx, k.fy))
-    visloc::throw_error(ErrorCode::kInvalidArgument, "intrinsics: fx ", k.fx, " and fy ", k.fy,
-                        " differ by more than 1 % (one focal length is modelled)");
   visloc::PinholeCamera cam;
   cam.width = width;
   cam.height = height;
-  cam.focal = 0.5 * (k.fx + k.fy);
+  cam.focal = k.fx;
+  cam.aspect = k.fy / k.fx;
   cam.has_focal = true;
   cam.cx = k.cx;
   cam.cy = k.cy;

@@ -75,8 +75,9 @@ typedef struct visloc_options {
                              threshold, chosen for a precision >= 99.5 %; 0: inliers only) */
 } visloc_options;
 
-/* Intrinsics of the query image. visloc models one focal length: fx and fy
- * must agree within 1 % and their mean is used. Pixel convention: the centre
+/* Intrinsics of the query image. fx and fy are both used (non-square pixels
+ * as COLMAP's PINHOLE model; fy / fx within [0.5, 2]); the result's focal_px
+ * is fx. Pixel convention: the centre
  * of the top-left pixel is at (0.5, 0.5) (COLMAP's); add 0.5 to a principal
  * point given with that centre at (0, 0). */
 typedef struct visloc_intrinsics {

@@ -35,7 +35,8 @@ void add_localize_command(CLI::App& app) {
       .positive()
       .no_default();
   t.add("--intrinsics", args->intrinsics,
-        "Per-image intrinsics: 'name MODEL width height params...' (SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL; "
+        "Per-image intrinsics: 'name MODEL width height params...' (SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, "
+        "RADIAL with k2 = 0, OPENCV with k2 = p1 = p2 = 0; "
         "by file name, '*' for every image without a line)");
   add_options(t, args->options);
   bind_options(cmd, t);

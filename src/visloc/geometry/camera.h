@@ -10,6 +10,7 @@
 #include <Eigen/Geometry>
 #include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace visloc {
@@ -17,8 +18,14 @@ namespace visloc {
 struct PinholeCamera {
   int width = 0;
   int height = 0;
-  double focal = 0.0;  // pixels (fx = fy); meaningful only when has_focal
+  double focal = 0.0;  // pixels (fx); meaningful only when has_focal
   bool has_focal = false;
+  // fy / fx: 1 for square pixels. A calibration with fx ≠ fy (COLMAP's
+  // PINHOLE, OpenCV's camera matrix) keeps both, so its keypoints are
+  // normalized exactly (an average focal moved Strecha's fx 1379.74, fy
+  // 1382.08 by 0.08% and biased the pose by about a centimetre at 10 m).
+  double aspect = 1.0;
+  static constexpr double kMinAspect = 0.5, kMaxAspect = 2.0;  // beyond, a calibration error
   double cx = 0.0;  // principal point, pixels
   double cy = 0.0;
   double k1 = 0.0;  // radial distortion
@@ -27,14 +34,20 @@ struct PinholeCamera {
   static PinholeCamera centered(int width, int height, std::optional<double> focal_px = {});
 
   // From a COLMAP camera model: SIMPLE_PINHOLE (f cx cy), PINHOLE (fx fy cx
-  // cy; fx and fy averaged), SIMPLE_RADIAL (f cx cy k), RADIAL (f cx cy k1 k2;
-  // k2 must be 0). Throws Error(kInvalidArgument) for another model, a wrong
-  // parameter count or invalid values.
+  // cy: focal fx, aspect fy / fx), SIMPLE_RADIAL (f cx cy k), RADIAL (f cx cy k1 k2;
+  // k2 must be 0), OPENCV (fx fy cx cy k1 k2 p1 p2; k2, p1, p2 must be 0).
+  // Throws Error(kInvalidArgument) for another model, a wrong parameter count
+  // or invalid values.
   static PinholeCamera from_colmap(const std::string& model, int width, int height, const std::vector<double>& params);
+  // The COLMAP model that holds this camera exactly (requires has_focal):
+  // SIMPLE_PINHOLE or SIMPLE_RADIAL for square pixels, else PINHOLE, or
+  // OPENCV with k1 only. from_colmap of it gives this camera back.
+  std::pair<std::string, std::vector<double>> colmap_model() const;
 
   // Throws Error(kInvalidArgument) naming the bad field.
   void validate() const;
 
+  double focal_y() const { return focal * aspect; }
   // Camera-frame point (z > 0) → pixel. Requires has_focal.
   Eigen::Vector2d project(const Eigen::Vector3d& point_in_camera) const;
   // Pixel → normalized image-plane point (x/z, y/z), undistorted.

@@ -27,6 +27,48 @@ TEST(PinholeCamera, ProjectNormalizeRoundTrip) {
   }
 }
 
+// Non-square pixels (COLMAP's PINHOLE fx ≠ fy, OPENCV with k1 only): x is
+// scaled by fx and y by fy, both ways; colmap_model() names the model that
+// gives the same camera back.
+TEST(PinholeCamera, NonSquarePixelsAndTheirColmapModel) {
+  const PinholeCamera pinhole = PinholeCamera::from_colmap("PINHOLE", 1536, 1024, {1379.74, 1382.08, 760.3, 503.4});
+  EXPECT_DOUBLE_EQ(pinhole.focal, 1379.74);
+  EXPECT_DOUBLE_EQ(pinhole.focal_y(), 1382.08);
+  const Eigen::Vector2d px = pinhole.project({1, -2, 10});
+  EXPECT_NEAR(px.x(), 1379.74 * 0.1 + 760.3, 1e-9);
+  EXPECT_NEAR(px.y(), 1382.08 * -0.2 + 503.4, 1e-9);
+  const PinholeCamera opencv =
+      PinholeCamera::from_colmap("OPENCV", 1536, 1024, {1379.74, 1382.08, 760.3, 503.4, -0.12, 0, 0, 0});
+  EXPECT_DOUBLE_EQ(opencv.k1, -0.12);
+  for (const PinholeCamera& c :
+       {pinhole, opencv, PinholeCamera::from_colmap("SIMPLE_RADIAL", 640, 480, {500, 320, 240, 0.05}),
+        PinholeCamera::from_colmap("SIMPLE_PINHOLE", 640, 480, {500, 320, 240})}) {
+    for (double x : {-0.4, 0.0, 0.3})
+      for (double y : {-0.25, 0.1}) {
+        const Eigen::Vector2d n = c.normalize(c.project({x * 5, y * 5, 5}));
+        EXPECT_NEAR(n.x(), x, 1e-10);
+        EXPECT_NEAR(n.y(), y, 1e-10);
+      }
+    const auto [model, params] = c.colmap_model();
+    const PinholeCamera back = PinholeCamera::from_colmap(model, c.width, c.height, params);
+    EXPECT_EQ(back.focal, c.focal) << model;
+    EXPECT_EQ(back.aspect, c.aspect) << model;
+    EXPECT_EQ(back.k1, c.k1) << model;
+    EXPECT_EQ(back.cx, c.cx) << model;
+  }
+  EXPECT_EQ(pinhole.colmap_model().first, "PINHOLE");
+  EXPECT_EQ(opencv.colmap_model().first, "OPENCV");
+  // OPENCV's other terms are not modelled; an absurd aspect is refused.
+  EXPECT_THROW(PinholeCamera::from_colmap("OPENCV", 640, 480, {500, 500, 320, 240, 0, 0.01, 0, 0}), Error);
+  EXPECT_THROW(PinholeCamera::from_colmap("PINHOLE", 640, 480, {500, 0, 320, 240}), Error);
+  try {
+    PinholeCamera::from_colmap("PINHOLE", 640, 480, {500, 1500, 320, 240});
+    FAIL() << "accepted fy = 3 fx";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("aspect"), std::string::npos) << e.what();
+  }
+}
+
 TEST(PinholeCamera, PrincipalPointAndFov) {
   PinholeCamera c = PinholeCamera::centered(640, 640, 320.0);
   Eigen::Vector2d px = c.project({0, 0, 3});
@@ -165,9 +207,12 @@ TEST(IntrinsicsList, ReadsModelsAndRejectsBadLines) {
   write_file_atomic(p, "# q\nq1.jpg PINHOLE 800 600 500 502 400 300\nq2.jpg SIMPLE_RADIAL 640 480 400 320 240 -0.1\n");
   auto cams = read_intrinsics_list(p);
   ASSERT_EQ(cams.size(), 2u);
-  EXPECT_DOUBLE_EQ(cams[0].camera.focal, 501);
+  EXPECT_DOUBLE_EQ(cams[0].camera.focal, 500);
+  EXPECT_DOUBLE_EQ(cams[0].camera.focal_y(), 502);
   EXPECT_TRUE(cams[0].camera.has_focal);
   EXPECT_DOUBLE_EQ(cams[1].camera.k1, -0.1);
+  write_file_atomic(p, "q1.jpg OPENCV 800 600 500 502 400 300 0.1 0 0 0\n");
+  EXPECT_DOUBLE_EQ(read_intrinsics_list(p)[0].camera.k1, 0.1);
   write_file_atomic(p, "q1.jpg OPENCV 800 600 1 2 3 4 5 6 7 8\n");
   EXPECT_THROW(read_intrinsics_list(p), Error);
   write_file_atomic(p, "q1.jpg PINHOLE 800 600 500\n");

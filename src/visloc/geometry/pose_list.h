@@ -27,8 +27,8 @@ void write_pose_list(const std::filesystem::path& path, const std::vector<NamedP
 
 // Per-image intrinsics in hloc's query-list format, one image per line:
 // `name MODEL width height params...` with MODEL SIMPLE_PINHOLE (f cx cy),
-// PINHOLE (fx fy cx cy; fx and fy averaged), SIMPLE_RADIAL (f cx cy k) or
-// RADIAL (f cx cy k1 k2; k2 must be 0). Errors name the file and the line.
+// PINHOLE (fx fy cx cy), SIMPLE_RADIAL (f cx cy k), RADIAL (f cx cy k1 k2;
+// k2 must be 0) or OPENCV (fx fy cx cy k1 k2 p1 p2; k2, p1, p2 must be 0). Errors name the file and the line.
 // The name '*' (kEveryImage) gives the camera of every image that has no line
 // of its own.
 struct NamedCamera {

@@ -215,10 +215,13 @@ ColmapModel load_known_poses(const MapBuildOptions& opt) {
     ++id;
     ColmapCamera cam;
     cam.camera_id = id;
-    cam.model_id = 2;  // SIMPLE_RADIAL
+    auto [model_name, params] = k.colmap_model();
+    // SIMPLE_RADIAL rather than SIMPLE_PINHOLE for square pixels, as before.
+    if (model_name == "SIMPLE_PINHOLE") model_name = "SIMPLE_RADIAL", params.push_back(0.0);
+    cam.model_id = colmap_camera_model_id(model_name);
     cam.width = static_cast<uint64_t>(k.width);
     cam.height = static_cast<uint64_t>(k.height);
-    cam.params = {k.focal, k.cx, k.cy, k.k1};
+    cam.params = params;
     model.cameras.push_back(cam);
     ColmapImage im;
     im.image_id = id;
@@ -692,7 +695,7 @@ void SegmentBuilder::match_twoview(ColmapDatabaseWriter& db) {
   auto calibration = [](const PinholeCamera& c) -> std::optional<Eigen::Matrix3d> {
     if (!c.has_focal || c.k1 != 0) return std::nullopt;
     Eigen::Matrix3d K;
-    K << c.focal, 0, c.cx, 0, c.focal, c.cy, 0, 0, 1;
+    K << c.focal, 0, c.cx, 0, c.focal_y(), c.cy, 0, 0, 1;
     return K;
   };
   size_t extra_inliers = 0;

@@ -134,6 +134,36 @@ TEST(Ransac, EveryVariantRecoversACalibratedPose) {
   }
 }
 
+// A camera with non-square pixels (fy / fx = 1.004): the pose from its
+// exact projections is exact when fy is kept, and off when one averaged focal
+// stands for both (as PINHOLE cameras were read before).
+TEST(Ransac, NonSquarePixelsGiveTheExactPose) {
+  SyntheticOptions o;
+  o.num_features = 400;
+  o.inlier_ratio = 0.5;
+  o.noise_px = 0;
+  o.seed = 4;
+  SyntheticProblem p = make_synthetic_problem(o);
+  PinholeCamera camera = p.camera;
+  camera.aspect = 1.004;
+  for (size_t i = 0; i < p.correspondences.num_features(); ++i) {
+    if (p.true_candidate[i] < 0) continue;
+    const Eigen::Vector3d& x =
+        p.correspondences.candidates[p.correspondences.candidate_offsets[i] + p.true_candidate[i]];
+    p.correspondences.points2d[i] = camera.project(p.true_cam_from_world.transform(x));
+  }
+  const PoseEstimate exact = estimate_pose(p.correspondences, camera, variant(RansacVariant::kOneManySprt));
+  PinholeCamera averaged = camera;
+  averaged.focal = 0.5 * (camera.focal + camera.focal_y());
+  averaged.aspect = 1;
+  const PoseEstimate approximate = estimate_pose(p.correspondences, averaged, variant(RansacVariant::kOneManySprt));
+  ASSERT_TRUE(exact.registered && approximate.registered);
+  const double exact_error = position_error(exact.cam_from_world, p.true_cam_from_world);
+  const double approximate_error = position_error(approximate.cam_from_world, p.true_cam_from_world);
+  EXPECT_LT(exact_error, 1e-6 * p.scene_depth);
+  EXPECT_GT(approximate_error, 100 * exact_error);
+}
+
 TEST(Ransac, UncalibratedEstimatesFocal) {
   const SyntheticProblem p = make(SyntheticFamily::kUncalibrated, 600, 0.4, 5);
   for (auto v : {RansacVariant::kClassic11, RansacVariant::kOneManySprt}) {

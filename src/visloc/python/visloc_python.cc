@@ -326,7 +326,8 @@ GrayImage gray_from_array(const py::array& input, bool bgr) {
 }
 
 // intrinsics: None; a focal length in pixels (the rest from the image); a
-// dict {focal, cx, cy, width, height, k1} (focal required); or a COLMAP
+// dict {focal, fy, cx, cy, width, height, k1} (focal required; focal is fx,
+// fy defaults to it); or a COLMAP
 // camera (model, width, height, params).
 std::optional<PinholeCamera> intrinsics_from_python(const py::object& o) {
   if (o.is_none()) return std::nullopt;
@@ -344,11 +345,12 @@ std::optional<PinholeCamera> intrinsics_from_python(const py::object& o) {
     }
     if (py::isinstance<py::dict>(o)) {
       const py::dict d = o.cast<py::dict>();
-      static const std::set<std::string> keys = {"focal", "cx", "cy", "width", "height", "k1"};
+      static const std::set<std::string> keys = {"focal", "fy", "cx", "cy", "width", "height", "k1"};
       for (auto item : d) {
         const std::string key = py::str(item.first).cast<std::string>();
         if (!keys.count(key))
-          raise_error(ErrorCode::kInvalidArgument, where + ": unknown key '" + key + "' (focal, cx, cy, width, height, k1)");
+          raise_error(ErrorCode::kInvalidArgument,
+                      where + ": unknown key '" + key + "' (focal, fy, cx, cy, width, height, k1)");
       }
       if (!d.contains("focal")) raise_error(ErrorCode::kInvalidArgument, where + ": 'focal' is required");
       c.focal = finite_number_from(d["focal"], where + ": focal");
@@ -366,6 +368,11 @@ std::optional<PinholeCamera> intrinsics_from_python(const py::object& o) {
       if (d.contains("k1")) c.k1 = finite_number_from(d["k1"], where + ": k1");
       if (!(std::isfinite(c.focal) && c.focal > 0))
         raise_error(ErrorCode::kInvalidArgument, where + ": focal must be a positive finite number");
+      if (d.contains("fy")) {
+        c.aspect = finite_number_from(d["fy"], where + ": fy") / c.focal;
+        if (!(c.aspect >= PinholeCamera::kMinAspect && c.aspect <= PinholeCamera::kMaxAspect))
+          raise_error(ErrorCode::kInvalidArgument, where + ": fy / focal must be in [0.5, 2]");
+      }
       if (has_size) c.validate();
       return c;
     }

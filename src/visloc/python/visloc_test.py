@@ -323,6 +323,23 @@ def test_numpy_scalars_are_numbers(fountain):
     assert r.registered
 
 
+def test_intrinsics_dict_with_fy_is_the_pinhole_camera(fountain):
+    """fountain-P11's PINHOLE camera has fx != fy: a dict with fy gives the
+    COLMAP camera's pose, and the same dict without fy (square pixels) does not."""
+    loc = visloc.Localizer(FOUNTAIN_MAP)
+    model, w, h, (fx, fy, cx, cy) = fountain_camera()
+    assert model == "PINHOLE" and fx != fy
+    image = fountain["images"][0]
+    colmap = loc.localize(image, intrinsics=(model, w, h, [fx, fy, cx, cy]))
+    with_fy = loc.localize(image, intrinsics={"focal": fx, "fy": fy, "width": w, "height": h, "cx": cx, "cy": cy})
+    square = loc.localize(image, intrinsics={"focal": fx, "width": w, "height": h, "cx": cx, "cy": cy})
+    assert colmap.registered and with_fy.registered and square.registered
+    assert np.array_equal(colmap.pose.tvec, with_fy.pose.tvec)
+    assert not np.array_equal(colmap.pose.tvec, square.pose.tvec)
+    with pytest.raises(ValueError, match="fy"):
+        loc.localize(image, intrinsics={"focal": fx, "fy": 3 * fx})
+
+
 def test_two_threads_give_the_same_results(fountain):
     loc = visloc.Localizer(FOUNTAIN_MAP, max_features=16384)
     cam = fountain_camera()

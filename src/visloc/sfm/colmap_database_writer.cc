@@ -5,6 +5,7 @@
 #include <iomanip>
 #include <sstream>
 
+#include "visloc/colmap/colmap_model.h"
 #include "visloc/util/error.h"
 #include "visloc/util/file_io.h"
 
@@ -85,12 +86,10 @@ ColmapDatabaseWriter::~ColmapDatabaseWriter() {
 int64_t ColmapDatabaseWriter::add_camera(const PinholeCamera& c, double fallback_focal) {
   const double f = c.has_focal ? c.focal : fallback_focal;
   if (!(f > 0)) throw_error(ErrorCode::kInvalidArgument, "COLMAP camera needs a focal length (known or fallback)");
-  std::vector<double> params = {f, c.cx, c.cy};
-  int model = kColmapSimplePinhole;
-  if (c.k1 != 0.0) {
-    model = kColmapSimpleRadial;
-    params.push_back(c.k1);
-  }
+  PinholeCamera known = c;
+  known.focal = f;
+  const auto [model_name, params] = known.colmap_model();
+  const int model = colmap_camera_model_id(model_name);
   Stmt s(db_, path_, "INSERT INTO cameras(model, width, height, params, prior_focal_length) VALUES(?,?,?,?,?)");
   sqlite3_bind_int(s.get(), 1, model);
   sqlite3_bind_int64(s.get(), 2, c.width);
@@ -258,12 +257,10 @@ void write_colmap_text_model(const std::filesystem::path& dir, const std::vector
   for (const auto& cam : cameras) {
     const auto& k = cam.camera;
     if (!k.has_focal) throw_error(ErrorCode::kInvalidArgument, "text model camera ", cam.camera_id, " has no focal length");
-    if (k.k1 != 0.0)
-      c << cam.camera_id << " SIMPLE_RADIAL " << k.width << ' ' << k.height << ' ' << k.focal << ' ' << k.cx << ' '
-        << k.cy << ' ' << k.k1 << '\n';
-    else
-      c << cam.camera_id << " SIMPLE_PINHOLE " << k.width << ' ' << k.height << ' ' << k.focal << ' ' << k.cx << ' '
-        << k.cy << '\n';
+    const auto [model_name, params] = k.colmap_model();
+    c << cam.camera_id << ' ' << model_name << ' ' << k.width << ' ' << k.height;
+    for (double v : params) c << ' ' << v;
+    c << '\n';
   }
   std::ostringstream im;
   im << std::setprecision(17) << "# Image list: IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME; then POINTS2D\n";

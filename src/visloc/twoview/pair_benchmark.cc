@@ -291,7 +291,7 @@ PairBenchmarkResult run_pair_benchmark(const PairBenchmarkOptions& o,
     auto calibration = [&](const ColmapImage& im) {
       const PinholeCamera& c = cameras.at(im.camera_id);
       Eigen::Matrix3d K;
-      K << c.focal, 0, c.cx, 0, c.focal, c.cy, 0, 0, 1;
+      K << c.focal, 0, c.cx, 0, c.focal_y(), c.cy, 0, 0, 1;
       return K;
     };
     std::map<std::string, FeatureSet> features;
