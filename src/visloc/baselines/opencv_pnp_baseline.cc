@@ -43,7 +43,7 @@ OpenCvPnpResult estimate_pose_opencv(const CorrespondenceSet& corr, const Pinhol
     result.total_ms = timer.elapsed_ms();
     return result;
   }
-  cv::Mat K = (cv::Mat_<double>(3, 3) << focal_px, 0, camera.cx, 0, focal_px, camera.cy, 0, 0, 1);
+  cv::Mat K = (cv::Mat_<double>(3, 3) << focal_px, 0, camera.cx, 0, focal_px * camera.aspect, camera.cy, 0, 0, 1);
   cv::Mat dist = (cv::Mat_<double>(1, 4) << camera.k1, 0, 0, 0);
   cv::Mat rvec, tvec;
   std::vector<int> inliers;

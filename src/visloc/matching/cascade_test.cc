@@ -715,6 +715,7 @@ TEST(CascadeSearch, EveryKernelLevelAndAReusedWorkspaceGiveTheSameMatches) {
     o.prefetch = false;  // the reference; every level below prefetches
     const CascadeMatches ref = CascadeMatcher(t.view(), t.codebook).match(q, o);
     o.prefetch = true;
+    EXPECT_EQ(ref.stats.early_stopped, config.prioritize);  // the prioritized search stops early here
     ASSERT_GT(ref.query.size(), 50u);
     CascadeWorkspace shared;
     for (SimdLevel level : supported_simd_levels()) {
@@ -732,6 +733,8 @@ TEST(CascadeSearch, EveryKernelLevelAndAReusedWorkspaceGiveTheSameMatches) {
       EXPECT_EQ(m.many_distances, ref.many_distances) << to_string(level);
       EXPECT_EQ(m.stats.coarse_candidates, ref.stats.coarse_candidates);
       EXPECT_EQ(m.stats.ranked_candidates, ref.stats.ranked_candidates);
+      EXPECT_EQ(m.stats.features_searched, ref.stats.features_searched);
+      EXPECT_EQ(m.stats.early_stopped, ref.stats.early_stopped);
       // The deduplication's bytes are all cleared again after every feature.
       EXPECT_TRUE(std::all_of(shared.seen.begin(), shared.seen.end(), [](uint8_t b) { return b == 0; }));
       EXPECT_GE(shared.seen.size(), t.view().num_points);
@@ -744,6 +747,19 @@ TEST(CascadeSearch, EveryKernelLevelAndAReusedWorkspaceGiveTheSameMatches) {
       CascadeMatcher(t.view(), t.codebook, shared).match_hashed(q, codes, o, other);
       EXPECT_EQ(other.point, ref.point);
       EXPECT_EQ(other.many_points, ref.many_points);
+    }
+    // Queries of 1-4 features: the prefetching pipeline's first steps alone.
+    for (size_t n = 1; n <= 4; ++n) {
+      DescriptorMatrix few(n);
+      for (size_t i = 0; i < n; ++i) std::copy(q.row(i), q.row(i) + kDescriptorDim, few.row(i));
+      CascadeSearchOptions with = o, without = o;
+      without.prefetch = false;
+      const CascadeMatches a = CascadeMatcher(t.view(), t.codebook).match(few, with);
+      const CascadeMatches b = CascadeMatcher(t.view(), t.codebook).match(few, without);
+      EXPECT_EQ(a.point, b.point) << n << " features";
+      EXPECT_EQ(a.many_points, b.many_points) << n << " features";
+      EXPECT_EQ(a.stats.coarse_candidates, b.stats.coarse_candidates) << n << " features";
+      EXPECT_GT(b.stats.coarse_candidates, 0u) << n << " features";
     }
     // Once grown, the workspace does not grow for the same segments.
     const size_t bytes = shared.capacity_bytes();

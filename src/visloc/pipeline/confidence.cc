@@ -196,7 +196,7 @@ double explained_fraction(std::span<const float> xyz, const CameraPose& cam_from
   for (size_t i = 0; i + 2 < xyz.size(); i += 3) {
     const Eigen::Vector3d X = R * Eigen::Vector3d(xyz[i], xyz[i + 1], xyz[i + 2]) + t;
     if (!(X.z() > 0) || X.z() > max_depth) continue;
-    const double u = focal * X.x() / X.z(), v = focal * X.y() / X.z();
+    const double u = focal * X.x() / X.z(), v = focal * camera.aspect * X.y() / X.z();
     in_view += u >= u_min && u < u_max && v >= v_min && v < v_max;
   }
   if (in_view == 0) return 0;

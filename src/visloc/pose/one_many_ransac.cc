@@ -338,10 +338,13 @@ PoseQuality measure_quality(const AbsolutePoseEstimator& estimator, const Candid
   std::array<bool, kGrid * kGrid> occupied{};
   const double w = std::max<double>(1, static_cast<double>(camera.width));
   const double h = std::max<double>(1, static_cast<double>(camera.height));
+  const double y_to_pixels = camera.has_focal ? camera.aspect : 1.0;
   for (size_t k = 0; k < inliers.image.size(); ++k) {
     residuals.push_back(std::sqrt(reprojection_error2(P, inliers.world[k], inliers.image[k])));
     depths.push_back((R * inliers.world[k] + pose.translation).z());
-    const double u = inliers.image[k].x() + camera.cx, v = inliers.image[k].y() + camera.cy;
+    // Calibrated, the centred points are normalized coordinates times fx: y
+    // goes back to pixels by fy / fx.
+    const double u = inliers.image[k].x() + camera.cx, v = inliers.image[k].y() * y_to_pixels + camera.cy;
     const int gx = std::clamp(static_cast<int>(u / w * kGrid), 0, kGrid - 1);
     const int gy = std::clamp(static_cast<int>(v / h * kGrid), 0, kGrid - 1);
     occupied[gy * kGrid + gx] = true;

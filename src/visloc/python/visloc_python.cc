@@ -741,7 +741,8 @@ Thread-safe: localize() releases the GIL, so threads localize in parallel.)doc")
 array H×W (grey), H×W×3 (RGB; bgr=True for OpenCV's order) or H×W×4 (alpha
 ignored), or anything numpy.asarray turns into one (e.g. a PIL image).
 intrinsics: None (EXIF, else the focal is estimated), a focal length in
-pixels, a dict {focal[, width, height, cx, cy][, k1]}, or a COLMAP camera
+pixels, a dict {focal[, fy][, width, height, cx, cy][, k1]} (focal is fx; fy
+defaults to it), or a COLMAP camera
 (model, width, height, params). Returns a LocalizationResult; a bad file
 raises visloc.Error.)doc")
       .def_property_readonly("num_segments", &Localizer::num_segments)

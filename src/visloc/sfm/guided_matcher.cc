@@ -53,12 +53,14 @@ TwoViewGeometry two_view_geometry(const PinholeCamera& camera_a, const CameraPos
   if (g.baseline > 0) g.b_from_a_direction = b_from_a.translation / g.baseline;
   g.E = cross_matrix(g.b_from_a_direction) * b_from_a.rotation_matrix();
   Eigen::Matrix3d Ka_inv = Eigen::Matrix3d::Identity(), Kb_inv = Eigen::Matrix3d::Identity();
-  Ka_inv(0, 0) = Ka_inv(1, 1) = 1.0 / camera_a.focal;
+  Ka_inv(0, 0) = 1.0 / camera_a.focal;
+  Ka_inv(1, 1) = 1.0 / camera_a.focal_y();
   Ka_inv(0, 2) = -camera_a.cx / camera_a.focal;
-  Ka_inv(1, 2) = -camera_a.cy / camera_a.focal;
-  Kb_inv(0, 0) = Kb_inv(1, 1) = 1.0 / camera_b.focal;
+  Ka_inv(1, 2) = -camera_a.cy / camera_a.focal_y();
+  Kb_inv(0, 0) = 1.0 / camera_b.focal;
+  Kb_inv(1, 1) = 1.0 / camera_b.focal_y();
   Kb_inv(0, 2) = -camera_b.cx / camera_b.focal;
-  Kb_inv(1, 2) = -camera_b.cy / camera_b.focal;
+  Kb_inv(1, 2) = -camera_b.cy / camera_b.focal_y();
   g.F = Kb_inv.transpose() * g.E * Ka_inv;
   return g;
 }

@@ -312,7 +312,7 @@ ImagePairOptions resolve_image_pair_options(const ImagePairTask& task) {
       throw_error(ErrorCode::kInvalidArgument, task.intrinsics.string(),
                   ": --model E needs undistorted cameras (k1 = 0); ", "use --model F for ", images[k].string());
     Eigen::Matrix3d K;
-    K << cameras[k]->focal, 0, cameras[k]->cx, 0, cameras[k]->focal, cameras[k]->cy, 0, 0, 1;
+    K << cameras[k]->focal, 0, cameras[k]->cx, 0, cameras[k]->focal_y(), cameras[k]->cy, 0, 0, 1;
     (k == 0 ? o.estimation.calibration1 : o.estimation.calibration2) = K;
   }
   return o;
