@@ -1,12 +1,16 @@
 #include <gtest/gtest.h>
+#include <pthread.h>
 #include <sqlite3.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <atomic>
 #include <csignal>
+#include <cstring>
 
 #include <filesystem>
 #include <numeric>
+#include <thread>
 
 #include "visloc/colmap/colmap_database.h"
 #include "visloc/sfm/colmap_database_writer.h"
@@ -162,6 +166,85 @@ TEST(Process, ChildDiesWithItsParent) {
   for (int i = 0; i < 300 && (still_alive = alive()); ++i) ::usleep(10000);
   EXPECT_FALSE(still_alive) << "child " << child << " outlived its killed parent";
   if (still_alive) ::kill(child, SIGKILL);
+}
+
+// An executable file the kernel cannot run: the error names the command
+// and the reason, never a bare exit status.
+TEST(Process, ExecFailureNamesTheReason) {
+  fs::path dir = temp_dir("process_exec");
+  const fs::path not_a_program = dir / "not-a-program";
+  write_file_atomic(not_a_program, std::string("\x01\x02garbage", 9));
+  fs::permissions(not_a_program, fs::perms::owner_all);
+  try {
+    run_process({not_a_program.string(), "--x"}, dir / "log.txt");
+    FAIL() << "a file that is no program ran";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.code(), ErrorCode::kExternalTool);
+    EXPECT_NE(std::string(e.what()).find("cannot execute '" + not_a_program.string()), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find(std::strerror(ENOEXEC)), std::string::npos) << e.what();
+  }
+}
+
+// The child starts with the signal mask of the thread that started it (all
+// signals are blocked while it is being set up, then restored).
+TEST(Process, ChildHasTheCallersSignalMask) {
+  fs::path dir = temp_dir("process_mask");
+  auto child_mask = [&] {
+    fs::remove(dir / "log.txt");
+    run_process({"sh", "-c", "exec grep SigBlk /proc/self/status"}, dir / "log.txt");
+    const std::string log = read_file(dir / "log.txt");
+    const size_t at = log.find("SigBlk:");
+    EXPECT_NE(at, std::string::npos) << log;
+    return at == std::string::npos ? std::string() : log.substr(at + 7, log.find('\n', at) - at - 7);
+  };
+  auto trimmed = [](std::string s) {
+    s.erase(0, s.find_first_not_of(" \t"));
+    return s;
+  };
+  sigset_t mask, old;
+  ::sigemptyset(&mask);
+  ASSERT_EQ(::pthread_sigmask(SIG_SETMASK, &mask, &old), 0);
+  EXPECT_EQ(trimmed(child_mask()), "0000000000000000");
+  ::sigaddset(&mask, SIGUSR2);  // signal 12: bit 11
+  ASSERT_EQ(::pthread_sigmask(SIG_SETMASK, &mask, nullptr), 0);
+  EXPECT_EQ(trimmed(child_mask()), "0000000000000800");
+  ASSERT_EQ(::pthread_sigmask(SIG_SETMASK, &old, nullptr), 0);
+}
+
+// Building threads start their COLMAP runs at the same time while others
+// allocate and write files: every run starts, ends with its own exit status
+// and writes its own log.
+TEST(Process, ManyThreadsStartChildrenAtOnce) {
+  fs::path dir = temp_dir("process_threads");
+  constexpr int kThreads = 4, kRuns = 25;
+  std::atomic<bool> stop{false};
+  std::thread busy([&] {
+    std::vector<std::string> keep(32);
+    for (unsigned i = 0; !stop; ++i) {
+      keep[i % keep.size()].assign(1 + (i * 2654435761u) % 200000, 'x');
+      write_file_atomic(dir / ("busy" + std::to_string(i % 2) + ".txt"), keep[i % keep.size()].substr(0, 64));
+    }
+  });
+  std::vector<int> ok(kThreads, 0);
+  std::vector<std::thread> starters;
+  for (int t = 0; t < kThreads; ++t)
+    starters.emplace_back([&, t] {
+      for (int r = 0; r < kRuns; ++r) {
+        const fs::path log = dir / ("log" + std::to_string(t) + ".txt");
+        const std::string token = "run-" + std::to_string(t) + "-" + std::to_string(r);
+        try {
+          run_process({"sh", "-c", "echo " + token + "; exit " + std::to_string(r % 2 ? 0 : 5)}, log);
+          ok[t] += r % 2 == 1 && read_file(log).find(token) != std::string::npos;
+        } catch (const Error& e) {
+          ok[t] += r % 2 == 0 && std::string(e.what()).find("exit status 5") != std::string::npos &&
+                   std::string(e.what()).find(token) != std::string::npos;
+        }
+      }
+    });
+  for (auto& s : starters) s.join();
+  stop = true;
+  busy.join();
+  for (int t = 0; t < kThreads; ++t) EXPECT_EQ(ok[t], kRuns) << "thread " << t;
 }
 
 TEST(ColmapDatabaseWriter, RoundTripThroughReader) {
