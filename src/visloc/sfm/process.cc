@@ -1,7 +1,6 @@
 #include "visloc/sfm/process.h"
 
 #include <fcntl.h>
-#include <pthread.h>
 #include <sched.h>
 #include <sys/prctl.h>
 #include <sys/syscall.h>
@@ -50,8 +49,16 @@ bool program_exists(const std::string& program) {
 
 namespace {
 
+// The kernel's signal set: 64 signals (_NSIG on x86-64 and aarch64), the
+// size the rt_sig* system calls take.
+using KernelSignalSet = uint64_t;
+constexpr size_t kKernelSignalSetBytes = sizeof(KernelSignalSet);
+constexpr int kKernelSignals = 64;
+constexpr size_t kChildStackBytes = 256 * 1024;
+
 // What the child needs, prepared by the parent: between clone and execve the
-// child only makes system calls.
+// child only makes raw system calls (no libc wrapper and no sanitizer
+// interceptor, which could touch state it shares with the parent).
 struct ChildSetup {
   const char* program = nullptr;
   char* const* argv = nullptr;
@@ -59,63 +66,63 @@ struct ChildSetup {
   int stdin_fd = -1;
   int output_fd = -1;
   pid_t parent = 0;
-  sigset_t parent_mask{};
-  int failed_errno = 0;  // set by the child when it cannot reach execve
+  KernelSignalSet parent_mask = 0;     // the calling thread's mask, restored before execve
+  KernelSignalSet caught_signals = 0;  // signals with a handler (bit sig − 1)
+  int failed_errno = 0;                // set by the child when it cannot reach execve
 };
 
 // The child's side, on its own stack and in the parent's memory until execve
-// (CLONE_VM | CLONE_VFORK: the parent waits meanwhile). Not instrumented:
-// sanitizer bookkeeping here would run on the suspended parent thread's state.
+// (CLONE_VM | CLONE_VFORK: the parent thread waits meanwhile). Compiled
+// without sanitizer checks: their bookkeeping would run on the suspended
+// thread's state.
 __attribute__((no_sanitize("address", "undefined"))) int child_main(void* arg) {
   auto* setup = static_cast<ChildSetup*>(arg);
-  // A handler the embedding program installed is its code on memory shared
-  // until execve: back to the default before the signals are unblocked.
-  for (int sig = 1; sig < NSIG; ++sig) {
-    struct sigaction action;
-    std::memset(&action, 0, sizeof action);
-    if (::sigaction(sig, nullptr, &action) != 0) continue;
-    if (action.sa_handler == SIG_DFL || action.sa_handler == SIG_IGN) continue;
-    std::memset(&action, 0, sizeof action);
-    action.sa_handler = SIG_DFL;
-    ::sigaction(sig, &action, nullptr);
-  }
+  // A handler of the embedding program is its code on memory shared until
+  // execve: back to the default before the signals are unblocked. All zeros
+  // is SIG_DFL with no flags in every layout of the kernel's sigaction.
+  const uint64_t default_action[8] = {};
+  for (int sig = 1; sig <= kKernelSignals; ++sig)
+    if (setup->caught_signals >> (sig - 1) & 1)
+      ::syscall(SYS_rt_sigaction, sig, default_action, nullptr, kKernelSignalSetBytes);
   int failed = 0;
   // The child dies with the thread that started it: a killed `map build`
   // leaves no COLMAP running on in its work folder (PR_SET_PDEATHSIG; the
   // getppid check closes the race with a parent that died before prctl).
-  if (::prctl(PR_SET_PDEATHSIG, SIGKILL) != 0 || ::getppid() != setup->parent)
+  if (::syscall(SYS_prctl, PR_SET_PDEATHSIG, SIGKILL, 0, 0, 0) != 0 || ::syscall(SYS_getppid) != setup->parent)
     failed = ESRCH;
-  else if (::dup2(setup->stdin_fd, STDIN_FILENO) < 0 || ::dup2(setup->output_fd, STDOUT_FILENO) < 0 ||
-           ::dup2(setup->output_fd, STDERR_FILENO) < 0)
+  else if (::syscall(SYS_dup3, setup->stdin_fd, STDIN_FILENO, 0) < 0 ||
+           ::syscall(SYS_dup3, setup->output_fd, STDOUT_FILENO, 0) < 0 ||
+           ::syscall(SYS_dup3, setup->output_fd, STDERR_FILENO, 0) < 0)  // fds > 2: dup3 never sees equal ones
     failed = errno;
   if (failed == 0) {
-    ::pthread_sigmask(SIG_SETMASK, &setup->parent_mask, nullptr);
-    ::execve(setup->program, setup->argv, setup->envp);
+    ::syscall(SYS_rt_sigprocmask, SIG_SETMASK, &setup->parent_mask, nullptr, kKernelSignalSetBytes);
+    ::syscall(SYS_execve, setup->program, setup->argv, setup->envp);
     failed = errno;
   }
   setup->failed_errno = failed;
-  ::syscall(SYS_exit_group, 127);  // never _exit: its sanitizer hook would run here
+  ::syscall(SYS_exit_group, 127);
   return 127;
 }
 
 // Starts the child the way glibc's posix_spawn does, plus the death signal:
-// clone with CLONE_VM | CLONE_VFORK, all signals blocked meanwhile. Unlike
-// fork in a process whose other threads are busy (segments built in
-// parallel), no pthread_atfork handler runs (OpenBLAS's stops its thread
-// pool), nothing is copied, and the child takes no lock another thread may
-// hold. Returns the pid, or -1 with errno set.
-pid_t spawn_child(ChildSetup& setup) {
-  // The child's stack: heap memory, which the sanitizers know as addressable.
-  constexpr size_t kStackBytes = 256 * 1024;
-  const std::unique_ptr<char[]> stack(new char[kStackBytes]);
-  char* const stack_top =
-      reinterpret_cast<char*>((reinterpret_cast<uintptr_t>(stack.get()) + kStackBytes) & ~uintptr_t{63});
-  sigset_t all;
-  ::sigfillset(&all);
-  ::pthread_sigmask(SIG_BLOCK, &all, &setup.parent_mask);
+// clone with CLONE_VM | CLONE_VFORK, every signal blocked meanwhile. Unlike
+// fork from a process whose other threads are busy (segments built in
+// parallel), no pthread_atfork handler runs, no memory is copied with locks
+// other threads hold, and the child makes no call that could take one.
+// `stack` holds kChildStackBytes. Returns the pid, or -1 with errno set.
+pid_t spawn_child(ChildSetup& setup, char* stack) {
+  for (int sig = 1; sig <= kKernelSignals; ++sig) {
+    struct sigaction action {};
+    if (::sigaction(sig, nullptr, &action) == 0 && action.sa_handler != SIG_DFL && action.sa_handler != SIG_IGN)
+      setup.caught_signals |= KernelSignalSet{1} << (sig - 1);
+  }
+  char* const stack_top = reinterpret_cast<char*>((reinterpret_cast<uintptr_t>(stack) + kChildStackBytes) &
+                                                  ~uintptr_t{63});  // stacks grow down
+  const KernelSignalSet all = ~KernelSignalSet{0};
+  if (::syscall(SYS_rt_sigprocmask, SIG_BLOCK, &all, &setup.parent_mask, kKernelSignalSetBytes) != 0) return -1;
   const pid_t pid = ::clone(child_main, stack_top, CLONE_VM | CLONE_VFORK | SIGCHLD, &setup);
   const int clone_errno = errno;
-  ::pthread_sigmask(SIG_SETMASK, &setup.parent_mask, nullptr);
+  ::syscall(SYS_rt_sigprocmask, SIG_SETMASK, &setup.parent_mask, nullptr, kKernelSignalSetBytes);
   errno = clone_errno;
   return pid;
 }
@@ -129,14 +136,17 @@ ProcessResult run_process(const std::vector<std::string>& argv, const std::files
   if (!program_exists(argv[0]))
     throw_error(ErrorCode::kNotFound, "program '", argv[0], "' not found in PATH",
                 argv[0] == "colmap" ? " (install COLMAP: scripts/setup.sh, or apt-get install colmap)" : "");
+  // The child's stack (heap memory, which the sanitizers know as
+  // addressable), allocated before any descriptor is opened.
+  const std::unique_ptr<char[]> child_stack(new char[kChildStackBytes]);
   int log_fd = ::open(log_path.c_str(), O_WRONLY | O_CREAT | O_APPEND | O_CLOEXEC, 0644);
   if (log_fd < 0) throw_error(ErrorCode::kIo, "cannot open log file ", log_path.string(), ": ", std::strerror(errno));
   {
     std::string header = "\n$ " + command + "\n";
     if (::write(log_fd, header.data(), header.size()) < 0) { /* the log is best effort */ }
   }
-  // The program's full path, found before fork: between fork and exec the
-  // child only makes async-signal-safe calls.
+  // The program's full path, found here: the child only makes system calls
+  // (execve searches no PATH).
   std::string program = argv[0];
   if (program.find('/') == std::string::npos) {
     const char* path = std::getenv("PATH");
@@ -176,7 +186,7 @@ ProcessResult run_process(const std::vector<std::string>& argv, const std::files
   setup.output_fd = log_fd;
   setup.parent = ::getpid();
   Timer timer;
-  const pid_t pid = spawn_child(setup);
+  const pid_t pid = spawn_child(setup, child_stack.get());
   const int spawn_errno = errno;
   ::close(null_fd);
   ::close(log_fd);

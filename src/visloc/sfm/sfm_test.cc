@@ -185,30 +185,51 @@ TEST(Process, ExecFailureNamesTheReason) {
   }
 }
 
-// The child starts with the signal mask of the thread that started it (all
-// signals are blocked while it is being set up, then restored).
+// The child starts with the signal mask of the thread that started it (every
+// signal is blocked while it is being set up, then restored).
 TEST(Process, ChildHasTheCallersSignalMask) {
   fs::path dir = temp_dir("process_mask");
   auto child_mask = [&] {
     fs::remove(dir / "log.txt");
-    run_process({"sh", "-c", "exec grep SigBlk /proc/self/status"}, dir / "log.txt");
+    run_process({"grep", "SigBlk", "/proc/self/status"}, dir / "log.txt");
     const std::string log = read_file(dir / "log.txt");
     const size_t at = log.find("SigBlk:");
     EXPECT_NE(at, std::string::npos) << log;
-    return at == std::string::npos ? std::string() : log.substr(at + 7, log.find('\n', at) - at - 7);
+    if (at == std::string::npos) return std::string();
+    std::string mask = log.substr(at + 7, log.find('\n', at) - at - 7);
+    mask.erase(0, mask.find_first_not_of(" \t"));
+    return mask;
   };
-  auto trimmed = [](std::string s) {
-    s.erase(0, s.find_first_not_of(" \t"));
-    return s;
-  };
-  sigset_t mask, old;
+  struct MaskGuard {  // the test thread's mask back, whatever happens
+    sigset_t old;
+    MaskGuard() { ::pthread_sigmask(SIG_SETMASK, nullptr, &old); }
+    ~MaskGuard() { ::pthread_sigmask(SIG_SETMASK, &old, nullptr); }
+  } guard;
+  sigset_t mask;
   ::sigemptyset(&mask);
-  ASSERT_EQ(::pthread_sigmask(SIG_SETMASK, &mask, &old), 0);
-  EXPECT_EQ(trimmed(child_mask()), "0000000000000000");
+  ASSERT_EQ(::pthread_sigmask(SIG_SETMASK, &mask, nullptr), 0);
+  EXPECT_EQ(child_mask(), "0000000000000000");
   ::sigaddset(&mask, SIGUSR2);  // signal 12: bit 11
   ASSERT_EQ(::pthread_sigmask(SIG_SETMASK, &mask, nullptr), 0);
-  EXPECT_EQ(trimmed(child_mask()), "0000000000000800");
-  ASSERT_EQ(::pthread_sigmask(SIG_SETMASK, &old, nullptr), 0);
+  EXPECT_EQ(child_mask(), "0000000000000800");
+}
+
+// Starting a child runs no pthread_atfork handler: libraries' fork handlers
+// (OpenBLAS stops its thread pool in one) run while other threads work, and
+// a fork copies the locks those threads hold.
+int g_fork_prepare_calls = 0;
+TEST(Process, StartingAChildRunsNoForkHandler) {
+  static const bool registered = ::pthread_atfork([] { ++g_fork_prepare_calls; }, nullptr, nullptr) == 0;
+  ASSERT_TRUE(registered);
+  fs::path dir = temp_dir("process_atfork");
+  const int before = g_fork_prepare_calls;
+  run_process({"true"}, dir / "log.txt");
+  EXPECT_EQ(g_fork_prepare_calls, before);
+  const pid_t forked = ::fork();  // the handler is live: fork runs it
+  if (forked == 0) ::_exit(0);
+  ASSERT_GT(forked, 0);
+  ::waitpid(forked, nullptr, 0);
+  EXPECT_EQ(g_fork_prepare_calls, before + 1);
 }
 
 // Building threads start their COLMAP runs at the same time while others
@@ -234,10 +255,11 @@ TEST(Process, ManyThreadsStartChildrenAtOnce) {
         const std::string token = "run-" + std::to_string(t) + "-" + std::to_string(r);
         try {
           run_process({"sh", "-c", "echo " + token + "; exit " + std::to_string(r % 2 ? 0 : 5)}, log);
-          ok[t] += r % 2 == 1 && read_file(log).find(token) != std::string::npos;
+          // The child's own line (the header run_process writes quotes the command).
+          ok[t] += r % 2 == 1 && read_file(log).find("\n" + token + "\n") != std::string::npos;
         } catch (const Error& e) {
           ok[t] += r % 2 == 0 && std::string(e.what()).find("exit status 5") != std::string::npos &&
-                   std::string(e.what()).find(token) != std::string::npos;
+                   std::string(e.what()).find("    " + token + "\n") != std::string::npos;  // the log's tail
         }
       }
     });
