@@ -66,9 +66,8 @@ struct ChildSetup {
   int stdin_fd = -1;
   int output_fd = -1;
   pid_t parent = 0;
-  KernelSignalSet parent_mask = 0;     // the calling thread's mask, restored before execve
-  KernelSignalSet caught_signals = 0;  // signals with a handler (bit sig − 1)
-  int failed_errno = 0;                // set by the child when it cannot reach execve
+  KernelSignalSet parent_mask = 0;  // the calling thread's mask, restored before execve
+  int failed_errno = 0;             // set by the child when it cannot reach execve
 };
 
 // The child's side, on its own stack and in the parent's memory until execve
@@ -78,17 +77,24 @@ struct ChildSetup {
 __attribute__((no_sanitize("address", "undefined"))) int child_main(void* arg) {
   auto* setup = static_cast<ChildSetup*>(arg);
   // A handler of the embedding program is its code on memory shared until
-  // execve: back to the default before the signals are unblocked. All zeros
-  // is SIG_DFL with no flags in every layout of the kernel's sigaction.
-  const uint64_t default_action[8] = {};
-  for (int sig = 1; sig <= kKernelSignals; ++sig)
-    if (setup->caught_signals >> (sig - 1) & 1)
-      ::syscall(SYS_rt_sigaction, sig, default_action, nullptr, kKernelSignalSetBytes);
+  // execve: back to the default before the signals are unblocked (glibc's
+  // internal signals 32 and 33 to ignored, as posix_spawn does). The handler
+  // is the first word of the kernel's sigaction; all zeros is SIG_DFL with
+  // no flags in each of its layouts.
+  for (int sig = 1; sig <= kKernelSignals; ++sig) {
+    uint64_t action[8] = {};
+    if (::syscall(SYS_rt_sigaction, sig, nullptr, action, kKernelSignalSetBytes) != 0) continue;
+    const uint64_t handler = action[0];
+    if (handler == reinterpret_cast<uintptr_t>(SIG_DFL) || handler == reinterpret_cast<uintptr_t>(SIG_IGN)) continue;
+    const uint64_t reset[8] = {sig == 32 || sig == 33 ? reinterpret_cast<uintptr_t>(SIG_IGN) : 0};
+    ::syscall(SYS_rt_sigaction, sig, reset, nullptr, kKernelSignalSetBytes);
+  }
   int failed = 0;
   // The child dies with the thread that started it: a killed `map build`
   // leaves no COLMAP running on in its work folder (PR_SET_PDEATHSIG; the
   // getppid check closes the race with a parent that died before prctl).
-  if (::syscall(SYS_prctl, PR_SET_PDEATHSIG, SIGKILL, 0, 0, 0) != 0 || ::syscall(SYS_getppid) != setup->parent)
+  if (::syscall(SYS_prctl, PR_SET_PDEATHSIG, static_cast<unsigned long>(SIGKILL), 0UL, 0UL, 0UL) != 0 ||
+      ::syscall(SYS_getppid) != setup->parent)
     failed = ESRCH;
   else if (::syscall(SYS_dup3, setup->stdin_fd, STDIN_FILENO, 0) < 0 ||
            ::syscall(SYS_dup3, setup->output_fd, STDOUT_FILENO, 0) < 0 ||
@@ -111,11 +117,6 @@ __attribute__((no_sanitize("address", "undefined"))) int child_main(void* arg) {
 // other threads hold, and the child makes no call that could take one.
 // `stack` holds kChildStackBytes. Returns the pid, or -1 with errno set.
 pid_t spawn_child(ChildSetup& setup, char* stack) {
-  for (int sig = 1; sig <= kKernelSignals; ++sig) {
-    struct sigaction action {};
-    if (::sigaction(sig, nullptr, &action) == 0 && action.sa_handler != SIG_DFL && action.sa_handler != SIG_IGN)
-      setup.caught_signals |= KernelSignalSet{1} << (sig - 1);
-  }
   char* const stack_top = reinterpret_cast<char*>((reinterpret_cast<uintptr_t>(stack) + kChildStackBytes) &
                                                   ~uintptr_t{63});  // stacks grow down
   const KernelSignalSet all = ~KernelSignalSet{0};
@@ -127,6 +128,19 @@ pid_t spawn_child(ChildSetup& setup, char* stack) {
   return pid;
 }
 
+// A file descriptor closed when it goes out of scope.
+struct OwnedDescriptor {
+  int fd = -1;
+  explicit OwnedDescriptor(int descriptor) : fd(descriptor) {}
+  OwnedDescriptor(const OwnedDescriptor&) = delete;
+  OwnedDescriptor& operator=(const OwnedDescriptor&) = delete;
+  ~OwnedDescriptor() { reset(-1); }
+  void reset(int descriptor) {
+    if (fd >= 0) ::close(fd);
+    fd = descriptor;
+  }
+};
+
 }  // namespace
 
 ProcessResult run_process(const std::vector<std::string>& argv, const std::filesystem::path& log_path) {
@@ -136,15 +150,9 @@ ProcessResult run_process(const std::vector<std::string>& argv, const std::files
   if (!program_exists(argv[0]))
     throw_error(ErrorCode::kNotFound, "program '", argv[0], "' not found in PATH",
                 argv[0] == "colmap" ? " (install COLMAP: scripts/setup.sh, or apt-get install colmap)" : "");
-  // The child's stack (heap memory, which the sanitizers know as
-  // addressable), allocated before any descriptor is opened.
-  const std::unique_ptr<char[]> child_stack(new char[kChildStackBytes]);
-  int log_fd = ::open(log_path.c_str(), O_WRONLY | O_CREAT | O_APPEND | O_CLOEXEC, 0644);
-  if (log_fd < 0) throw_error(ErrorCode::kIo, "cannot open log file ", log_path.string(), ": ", std::strerror(errno));
-  {
-    std::string header = "\n$ " + command + "\n";
-    if (::write(log_fd, header.data(), header.size()) < 0) { /* the log is best effort */ }
-  }
+  // Everything that allocates comes before the descriptors are opened.
+  const std::unique_ptr<char[]> child_stack(new char[kChildStackBytes]);  // heap: addressable to the sanitizers
+  const std::string header = "\n$ " + command + "\n";
   // The program's full path, found here: the child only makes system calls
   // (execve searches no PATH).
   std::string program = argv[0];
@@ -160,36 +168,29 @@ ProcessResult run_process(const std::vector<std::string>& argv, const std::files
   std::vector<char*> args;
   for (const auto& a : argv) args.push_back(const_cast<char*>(a.c_str()));
   args.push_back(nullptr);
-  int null_fd = ::open("/dev/null", O_RDONLY | O_CLOEXEC);
-  if (null_fd < 0) {
-    ::close(log_fd);
-    throw_error(ErrorCode::kIo, "cannot open /dev/null: ", std::strerror(errno));
-  }
-  // Both above 2, so that the child's dup2 onto 0-2 never overwrites one with
+  OwnedDescriptor log(::open(log_path.c_str(), O_WRONLY | O_CREAT | O_APPEND | O_CLOEXEC, 0644));
+  if (log.fd < 0) throw_error(ErrorCode::kIo, "cannot open log file ", log_path.string(), ": ", std::strerror(errno));
+  [[maybe_unused]] const ssize_t header_written = ::write(log.fd, header.data(), header.size());  // best effort
+  OwnedDescriptor null_input(::open("/dev/null", O_RDONLY | O_CLOEXEC));
+  if (null_input.fd < 0) throw_error(ErrorCode::kIo, "cannot open /dev/null: ", std::strerror(errno));
+  // Both above 2, so that the child's dup3 onto 0-2 never overwrites one with
   // the other (a process started with a standard stream closed).
-  for (int* fd : {&log_fd, &null_fd})
-    if (*fd <= 2) {
-      const int moved = ::fcntl(*fd, F_DUPFD_CLOEXEC, 3);
-      ::close(*fd);
-      *fd = moved;
-    }
-  if (log_fd < 0 || null_fd < 0) {
-    if (log_fd >= 0) ::close(log_fd);
-    if (null_fd >= 0) ::close(null_fd);
+  for (OwnedDescriptor* d : {&log, &null_input})
+    if (d->fd <= 2) d->reset(::fcntl(d->fd, F_DUPFD_CLOEXEC, 3));
+  if (log.fd < 0 || null_input.fd < 0)
     throw_error(ErrorCode::kIo, "cannot set up the standard streams of '", command, "'");
-  }
   ChildSetup setup;
   setup.program = program.c_str();
   setup.argv = args.data();
   setup.envp = environ;
-  setup.stdin_fd = null_fd;
-  setup.output_fd = log_fd;
+  setup.stdin_fd = null_input.fd;
+  setup.output_fd = log.fd;
   setup.parent = ::getpid();
   Timer timer;
   const pid_t pid = spawn_child(setup, child_stack.get());
   const int spawn_errno = errno;
-  ::close(null_fd);
-  ::close(log_fd);
+  null_input.reset(-1);
+  log.reset(-1);
   if (pid < 0) throw_error(ErrorCode::kExternalTool, "cannot start '", command, "': ", std::strerror(spawn_errno));
   if (setup.failed_errno != 0) {  // the child exited before or at execve; reap it
     while (::waitpid(pid, nullptr, 0) < 0 && errno == EINTR) {

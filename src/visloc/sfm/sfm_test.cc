@@ -217,12 +217,14 @@ TEST(Process, ChildHasTheCallersSignalMask) {
 // Starting a child runs no pthread_atfork handler: libraries' fork handlers
 // (OpenBLAS stops its thread pool in one) run while other threads work, and
 // a fork copies the locks those threads hold.
-int g_fork_prepare_calls = 0;
+namespace {
+std::atomic<int> g_fork_prepare_calls{0};
+}  // namespace
 TEST(Process, StartingAChildRunsNoForkHandler) {
   static const bool registered = ::pthread_atfork([] { ++g_fork_prepare_calls; }, nullptr, nullptr) == 0;
   ASSERT_TRUE(registered);
   fs::path dir = temp_dir("process_atfork");
-  const int before = g_fork_prepare_calls;
+  const int before = g_fork_prepare_calls.load();
   run_process({"true"}, dir / "log.txt");
   EXPECT_EQ(g_fork_prepare_calls, before);
   const pid_t forked = ::fork();  // the handler is live: fork runs it
