@@ -49,6 +49,12 @@ bool program_exists(const std::string& program) {
 
 namespace {
 
+// The child's raw system calls assume the kernel ABI of x86-64 and aarch64
+// Linux: 64 signals, a sigaction whose first 64-bit word is the handler.
+#if !defined(__linux__) || !(defined(__x86_64__) || defined(__aarch64__))
+#error "process.cc: the child's raw system calls are written for x86-64 and aarch64 Linux"
+#endif
+
 // The kernel's signal set: 64 signals (_NSIG on x86-64 and aarch64), the
 // size the rt_sig* system calls take.
 using KernelSignalSet = uint64_t;
@@ -67,27 +73,34 @@ struct ChildSetup {
   int output_fd = -1;
   pid_t parent = 0;
   KernelSignalSet parent_mask = 0;  // the calling thread's mask, restored before execve
+  // Kernel sigactions, made by the parent: SIG_DFL and SIG_IGN with no flags.
+  uint64_t default_action[8] = {reinterpret_cast<uintptr_t>(SIG_DFL)};
+  uint64_t ignore_action[8] = {reinterpret_cast<uintptr_t>(SIG_IGN)};
   int failed_errno = 0;             // set by the child when it cannot reach execve
 };
 
 // The child's side, on its own stack and in the parent's memory until execve
 // (CLONE_VM | CLONE_VFORK: the parent thread waits meanwhile). Compiled
-// without sanitizer checks: their bookkeeping would run on the suspended
-// thread's state.
-__attribute__((no_sanitize("address", "undefined"))) int child_main(void* arg) {
+// without sanitizer checks or coverage hooks: their bookkeeping would run on
+// the suspended thread's state.
+#if defined(__clang__)
+#define VISLOC_CHILD_UNINSTRUMENTED __attribute__((no_sanitize("address", "undefined", "coverage")))
+#else
+#define VISLOC_CHILD_UNINSTRUMENTED __attribute__((no_sanitize("address", "undefined")))
+#endif
+VISLOC_CHILD_UNINSTRUMENTED int child_main(void* arg) {
   auto* setup = static_cast<ChildSetup*>(arg);
   // A handler of the embedding program is its code on memory shared until
   // execve: back to the default before the signals are unblocked (glibc's
-  // internal signals 32 and 33 to ignored, as posix_spawn does). The handler
-  // is the first word of the kernel's sigaction; all zeros is SIG_DFL with
-  // no flags in each of its layouts.
+  // internal signals 32 and 33 to ignored, as posix_spawn does). The kernel
+  // writes its whole sigaction (32 bytes) into `action`; the handler is its
+  // first word.
   for (int sig = 1; sig <= kKernelSignals; ++sig) {
-    uint64_t action[8] = {};
+    uint64_t action[8];  // no initializer: a compiler may zero it with memset, an interceptor
     if (::syscall(SYS_rt_sigaction, sig, nullptr, action, kKernelSignalSetBytes) != 0) continue;
-    const uint64_t handler = action[0];
-    if (handler == reinterpret_cast<uintptr_t>(SIG_DFL) || handler == reinterpret_cast<uintptr_t>(SIG_IGN)) continue;
-    const uint64_t reset[8] = {sig == 32 || sig == 33 ? reinterpret_cast<uintptr_t>(SIG_IGN) : 0};
-    ::syscall(SYS_rt_sigaction, sig, reset, nullptr, kKernelSignalSetBytes);
+    if (action[0] == setup->default_action[0] || action[0] == setup->ignore_action[0]) continue;
+    ::syscall(SYS_rt_sigaction, sig, sig == 32 || sig == 33 ? setup->ignore_action : setup->default_action, nullptr,
+              kKernelSignalSetBytes);
   }
   int failed = 0;
   // The child dies with the thread that started it: a killed `map build`
@@ -169,16 +182,27 @@ ProcessResult run_process(const std::vector<std::string>& argv, const std::files
   for (const auto& a : argv) args.push_back(const_cast<char*>(a.c_str()));
   args.push_back(nullptr);
   OwnedDescriptor log(::open(log_path.c_str(), O_WRONLY | O_CREAT | O_APPEND | O_CLOEXEC, 0644));
-  if (log.fd < 0) throw_error(ErrorCode::kIo, "cannot open log file ", log_path.string(), ": ", std::strerror(errno));
+  if (log.fd < 0) {
+    const int open_errno = errno;
+    throw_error(ErrorCode::kIo, "cannot open log file ", log_path.string(), ": ", std::strerror(open_errno));
+  }
   [[maybe_unused]] const ssize_t header_written = ::write(log.fd, header.data(), header.size());  // best effort
   OwnedDescriptor null_input(::open("/dev/null", O_RDONLY | O_CLOEXEC));
-  if (null_input.fd < 0) throw_error(ErrorCode::kIo, "cannot open /dev/null: ", std::strerror(errno));
+  if (null_input.fd < 0) {
+    const int open_errno = errno;
+    throw_error(ErrorCode::kIo, "cannot open /dev/null: ", std::strerror(open_errno));
+  }
   // Both above 2, so that the child's dup3 onto 0-2 never overwrites one with
   // the other (a process started with a standard stream closed).
   for (OwnedDescriptor* d : {&log, &null_input})
-    if (d->fd <= 2) d->reset(::fcntl(d->fd, F_DUPFD_CLOEXEC, 3));
-  if (log.fd < 0 || null_input.fd < 0)
-    throw_error(ErrorCode::kIo, "cannot set up the standard streams of '", command, "'");
+    if (d->fd <= 2) {
+      d->reset(::fcntl(d->fd, F_DUPFD_CLOEXEC, 3));
+      if (d->fd < 0) {
+        const int dup_errno = errno;
+        throw_error(ErrorCode::kIo, "cannot set up the standard streams of '", command,
+                    "': ", std::strerror(dup_errno));
+      }
+    }
   ChildSetup setup;
   setup.program = program.c_str();
   setup.argv = args.data();
