@@ -436,18 +436,25 @@ struct ShortlistRanker {
   double per_map_bytes;
   int faiss_subquantizers;  // 0: not a FAISS quantizer
   bool opq_rotation;
+  int coarse_centroids = 0;
+  bool residual_quantizer = false;
 };
 // Per point, what a segment would hold in place of its 16-byte PQ codes: no
 // byte more with 16-byte codes (search-pq16, faiss-pq16, faiss-opq16), 16 more with
 // 32-byte ones (FAISS's 32 × 256 × 4-dimension codebook has the 128 KiB of the
-// 16 × 256 × 8 one), 112 more with the descriptors; per map, faiss-opq16's 128 × 128
-// float rotation.
+// 16 × 256 × 8 one), 112 more with the descriptors, 1 more with the coarse
+// centroid's id (faiss-ivf256-pq16) or the decoded point's quantized squared
+// norm (faiss-rq16, as FAISS's ST_norm_qint8); per map, faiss-opq16's 128 × 128
+// float rotation, faiss-ivf256-pq16's 256 float centroids, faiss-rq16's 16 ×
+// 256 × 128 float codebooks (less the PQ's 128 KiB).
 constexpr ShortlistRanker kShortlistRankers[] = {
     {"search-pq16", 0, 0, 0, false},
     {"exact", 128.0 - kPqCodeBytes, 0, 0, false},
     {"faiss-pq16", 0, 0, 16, false},
     {"faiss-pq32", 16, 0, 32, false},
-    {"faiss-opq16", 0, double(kDescriptorDim) * kDescriptorDim * sizeof(float), 16, true}};
+    {"faiss-opq16", 0, double(kDescriptorDim) * kDescriptorDim * sizeof(float), 16, true},
+    {"faiss-ivf256-pq16", 1, 256.0 * kDescriptorDim * sizeof(float), 16, false, 256},
+    {"faiss-rq16", 1, (16.0 - 1.0) * 256 * kDescriptorDim * sizeof(float), 16, false, 0, true}};
 constexpr int kShortlistLengths[] = {40, 64};
 
 std::string reranking_method(const ShortlistRanker& r, int list) {
@@ -478,9 +485,12 @@ void run_reranking(const SceneQueries& s, const LoadedMap& m, const std::functio
   for (size_t r = 0; r < faiss_rerankers.size(); ++r) {
     const ShortlistRanker& ranker = kShortlistRankers[r];
     if (ranker.faiss_subquantizers > 0 && reranker_wanted(methods, ranker))
-      faiss_rerankers[r] = std::make_unique<FaissPqReranker>(
-          m.descriptors_float.data(), np,
-          FaissPqReranker::Options{.subquantizers = ranker.faiss_subquantizers, .opq_rotation = ranker.opq_rotation});
+      faiss_rerankers[r] =
+          std::make_unique<FaissPqReranker>(m.descriptors_float.data(), np,
+                                            FaissPqReranker::Options{.subquantizers = ranker.faiss_subquantizers,
+                                                                     .opq_rotation = ranker.opq_rotation,
+                                                                     .coarse_centroids = ranker.coarse_centroids,
+                                                                     .residual_quantizer = ranker.residual_quantizer});
   }
   CascadeMatcher ccs(seg.index(), m.map.codebook());
   CascadeMatches whole;

@@ -1,7 +1,10 @@
 #include "bench/reranking_study.h"
 
+#include <faiss/Clustering.h>
+#include <faiss/IndexFlat.h>
 #include <faiss/VectorTransform.h>
 #include <faiss/impl/ProductQuantizer.h>
+#include <faiss/impl/ResidualQuantizer.h>
 
 #include <algorithm>
 #include <cmath>
@@ -84,6 +87,14 @@ void FaissPqReranker::Options::validate() const {
                 subquantizers);
   if (opq_iterations < 1)
     throw_error(ErrorCode::kInvalidArgument, "FaissPqReranker.opq_iterations must be >= 1, got ", opq_iterations);
+  if (coarse_centroids < 0 || coarse_centroids == 1 || coarse_centroids > 65536)
+    throw_error(ErrorCode::kInvalidArgument, "FaissPqReranker.coarse_centroids must be 0 or in [2, 65536], got ",
+                coarse_centroids);
+  if (residual_beam < 1)
+    throw_error(ErrorCode::kInvalidArgument, "FaissPqReranker.residual_beam must be >= 1, got ", residual_beam);
+  if (int(opq_rotation) + int(coarse_centroids > 0) + int(residual_quantizer) > 1)
+    throw_error(ErrorCode::kInvalidArgument,
+                "FaissPqReranker: opq_rotation, coarse_centroids and residual_quantizer exclude one another");
 }
 
 namespace {
@@ -102,8 +113,44 @@ FaissPqReranker::FaissPqReranker(const float* points, size_t n, const Options& o
   if (n < 256)
     throw_error(ErrorCode::kInvalidArgument, "FaissPqReranker: ", n,
                 " points, at least 256 are needed (one per centroid)");
+  if (n < size_t(options.coarse_centroids))
+    throw_error(ErrorCode::kInvalidArgument, "FaissPqReranker: ", n, " points, fewer than the ",
+                options.coarse_centroids, " coarse centroids");
   std::vector<float> train(points, points + n * kDescriptorDim);
   const auto count = static_cast<int64_t>(n);
+  if (options.residual_quantizer) {
+    rq_ = std::make_unique<faiss::ResidualQuantizer>(kDescriptorDim, size_t(options.subquantizers), 8);
+    rq_->verbose = false;
+    rq_->cp.min_points_per_centroid = 16;
+    rq_->max_beam_size = options.residual_beam;
+    rq_->train(n, points);
+    codes_.resize(n * rq_->code_size);
+    rq_->compute_codes(points, codes_.data(), n);
+    decoded_.resize(n * kDescriptorDim);
+    rq_->decode(codes_.data(), decoded_.data(), n);
+    rotated_.resize(kDescriptorDim);
+    return;
+  }
+  std::vector<int64_t> cell;
+  std::vector<float> coarse;
+  if (options.coarse_centroids > 0) {
+    coarse_centroids_ = size_t(options.coarse_centroids);
+    faiss::ClusteringParameters cp;
+    cp.verbose = false;
+    cp.min_points_per_centroid = 16;
+    faiss::Clustering clustering(kDescriptorDim, options.coarse_centroids, cp);
+    faiss::IndexFlatL2 assign(kDescriptorDim);
+    clustering.train(count, points, assign);
+    coarse = clustering.centroids;
+    cell.resize(n);
+    std::vector<float> ignored(n);
+    assign.search(count, points, 1, ignored.data(), cell.data());
+    for (size_t i = 0; i < n; ++i) {
+      VISLOC_CHECK(cell[i] >= 0 && size_t(cell[i]) < coarse_centroids_, "k-means assigned no cell");
+      const float* c = coarse.data() + size_t(cell[i]) * kDescriptorDim;
+      for (int j = 0; j < kDescriptorDim; ++j) train[i * kDescriptorDim + j] -= c[j];
+    }
+  }
   if (options.opq_rotation) {
     rotation_ = std::make_unique<faiss::OPQMatrix>(kDescriptorDim, options.subquantizers);
     rotation_->verbose = false;
@@ -120,11 +167,22 @@ FaissPqReranker::FaissPqReranker(const float* points, size_t n, const Options& o
   pq_->compute_codes(train.data(), codes_.data(), count);
   table_.resize(pq_->M * pq_->ksub);
   rotated_.resize(kDescriptorDim);
+  if (coarse_centroids_ > 0) {
+    decoded_.resize(n * kDescriptorDim);
+    pq_->decode(codes_.data(), decoded_.data(), count);
+    for (size_t i = 0; i < n; ++i) {
+      const float* c = coarse.data() + size_t(cell[i]) * kDescriptorDim;
+      for (int j = 0; j < kDescriptorDim; ++j) decoded_[i * kDescriptorDim + j] += c[j];
+    }
+  }
 }
 
 FaissPqReranker::~FaissPqReranker() = default;
 
-size_t FaissPqReranker::code_bytes() const { return pq_->code_size; }
+size_t FaissPqReranker::code_bytes() const {
+  if (rq_) return rq_->code_size;
+  return pq_->code_size + (coarse_centroids_ == 0 ? 0 : coarse_centroids_ <= 256 ? 1 : 2);
+}
 
 void FaissPqReranker::transform(const float* query, float* out) const {
   if (rotation_) {
@@ -136,10 +194,24 @@ void FaissPqReranker::transform(const float* query, float* out) const {
 
 void FaissPqReranker::reconstruct(uint32_t id, float* out) const {
   VISLOC_CHECK(id < num_points_, "point id out of range");
+  if (!decoded_.empty()) {
+    std::copy_n(decoded_.data() + size_t(id) * kDescriptorDim, kDescriptorDim, out);
+    return;
+  }
   pq_->decode(codes_.data() + size_t(id) * pq_->code_size, out);
 }
 
 void FaissPqReranker::distances(const float* query, std::span<const uint32_t> ids, float* out) {
+  if (!decoded_.empty()) {
+    for (size_t i = 0; i < ids.size(); ++i) {
+      VISLOC_CHECK(ids[i] < num_points_, "point id out of range");
+      const float* x = decoded_.data() + size_t(ids[i]) * kDescriptorDim;
+      float d = 0;
+      for (int j = 0; j < kDescriptorDim; ++j) d += (query[j] - x[j]) * (query[j] - x[j]);
+      out[i] = d;
+    }
+    return;
+  }
   transform(query, rotated_.data());
   pq_->compute_distance_table(rotated_.data(), table_.data());
   const size_t m = pq_->M, k = pq_->ksub;

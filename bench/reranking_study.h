@@ -12,6 +12,14 @@
 //   faiss-pq32   FAISS PQ 32 × 8 bits (16 bytes per point more)
 //   faiss-opq16  FAISS OPQ, a learnt 128 × 128 rotation (64 KiB per map),
 //                before PQ 16 × 8 bits (no byte per point more)
+//   faiss-ivf256-pq16  k-means into 256 coarse centroids (a byte per point
+//                more, 128 KiB per map), then PQ 16 × 8 bits of each point's
+//                residual from its centroid (IVFADC's residual encoding,
+//                Jégou et al. 2011, with every cell searched)
+//   faiss-rq16   FAISS's residual (additive) quantizer, 16 codebooks of 256
+//                over the whole vector, beam search at encoding: a real ADC
+//                also needs each point's |x̂|² (FAISS stores it in 1 byte,
+//                ST_norm_qint8); here the distances are to the decoded points
 // A feature whose two nearest search PQ distances tie has no short list here
 // (the search's 1-1 test rejects it as well), so every ranker misses it: the
 // finer rankers' recall is, if anything, slightly low.
@@ -30,6 +38,7 @@
 namespace faiss {
 struct OPQMatrix;
 struct ProductQuantizer;
+struct ResidualQuantizer;
 }  // namespace faiss
 
 namespace visloc {
@@ -67,23 +76,35 @@ ShortlistDistances exact_distances(const CascadeMatches& whole, const Descriptor
                                    const DescriptorMatrix& points);
 
 // A FAISS product quantizer over a segment's point descriptors (128 floats
-// each), optionally after an OPQ rotation, trained and encoded on them. Not
-// thread-safe: `distances` uses the object's scratch.
+// each), optionally after an OPQ rotation or on the residuals from coarse
+// k-means centroids, or FAISS's residual quantizer instead; trained and
+// encoded on them. Not thread-safe: `distances` uses the object's scratch.
 class FaissPqReranker {
  public:
   struct Options {
     int subquantizers = 16;     // 8 bits each; divides 128
     bool opq_rotation = false;  // learn an OPQ rotation first
     int opq_iterations = 50;    // OPQ's outer iterations (FAISS's default)
+    // > 0: that many k-means centroids first (at most 65,536); the PQ encodes
+    // each point's residual from its nearest one (not with OPQ).
+    int coarse_centroids = 0;
+    // FAISS's ResidualQuantizer with `subquantizers` codebooks of 256 entries
+    // over the whole vector, in place of the PQ (neither OPQ nor coarse
+    // centroids).
+    bool residual_quantizer = false;
+    int residual_beam = 5;  // the residual quantizer's beam at encoding (FAISS's default)
     void validate() const;
   };
-  // Needs at least 256 points (one per centroid); throws kInvalidArgument.
+  // Needs at least 256 points (one per centroid) and at least
+  // coarse_centroids; throws kInvalidArgument.
   FaissPqReranker(const float* points, size_t n, const Options& options);
   ~FaissPqReranker();
   FaissPqReranker(const FaissPqReranker&) = delete;
   FaissPqReranker& operator=(const FaissPqReranker&) = delete;
 
-  size_t code_bytes() const;  // per point
+  // Per point: the codes, plus the coarse centroid's id (1 byte up to 256
+  // centroids, 2 above).
+  size_t code_bytes() const;
   // Squared distances of `query` (128 floats) to the points `ids`: the sum of
   // the query's table of sub-distances over each point's code.
   void distances(const float* query, std::span<const uint32_t> ids, float* out);
@@ -95,9 +116,14 @@ class FaissPqReranker {
  private:
   std::unique_ptr<faiss::OPQMatrix> rotation_;
   std::unique_ptr<faiss::ProductQuantizer> pq_;
+  std::unique_ptr<faiss::ResidualQuantizer> rq_;
   size_t num_points_ = 0;
+  size_t coarse_centroids_ = 0;
   std::vector<uint8_t> codes_;
   std::vector<float> table_, rotated_;
+  // With coarse centroids or the residual quantizer: every point decoded
+  // (N × 128), which `distances` measures against.
+  std::vector<float> decoded_;
 };
 
 // The reranker's distances for the short lists of `whole`.

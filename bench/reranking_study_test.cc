@@ -8,6 +8,7 @@
 #include <map>
 #include <random>
 #include <set>
+#include <string_view>
 #include <tuple>
 #include <utility>
 
@@ -145,6 +146,74 @@ TEST(RerankingStudy, FaissDistancesAreThoseToTheDecodedPoints) {
        {std::tuple{size_t(255), FaissPqReranker::Options{}, "at least 256"},
         std::tuple{db.rows(), FaissPqReranker::Options{.subquantizers = 12}, "a divisor of 128"},
         std::tuple{db.rows(), FaissPqReranker::Options{.opq_rotation = true, .opq_iterations = 0}, "opq_iterations"}}) {
+    try {
+      FaissPqReranker(points.data(), points_given, options);
+      ADD_FAILURE() << "no error: " << message;
+    } catch (const Error& e) {
+      EXPECT_EQ(e.code(), ErrorCode::kInvalidArgument);
+      EXPECT_NE(std::string(e.what()).find(message), std::string::npos) << e.what();
+    }
+  }
+}
+
+// The residual encodings (coarse centroids, then PQ of the residual; FAISS's
+// residual quantizer) decode the points closer than the plain PQ of as many
+// codes does, their distances are those to the decoded points, and a noisy
+// copy's nearest is the point it copies.
+TEST(RerankingStudy, ResidualEncodingsDecodeCloserThanThePlainPq) {
+  const DescriptorMatrix db = clustered(4200, 5);
+  const std::vector<float> points = to_float(db);
+  DescriptorMatrix queries(20);
+  std::vector<uint32_t> sources;
+  add_noisy_copies(db, 0, 20, 9, 12, queries, sources);
+  double plain_error = 0;
+  for (const auto& [name, options, bytes] :
+       {std::tuple{"pq16", FaissPqReranker::Options{}, size_t(16)},
+        std::tuple{"ivf256-pq16", FaissPqReranker::Options{.coarse_centroids = 256}, size_t(17)},
+        std::tuple{"rq16", FaissPqReranker::Options{.residual_quantizer = true, .residual_beam = 1}, size_t(16)}}) {
+    SCOPED_TRACE(name);
+    FaissPqReranker reranker(points.data(), db.rows(), options);
+    EXPECT_EQ(reranker.code_bytes(), bytes);
+    std::vector<float> x(kDescriptorDim), q(kDescriptorDim), d;
+    double error = 0;
+    for (uint32_t i = 0; i < db.rows(); ++i) {
+      reranker.reconstruct(i, x.data());
+      for (int j = 0; j < kDescriptorDim; ++j)
+        error += (x[j] - points[size_t(i) * kDescriptorDim + j]) * (x[j] - points[size_t(i) * kDescriptorDim + j]);
+    }
+    error /= double(db.rows());
+    if (std::string_view(name) == "pq16")
+      plain_error = error;
+    else
+      EXPECT_LT(error, 0.9 * plain_error) << "plain PQ's " << plain_error;
+    size_t found = 0;
+    for (size_t r = 0; r < queries.rows(); ++r) {
+      std::vector<uint32_t> ids(50);
+      for (uint32_t i = 0; i < ids.size(); ++i) ids[i] = (i * 59 + 7 * uint32_t(r)) % uint32_t(db.rows());
+      ids[r % ids.size()] = sources[r];
+      d.resize(ids.size());
+      for (int j = 0; j < kDescriptorDim; ++j) q[j] = queries.row(r)[j];
+      reranker.distances(q.data(), ids, d.data());
+      for (size_t i = 0; i < ids.size(); ++i) {
+        reranker.reconstruct(ids[i], x.data());
+        double want = 0;
+        for (int j = 0; j < kDescriptorDim; ++j) want += (q[j] - x[j]) * (q[j] - x[j]);
+        EXPECT_NEAR(d[i], want, 1e-3 * want + 1e-2);
+      }
+      found += ids[std::min_element(d.begin(), d.end()) - d.begin()] == sources[r];
+    }
+    EXPECT_GE(found, 18u);
+  }
+  for (const auto& [points_given, options, message] :
+       {std::tuple{db.rows(), FaissPqReranker::Options{.coarse_centroids = 1}, "coarse_centroids"},
+        std::tuple{db.rows(), FaissPqReranker::Options{.coarse_centroids = 70000}, "coarse_centroids"},
+        std::tuple{size_t(300), FaissPqReranker::Options{.coarse_centroids = 512}, "fewer than the 512"},
+        std::tuple{db.rows(), FaissPqReranker::Options{.opq_rotation = true, .residual_quantizer = true},
+                   "exclude one another"},
+        std::tuple{db.rows(), FaissPqReranker::Options{.coarse_centroids = 256, .residual_quantizer = true},
+                   "exclude one another"},
+        std::tuple{db.rows(), FaissPqReranker::Options{.residual_quantizer = true, .residual_beam = 0},
+                   "residual_beam"}}) {
     try {
       FaissPqReranker(points.data(), points_given, options);
       ADD_FAILURE() << "no error: " << message;

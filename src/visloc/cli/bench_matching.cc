@@ -22,8 +22,9 @@ void add_bench_matching(CLI::App& bench) {
       "2D-3D matching: CCS against exact, FAISS IVFADC/IMI and an LSH cascade, on maps imported with\n"
       "their query images held out (repeat --map/--queries for several scenes; one thread). Opt-in with\n"
       "--method rerank: the full search's short lists (L_R 40 and 64) ranked by its own PQ (repeats\n"
-      "ccs-full-r1), exact L2, FAISS PQ 16 or 32 bytes, OPQ + PQ 16: the recall each ranking would\n"
-      "buy, and its bytes per point");
+      "ccs-full-r1), exact L2, FAISS PQ 16 or 32 bytes, OPQ + PQ 16, 256 coarse centroids + PQ 16 of\n"
+      "the residual, FAISS's residual quantizer 16 bytes: the recall each ranking would buy, and its\n"
+      "bytes per point");
   OptionTable t;
   t.add("--map", args->maps, "Map directory (from `map import --holdout`)").require();
   t.add("--queries", args->query_lists, "Query image list, one per --map").require();
