@@ -437,16 +437,16 @@ struct ShortlistRanker {
   int faiss_subquantizers;  // 0: not a FAISS quantizer
   bool opq_rotation;
   int coarse_centroids = 0;
-  bool residual_quantizer = false;
+  int residual_splits = 0;
 };
 // Per point, what a segment would hold in place of its 16-byte PQ codes: no
 // byte more with 16-byte codes (search-pq16, faiss-pq16, faiss-opq16), 16 more with
 // 32-byte ones (FAISS's 32 × 256 × 4-dimension codebook has the 128 KiB of the
 // 16 × 256 × 8 one), 112 more with the descriptors, 1 more with the coarse
-// centroid's id (faiss-ivf256-pq16) or the decoded point's quantized squared
-// norm (faiss-rq16, as FAISS's ST_norm_qint8); per map, faiss-opq16's 128 × 128
-// float rotation, faiss-ivf256-pq16's 256 float centroids, faiss-rq16's 16 ×
-// 256 × 128 float codebooks (less the PQ's 128 KiB).
+// centroid's id (faiss-ivf256-pq16); per map, faiss-opq16's 128 × 128 float
+// rotation, faiss-ivf256-pq16's 256 float centroids, the residual quantizers'
+// codebooks less the PQ's 128 KiB (faiss-rq16 16 × 256 × 128 floats,
+// faiss-prq2x8 2 × 8 × 256 × 64, faiss-prq4x4 4 × 4 × 256 × 32).
 constexpr ShortlistRanker kShortlistRankers[] = {
     {"search-pq16", 0, 0, 0, false},
     {"exact", 128.0 - kPqCodeBytes, 0, 0, false},
@@ -454,7 +454,9 @@ constexpr ShortlistRanker kShortlistRankers[] = {
     {"faiss-pq32", 16, 0, 32, false},
     {"faiss-opq16", 0, double(kDescriptorDim) * kDescriptorDim * sizeof(float), 16, true},
     {"faiss-ivf256-pq16", 1, 256.0 * kDescriptorDim * sizeof(float), 16, false, 256},
-    {"faiss-rq16", 1, (16.0 - 1.0) * 256 * kDescriptorDim * sizeof(float), 16, false, 0, true}};
+    {"faiss-rq16", 0, (16.0 - 1.0) * 256 * kDescriptorDim * sizeof(float), 16, false, 0, 1},
+    {"faiss-prq2x8", 0, (8.0 - 1.0) * 256 * kDescriptorDim * sizeof(float), 16, false, 0, 2},
+    {"faiss-prq4x4", 0, (4.0 - 1.0) * 256 * kDescriptorDim * sizeof(float), 16, false, 0, 4}};
 constexpr int kShortlistLengths[] = {40, 64};
 
 std::string reranking_method(const ShortlistRanker& r, int list) {
@@ -478,9 +480,11 @@ void run_reranking(const SceneQueries& s, const LoadedMap& m, const std::functio
     return;
   const Segment& seg = *m.segment;
   const size_t np = m.points;
-  if (m.map.codebook().subvectors() != kPqSubvectors)
+  if (m.map.codebook().subvectors() != kPqSubvectors || m.map.codebook().is_residual())
     throw_error(ErrorCode::kInvalidArgument, "the rerank-* methods study the short lists of a 16-byte PQ map; ",
-                "this map has ", m.map.codebook().code_bytes(), "-byte codes (map import --pq-bytes 16)");
+                "this map has ", m.map.codebook().code_bytes(), "-byte codes of the ",
+                to_string(m.map.codebook().quantizer()),
+                " quantizer (map import --pq-bytes 16 --pq-quantizer product)");
   std::vector<std::unique_ptr<FaissPqReranker>> faiss_rerankers(std::size(kShortlistRankers));
   for (size_t r = 0; r < faiss_rerankers.size(); ++r) {
     const ShortlistRanker& ranker = kShortlistRankers[r];
@@ -490,7 +494,7 @@ void run_reranking(const SceneQueries& s, const LoadedMap& m, const std::functio
                                             FaissPqReranker::Options{.subquantizers = ranker.faiss_subquantizers,
                                                                      .opq_rotation = ranker.opq_rotation,
                                                                      .coarse_centroids = ranker.coarse_centroids,
-                                                                     .residual_quantizer = ranker.residual_quantizer});
+                                                                     .residual_splits = ranker.residual_splits});
   }
   CascadeMatcher ccs(seg.index(), m.map.codebook());
   CascadeMatches whole;

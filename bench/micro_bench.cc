@@ -223,6 +223,34 @@ void BM_KernelAdcDirect40(benchmark::State& state) {
 }
 BENCHMARK(BM_KernelAdcDirect40)->ArgsProduct({{0, 1, 2, 3, 4, 5}, {16, 32}});
 
+// Residual codes' direct distances of 40 candidates (argument 0..2: scalar,
+// AVX2, AVX-512; second: the split count S), against BM_KernelAdcDirect40's
+// 16-byte PQ: the same bytes per candidate, 16 rows of 128 / S codebook
+// floats read where the PQ reads 16 of 8.
+void BM_KernelAdditiveDirect40(benchmark::State& state) {
+  const auto* k = kernels_or_skip(state, state.range(0));
+  if (!k) return;
+  const int splits = static_cast<int>(state.range(1));
+  state.SetLabel(std::string(visloc::to_string(k->level)) + " residual S=" + std::to_string(splits));
+  std::mt19937 rng(9);
+  std::uniform_real_distribution<float> u(-40, 40), uq(0, 160);
+  std::vector<float> books(size_t(16) * 256 * size_t(128 / splits)), q(128);
+  for (auto& x : books) x = u(rng);
+  for (auto& x : q) x = uq(rng);
+  const visloc::PqCodebook cb = visloc::PqCodebook::residual(books, splits);
+  auto codes = random_bytes(kPoints * size_t(16), 10);
+  std::vector<uint32_t> ids(40);
+  for (auto& i : ids) i = rng() % kPoints;
+  std::vector<float> out(40);
+  const auto direct = k->additive.direct(splits);
+  for (auto _ : state) {
+    direct(cb.centroids().data(), q.data(), codes.data(), ids.data(), ids.size(), out.data());
+    benchmark::DoNotOptimize(out.data());
+  }
+  state.SetItemsProcessed(state.iterations() * 40);
+}
+BENCHMARK(BM_KernelAdditiveDirect40)->ArgsProduct({{0, 1, 2}, {1, 2, 4}});
+
 // Hash codes of 1024 centred descriptors.
 void BM_KernelHashCodes(benchmark::State& state) {
   const auto* k = kernels_or_skip(state);

@@ -3,6 +3,7 @@
 #include <faiss/Clustering.h>
 #include <faiss/IndexFlat.h>
 #include <faiss/VectorTransform.h>
+#include <faiss/impl/ProductAdditiveQuantizer.h>
 #include <faiss/impl/ProductQuantizer.h>
 #include <faiss/impl/ResidualQuantizer.h>
 
@@ -92,9 +93,14 @@ void FaissPqReranker::Options::validate() const {
                 coarse_centroids);
   if (residual_beam < 1)
     throw_error(ErrorCode::kInvalidArgument, "FaissPqReranker.residual_beam must be >= 1, got ", residual_beam);
-  if (int(opq_rotation) + int(coarse_centroids > 0) + int(residual_quantizer) > 1)
+  if (residual_splits < 0 ||
+      (residual_splits > 0 && (kDescriptorDim % residual_splits != 0 || subquantizers % residual_splits != 0)))
     throw_error(ErrorCode::kInvalidArgument,
-                "FaissPqReranker: opq_rotation, coarse_centroids and residual_quantizer exclude one another");
+                "FaissPqReranker.residual_splits must be 0 or divide both 128 and subquantizers (", subquantizers,
+                "), got ", residual_splits);
+  if (int(opq_rotation) + int(coarse_centroids > 0) + int(residual_splits > 0) > 1)
+    throw_error(ErrorCode::kInvalidArgument,
+                "FaissPqReranker: opq_rotation, coarse_centroids and residual_splits exclude one another");
 }
 
 namespace {
@@ -118,11 +124,26 @@ FaissPqReranker::FaissPqReranker(const float* points, size_t n, const Options& o
                 options.coarse_centroids, " coarse centroids");
   std::vector<float> train(points, points + n * kDescriptorDim);
   const auto count = static_cast<int64_t>(n);
-  if (options.residual_quantizer) {
-    rq_ = std::make_unique<faiss::ResidualQuantizer>(kDescriptorDim, size_t(options.subquantizers), 8);
-    rq_->verbose = false;
-    rq_->cp.min_points_per_centroid = 16;
-    rq_->max_beam_size = options.residual_beam;
+  if (options.residual_splits > 0) {
+    const auto configure = [&options](faiss::ResidualQuantizer& rq) {
+      rq.verbose = false;
+      rq.cp.min_points_per_centroid = 16;
+      rq.max_beam_size = options.residual_beam;
+      rq.train_type = options.residual_progressive_dim ? faiss::ResidualQuantizer::Train_progressive_dim
+                                                       : faiss::ResidualQuantizer::Train_default;
+    };
+    if (options.residual_splits == 1) {
+      auto rq = std::make_unique<faiss::ResidualQuantizer>(kDescriptorDim, size_t(options.subquantizers), 8);
+      configure(*rq);
+      rq_ = std::move(rq);
+    } else {
+      const auto splits = size_t(options.residual_splits);
+      auto prq = std::make_unique<faiss::ProductResidualQuantizer>(kDescriptorDim, splits,
+                                                                   size_t(options.subquantizers) / splits, 8);
+      prq->verbose = false;
+      for (faiss::AdditiveQuantizer* q : prq->quantizers) configure(*dynamic_cast<faiss::ResidualQuantizer*>(q));
+      rq_ = std::move(prq);
+    }
     rq_->train(n, points);
     codes_.resize(n * rq_->code_size);
     rq_->compute_codes(points, codes_.data(), n);

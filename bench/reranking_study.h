@@ -17,9 +17,12 @@
 //                residual from its centroid (IVFADC's residual encoding,
 //                Jégou et al. 2011, with every cell searched)
 //   faiss-rq16   FAISS's residual (additive) quantizer, 16 codebooks of 256
-//                over the whole vector, beam search at encoding: a real ADC
-//                also needs each point's |x̂|² (FAISS stores it in 1 byte,
-//                ST_norm_qint8); here the distances are to the decoded points
+//                over the whole vector, beam search at encoding; the
+//                distances are to the decoded points (a kernel would decode
+//                the 16 rows of 128 and measure: no byte per point more)
+//   faiss-prq2x8, faiss-prq4x4  the same per half (8 codebooks of 64
+//                dimensions) or per quarter (4 of 32) of the vector: a
+//                candidate's distance reads 1/2 or 1/4 of the rows' floats
 // A feature whose two nearest search PQ distances tie has no short list here
 // (the search's 1-1 test rejects it as well), so every ranker misses it: the
 // finer rankers' recall is, if anything, slightly low.
@@ -38,7 +41,7 @@
 namespace faiss {
 struct OPQMatrix;
 struct ProductQuantizer;
-struct ResidualQuantizer;
+struct AdditiveQuantizer;
 }  // namespace faiss
 
 namespace visloc {
@@ -88,11 +91,16 @@ class FaissPqReranker {
     // > 0: that many k-means centroids first (at most 65,536); the PQ encodes
     // each point's residual from its nearest one (not with OPQ).
     int coarse_centroids = 0;
-    // FAISS's ResidualQuantizer with `subquantizers` codebooks of 256 entries
-    // over the whole vector, in place of the PQ (neither OPQ nor coarse
-    // centroids).
-    bool residual_quantizer = false;
+    // > 0: FAISS's residual quantizer in place of the PQ (neither OPQ nor
+    // coarse centroids), `subquantizers` codebooks of 256 entries in all: 1,
+    // over the whole vector (ResidualQuantizer); S > 1, S residual quantizers
+    // of subquantizers / S codebooks over 128 / S dimensions each
+    // (ProductResidualQuantizer). S divides 128 and subquantizers.
+    int residual_splits = 0;
     int residual_beam = 5;  // the residual quantizer's beam at encoding (FAISS's default)
+    // Its training: progressive-dimension k-means (FAISS's default) or plain
+    // k-means per codebook (faster).
+    bool residual_progressive_dim = true;
     void validate() const;
   };
   // Needs at least 256 points (one per centroid) and at least
@@ -116,7 +124,7 @@ class FaissPqReranker {
  private:
   std::unique_ptr<faiss::OPQMatrix> rotation_;
   std::unique_ptr<faiss::ProductQuantizer> pq_;
-  std::unique_ptr<faiss::ResidualQuantizer> rq_;
+  std::unique_ptr<faiss::AdditiveQuantizer> rq_;
   size_t num_points_ = 0;
   size_t coarse_centroids_ = 0;
   std::vector<uint8_t> codes_;

@@ -170,7 +170,14 @@ TEST(RerankingStudy, ResidualEncodingsDecodeCloserThanThePlainPq) {
   for (const auto& [name, options, bytes] :
        {std::tuple{"pq16", FaissPqReranker::Options{}, size_t(16)},
         std::tuple{"ivf256-pq16", FaissPqReranker::Options{.coarse_centroids = 256}, size_t(17)},
-        std::tuple{"rq16", FaissPqReranker::Options{.residual_quantizer = true, .residual_beam = 1}, size_t(16)}}) {
+        std::tuple{
+            "rq16",
+            FaissPqReranker::Options{.residual_splits = 1, .residual_beam = 1, .residual_progressive_dim = false},
+            size_t(16)},
+        std::tuple{
+            "prq4x4",
+            FaissPqReranker::Options{.residual_splits = 4, .residual_beam = 1, .residual_progressive_dim = false},
+            size_t(16)}}) {
     SCOPED_TRACE(name);
     FaissPqReranker reranker(points.data(), db.rows(), options);
     EXPECT_EQ(reranker.code_bytes(), bytes);
@@ -208,12 +215,14 @@ TEST(RerankingStudy, ResidualEncodingsDecodeCloserThanThePlainPq) {
        {std::tuple{db.rows(), FaissPqReranker::Options{.coarse_centroids = 1}, "coarse_centroids"},
         std::tuple{db.rows(), FaissPqReranker::Options{.coarse_centroids = 70000}, "coarse_centroids"},
         std::tuple{size_t(300), FaissPqReranker::Options{.coarse_centroids = 512}, "fewer than the 512"},
-        std::tuple{db.rows(), FaissPqReranker::Options{.opq_rotation = true, .residual_quantizer = true},
+        std::tuple{db.rows(), FaissPqReranker::Options{.opq_rotation = true, .residual_splits = 1},
                    "exclude one another"},
-        std::tuple{db.rows(), FaissPqReranker::Options{.coarse_centroids = 256, .residual_quantizer = true},
+        std::tuple{db.rows(), FaissPqReranker::Options{.coarse_centroids = 256, .residual_splits = 2},
                    "exclude one another"},
-        std::tuple{db.rows(), FaissPqReranker::Options{.residual_quantizer = true, .residual_beam = 0},
-                   "residual_beam"}}) {
+        std::tuple{db.rows(), FaissPqReranker::Options{.residual_splits = 1, .residual_beam = 0}, "residual_beam"},
+        std::tuple{db.rows(), FaissPqReranker::Options{.residual_splits = 3}, "residual_splits"},
+        std::tuple{db.rows(), FaissPqReranker::Options{.subquantizers = 8, .residual_splits = 16},
+                   "residual_splits"}}) {
     try {
       FaissPqReranker(points.data(), points_given, options);
       ADD_FAILURE() << "no error: " << message;

@@ -156,7 +156,9 @@ void import_model_map(ColmapModel model, const ModelSource& source, const fs::pa
   PqCodebook codebook;
   if (options.pq_training_database.empty()) {
     codebook = PqCodebook::train(desc.mean.data(), desc.num_points, options.pq);
-    res.pq_training_descriptors = std::min(desc.num_points, options.pq.max_training);
+    res.pq_training_descriptors =
+        std::min({desc.num_points, options.pq.max_training,
+                  options.pq.quantizer == PqQuantizer::kResidual ? options.pq.residual_max_training : SIZE_MAX});
     res.pq_training_source = "map point descriptors";
   } else {
     auto x = database_training_descriptors(options.pq_training_database, options.pq_training_images,
@@ -204,6 +206,7 @@ void import_model_map(ColmapModel model, const ModelSource& source, const fs::pa
                             {"training_descriptors", res.pq_training_descriptors},
                             {"training_source", res.pq_training_source},
                             {"seed", options.pq.seed}};
+  pq_meta.update(nlohmann::json::parse(codebook.quantizer_json()));
   codebook.write(out_dir / man.pq_codebook_file, pq_meta.dump());
   if (map_hasher) {
     man.hash_rotation_file = kHashRotationFileName;

@@ -941,6 +941,17 @@ HashRotationScope resolve_hash_rotation(const fs::path& map_dir, const std::opti
   return HashRotationScope::kMap;
 }
 
+PqQuantizer resolve_pq_quantizer(const fs::path& map_dir, const MapBuildOptions& options) {
+  const fs::path codebook_path = map_dir / "pq_codebook.vlpq";
+  if (!fs::exists(codebook_path)) return options.pq_quantizer.value_or(options.pq.quantizer);
+  const PqQuantizer existing = PqCodebook::read(codebook_path).quantizer();
+  if (options.pq_quantizer && *options.pq_quantizer != existing)
+    throw_error(ErrorCode::kInvalidArgument, map_dir.string(), ": the map's PQ codes are of the ", to_string(existing),
+                " quantizer (", codebook_path.string(), "); build it without --pq-quantizer (or with --pq-quantizer ",
+                to_string(existing), "), or build ", to_string(*options.pq_quantizer), " codes into a new directory");
+  return existing;
+}
+
 int resolve_pq_code_bytes(const fs::path& map_dir, const MapBuildOptions& options) {
   const fs::path codebook_path = map_dir / "pq_codebook.vlpq";
   if (!fs::exists(codebook_path)) return options.pq_code_bytes.value_or(options.pq.subvectors);
@@ -957,6 +968,7 @@ SegmentBuildResult build_planned_segment(const fs::path& map_dir, const MapBuild
   opt.hash_rotation = resolve_hash_rotation(map_dir, options.hash_rotation);
   opt.validate();
   opt.pq.subvectors = resolve_pq_code_bytes(map_dir, opt);  // refuses an explicit size unlike the map's
+  opt.pq.quantizer = resolve_pq_quantizer(map_dir, opt);    // and a quantizer unlike its
   const fs::path codebook_path = map_dir / "pq_codebook.vlpq";
   if (!fs::exists(map_dir / "manifest.json") || !fs::exists(codebook_path))
     throw_error(ErrorCode::kNotFound, map_dir.string(),
@@ -1082,6 +1094,7 @@ MapBuildResult MapBuilder::run() {
   s.jobs = s.opt.jobs > 0 ? s.opt.jobs : std::max(1u, std::thread::hardware_concurrency());
   s.opt.hash_rotation = resolve_hash_rotation(s.map_dir, s.opt.hash_rotation);
   s.opt.pq.subvectors = resolve_pq_code_bytes(s.map_dir, s.opt);  // before anything is written
+  s.opt.pq.quantizer = resolve_pq_quantizer(s.map_dir, s.opt);
   fs::create_directories(s.map_dir / "work" / "features");
   const BuildLock lock(s.map_dir / "work" / "build.lock");
   check_earlier_slurm_arrays();
@@ -1168,6 +1181,7 @@ void MapBuilder::train_codebook() {
   if (fs::exists(s.codebook_path)) {
     ctx.codebook = PqCodebook::read(s.codebook_path);
     VISLOC_CHECK(ctx.codebook.code_bytes() == opt.pq.subvectors, "(resolve_pq_code_bytes ran before)");
+    VISLOC_CHECK(ctx.codebook.quantizer() == opt.pq.quantizer, "(resolve_pq_quantizer ran before)");
   }
   if (map_rotation && fs::exists(s.rotation_path))
     ctx.map_hasher = std::make_shared<const BinaryHasher>(read_hash_rotation_file(s.rotation_path));
@@ -1194,6 +1208,7 @@ void MapBuilder::train_codebook() {
                               {"training_descriptors", training_count},
                               {"training_source", "image descriptors sampled across the map"},
                               {"seed", opt.pq.seed}};
+    pq_meta.update(nlohmann::json::parse(ctx.codebook.quantizer_json()));
     ctx.codebook.write(s.codebook_path, pq_meta.dump());
   }
   if (map_rotation && !ctx.map_hasher) {
@@ -1264,6 +1279,8 @@ void MapBuilder::write_current_manifest() {
     if (!r.ok && !r.error.empty() && r.error != "not built") failed.push_back({{"id", r.id}, {"error", r.error}});
   // Listed whenever present: a segment of an earlier run may need it.
   if (fs::exists(s.rotation_path)) man.hash_rotation_file = kHashRotationFileName;
+  nlohmann::json pq_parameters = {{"subvectors", s.ctx.codebook.subvectors()}, {"bits", 8}, {"seed", opt.pq.seed}};
+  pq_parameters.update(nlohmann::json::parse(s.ctx.codebook.quantizer_json()));
   man.parameters = {{"hash",
                      {{"method", "itq"},
                       {"bits", kHashBits},
@@ -1272,7 +1289,7 @@ void MapBuilder::write_current_manifest() {
                       {"itq_iterations", opt.itq.iterations},
                       {"seed", opt.itq.seed},
                       {"rotation", to_string(opt.hash_rotation.value_or(HashRotationScope::kMap))}}},
-                    {"pq", {{"subvectors", s.ctx.codebook.subvectors()}, {"bits", 8}, {"seed", opt.pq.seed}}},
+                    {"pq", pq_parameters},
                     {"point_descriptor", "mean of track"},
                     {"sift", nlohmann::json::parse(opt.sift.to_json())},
                     {"segments",

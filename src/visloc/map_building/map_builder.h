@@ -112,6 +112,9 @@ struct MapBuildOptions {
   // (resolve_pq_code_bytes); given and unlike the existing map's: refused
   // before anything is written.
   std::optional<int> pq_code_bytes;
+  // The PQ codes' quantizer (--pq-quantizer): as pq_code_bytes, the existing
+  // map's when empty, else pq.quantizer for a new map (resolve_pq_quantizer).
+  std::optional<PqQuantizer> pq_quantizer;
   PqTrainingOptions pq;
   size_t pq_training_descriptors = 100000;  // sampled across the training images:
   size_t pq_training_images = 1000;         // at most this many images, spread evenly over the map
@@ -217,6 +220,10 @@ HashRotationScope resolve_hash_rotation(const std::filesystem::path& map_dir,
 // pq_code_bytes unlike the existing map's throws Error(kInvalidArgument)
 // naming --pq-bytes; an unreadable codebook throws the reader's error.
 int resolve_pq_code_bytes(const std::filesystem::path& map_dir, const MapBuildOptions& options);
+// The same for the quantizer: the existing codebook's, else
+// options.pq_quantizer, else options.pq.quantizer; an explicit one unlike the
+// existing map's throws Error(kInvalidArgument).
+PqQuantizer resolve_pq_quantizer(const std::filesystem::path& map_dir, const MapBuildOptions& options);
 
 MapBuildResult build_map(const std::filesystem::path& map_dir, const MapBuildOptions& options,
                          const std::function<void(const MapBuildProgress&)>& progress = {});

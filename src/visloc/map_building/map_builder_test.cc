@@ -97,3 +97,45 @@ TEST(MapBuildOptions, PqCodeBytesFollowTheExistingMapsCodebook) {
   EXPECT_THROW(o.validate(), Error);
   fs::remove_all(dir);
 }
+
+// The quantizer of a build likewise: the existing codebook's whatever
+// pq.quantizer says; an explicit --pq-quantizer unlike it is refused before
+// the build writes anything, naming the flag and the map's quantizer.
+TEST(MapBuildOptions, PqQuantizerFollowsTheExistingMapsCodebook) {
+  const fs::path dir = unique_temp_dir("visloc_pq_quantizer");
+  MapBuildOptions o;
+  o.images_dir = dir;
+  EXPECT_EQ(resolve_pq_quantizer(dir, o), PqQuantizer::kProduct);
+  o.pq.quantizer = PqQuantizer::kResidual;
+  EXPECT_EQ(resolve_pq_quantizer(dir, o), PqQuantizer::kResidual);
+  o.pq_quantizer = PqQuantizer::kProduct;
+  EXPECT_EQ(resolve_pq_quantizer(dir, o), PqQuantizer::kProduct);
+  std::vector<float> product(kPqCentroidFloats), residual(size_t(16) * 256 * 64);
+  for (size_t i = 0; i < product.size(); ++i) product[i] = float(i % 89);
+  for (size_t i = 0; i < residual.size(); ++i) residual[i] = float(i % 97) - 40;
+  for (const PqQuantizer existing : {PqQuantizer::kProduct, PqQuantizer::kResidual}) {
+    (existing == PqQuantizer::kProduct ? PqCodebook(product) : PqCodebook::residual(residual, 2))
+        .write(dir / "pq_codebook.vlpq", "{}");
+    for (const PqQuantizer given : {PqQuantizer::kProduct, PqQuantizer::kResidual}) {
+      MapBuildOptions resumed;
+      resumed.images_dir = dir;
+      resumed.pq.quantizer = given;
+      EXPECT_EQ(resolve_pq_quantizer(dir, resumed), existing);
+      resumed.pq_quantizer = given;
+      if (given == existing) {
+        EXPECT_EQ(resolve_pq_quantizer(dir, resumed), existing);
+        continue;
+      }
+      try {
+        build_map(dir, resumed);
+        ADD_FAILURE() << "an explicit " << to_string(given) << " build of a " << to_string(existing) << " map";
+      } catch (const Error& e) {
+        EXPECT_EQ(e.code(), ErrorCode::kInvalidArgument);
+        EXPECT_NE(std::string(e.what()).find(std::string("--pq-quantizer ") + to_string(existing)), std::string::npos)
+            << e.what();
+      }
+      EXPECT_FALSE(fs::exists(dir / "work")) << "the refused build wrote its work directory";
+    }
+  }
+  fs::remove_all(dir);
+}

@@ -21,6 +21,20 @@ constexpr const char* kPqBytesHelp =
     "more per point, a finer ranking: bench matching measured 0.90 of exact matching's 1-1 matches against "
     "0.755 on the Strecha scenes; segment format version 4)";
 
+constexpr const char* kPqQuantizerHelp =
+    "The PQ codes' quantizer: 'product' (the paper's: M sub-vectors, a centroid each) or 'residual' (16-byte "
+    "codes of 16 codebooks added over --pq-residual-splits parts of the descriptor, trained and encoded by "
+    "FAISS's residual quantizer: the same bytes per point, a finer ranking, a slower precise step; bench "
+    "matching measured 0.87 of exact matching's 1-1 matches against 0.755 on the Strecha scenes at 2 "
+    "splits; codebook format version 3)";
+
+void add_residual_splits(OptionTable& t, PqTrainingOptions& o) {
+  t.choice("--pq-residual-splits", o.residual_splits, {{"1", 1}, {"2", 2}, {"4", 4}},
+           "With --pq-quantizer residual: parts of the descriptor (128 / S dimensions, 16 / S codebooks each); "
+           "fewer parts rank better and cost more per candidate (a candidate reads 16 × 128 / S floats of "
+           "codebook)");
+}
+
 void add_point_coordinates(OptionTable& t, SegmentWriteOptions& o) {
   t.choice(
       "--point-coordinates", o.coordinates,
@@ -34,6 +48,9 @@ void add_point_coordinates(OptionTable& t, SegmentWriteOptions& o) {
 
 void add_pq_bytes_option(OptionTable& t, PqTrainingOptions& o) {
   t.choice("--pq-bytes", o.subvectors, {{"16", kPqSubvectors}, {"32", kPqFineSubvectors}}, kPqBytesHelp);
+  t.choice("--pq-quantizer", o.quantizer, {{"product", PqQuantizer::kProduct}, {"residual", PqQuantizer::kResidual}},
+           kPqQuantizerHelp);
+  add_residual_splits(t, o);
 }
 
 void add_options(OptionTable& t, MapBuildOptions& o) {
@@ -121,6 +138,20 @@ void add_options(OptionTable& t, MapBuildOptions& o) {
         o.pq_code_bytes = int(bytes);
       },
       std::string(kPqBytesHelp) + "; default: the existing map's, 16 for a new map");
+  t.text(
+      "--pq-quantizer", "",
+      [&o](const std::string& text) {
+        if (text.empty()) return;
+        if (text == "product")
+          o.pq_quantizer = PqQuantizer::kProduct;
+        else if (text == "residual")
+          o.pq_quantizer = PqQuantizer::kResidual;
+        else
+          throw_error(ErrorCode::kInvalidArgument, "--pq-quantizer: '", text,
+                      "' is not one of the choices (product, residual)");
+      },
+      std::string(kPqQuantizerHelp) + "; default: the existing map's, 'product' for a new map");
+  add_residual_splits(t, o.pq);
   add_options(t, o.sift);
 }
 

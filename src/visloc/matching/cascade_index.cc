@@ -550,8 +550,10 @@ void CascadeMatcher::match_hashed(const DescriptorMatrix& queries, std::span<con
   // 2. Per feature: coarse → refined → precise.
   t.reset();
   if (ws.seen.size() < np) ws.seen.resize(np, 0);
-  ws.table.resize(codebook_->table_size());
+  const bool residual = codebook_->is_residual();
+  if (!residual) ws.table.resize(codebook_->table_size());
   const AdcKernels& adc = kernels.adc(codebook_->subvectors());
+  const AdditiveKernels::Direct additive = residual ? kernels.additive.direct(codebook_->residual_splits()) : nullptr;
   const int keep = std::max(options.max_one_to_many, 1) + 1;  // ranks needed by both rules
   float best_d[65];
   uint32_t best_id[65];
@@ -604,7 +606,12 @@ void CascadeMatcher::match_hashed(const DescriptorMatrix& queries, std::span<con
     // M × 256 table; the two paths' distances differ by float rounding only,
     // and every candidate of a feature takes the same path.
     ws.ranked_distances.resize(ranked.size());
-    if (ranked.size() <= kDirectAdcMaxCandidates) {
+    if (residual) {
+      // Residual codes have no table (it would cost 16 × 256 dot products
+      // of 128 / S dimensions): always the direct distance.
+      additive(codebook_->centroids().data(), qf, index_.pq_codes, ranked.data(), ranked.size(),
+               ws.ranked_distances.data());
+    } else if (ranked.size() <= kDirectAdcMaxCandidates) {
       adc.direct(codebook_->centroids().data(), qf, index_.pq_codes, ranked.data(), ranked.size(),
                  ws.ranked_distances.data());
     } else {

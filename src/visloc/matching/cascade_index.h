@@ -12,6 +12,8 @@
 //            the L_R = 40 nearest by a counting sort over distances 0..128.
 //   precise  PQ asymmetric distance (M × 256 table per query feature) to the
 //            L_R candidates; Lowe's ratio test on distances (not squared).
+//            With a residual codebook (pq_codebook.h), the distance to each
+//            candidate's decoded vector, computed directly.
 //
 // Output, per query feature that passed:
 //   1-1 set (RANSAC hypotheses): the nearest point when d0/d1 < ν_h = 0.8;

@@ -88,6 +88,45 @@ void adc_direct_scalar(const float* c, const float* q, const uint8_t* pq, const 
   }
 }
 
+// The residual (additive) codes' direct distance (search_kernels.h), in
+// adc_direct_scalar's order: the 128 dimensions are 16 rows of 8 lanes; a
+// row of the decoded point is the sum of its split's codebook rows in
+// increasing codebook (the first row as it is, then each next one added); per
+// lane, the even and odd rows' squared differences summed apart, added; then
+// the 8 lanes by the same tree.
+template <int S>
+void additive_direct_scalar(const float* c, const float* q, const uint8_t* codes, const uint32_t* ids, size_t n,
+                            float* out) {
+  constexpr int kBooks = kAdditiveCodebooks / S;  // codebooks per split
+  constexpr int D = kDescriptorDim / S;           // their dimensions
+  constexpr int kRowsPerSplit = D / 8, kLanes = 8;
+  for (size_t i = 0; i < n; ++i) {
+    const uint8_t* code = codes + size_t(ids[i]) * kAdditiveCodebooks;
+    float even[kLanes] = {}, odd[kLanes] = {};
+    for (int r = 0; r < 16; ++r) {
+      const int split = r / kRowsPerSplit, row = r % kRowsPerSplit;
+      const int m0 = split * kBooks;
+      float x[kLanes];
+      const float* first = c + (size_t(m0) * kPqCentroids + code[m0]) * D + row * kLanes;
+      for (int l = 0; l < kLanes; ++l) x[l] = first[l];
+      for (int t = 1; t < kBooks; ++t) {
+        const int m = m0 + t;
+        const float* entry = c + (size_t(m) * kPqCentroids + code[m]) * D + row * kLanes;
+        for (int l = 0; l < kLanes; ++l) x[l] = x[l] + entry[l];
+      }
+      float* acc = r % 2 == 0 ? even : odd;
+      for (int l = 0; l < kLanes; ++l) {
+        const float e = q[r * kLanes + l] - x[l];
+        acc[l] = acc[l] + e * e;
+      }
+    }
+    float s[kLanes];
+    for (int l = 0; l < kLanes; ++l) s[l] = even[l] + odd[l];
+    const float h0 = s[0] + s[4], h1 = s[1] + s[5], h2 = s[2] + s[6], h3 = s[3] + s[7];
+    out[i] = (h0 + h2) + (h1 + h3);
+  }
+}
+
 void hash_codes_scalar(const float* wt, const float* x, size_t n, HashCode* codes) {
   float p[kHashBits];
   for (size_t r = 0; r < n; ++r) {
@@ -317,6 +356,48 @@ __attribute__((target("avx2"))) void adc_direct_avx2(const float* c, const float
   adc_direct_ymm<M>(c, q, pq, ids, n, out);
 }
 
+// additive_direct_scalar lane for lane: a row of the decoded point is one
+// register, its codebook rows added in increasing codebook.
+template <int S>
+__attribute__((target("avx2"), always_inline)) inline void additive_direct_ymm(const float* c, const float* q,
+                                                                               const uint8_t* codes,
+                                                                               const uint32_t* ids, size_t n,
+                                                                               float* out) {
+  constexpr int kBooks = kAdditiveCodebooks / S, D = kDescriptorDim / S, kRowsPerSplit = D / 8;
+  constexpr size_t kAhead = 2;
+  for (size_t i = 0; i < n; ++i) {
+    if (i + kAhead < n)
+      _mm_prefetch(reinterpret_cast<const char*>(codes + size_t(ids[i + kAhead]) * kAdditiveCodebooks), _MM_HINT_T0);
+    const uint8_t* code = codes + size_t(ids[i]) * kAdditiveCodebooks;
+    const float* entry[kAdditiveCodebooks];
+    for (int m = 0; m < kAdditiveCodebooks; ++m) entry[m] = c + (size_t(m) * kPqCentroids + code[m]) * D;
+    __m256 even = _mm256_setzero_ps(), odd = _mm256_setzero_ps();
+    for (int r = 0; r < 16; r += 2) {
+      __m256 x[2];
+      for (int h = 0; h < 2; ++h) {
+        const int split = (r + h) / kRowsPerSplit, row = (r + h) % kRowsPerSplit;
+        x[h] = _mm256_loadu_ps(entry[split * kBooks] + row * 8);
+        for (int t = 1; t < kBooks; ++t)
+          x[h] = _mm256_add_ps(x[h], _mm256_loadu_ps(entry[split * kBooks + t] + row * 8));
+      }
+      const __m256 e0 = _mm256_sub_ps(_mm256_loadu_ps(q + r * 8), x[0]);
+      const __m256 e1 = _mm256_sub_ps(_mm256_loadu_ps(q + (r + 1) * 8), x[1]);
+      even = _mm256_add_ps(even, _mm256_mul_ps(e0, e0));
+      odd = _mm256_add_ps(odd, _mm256_mul_ps(e1, e1));
+    }
+    const __m256 s = _mm256_add_ps(even, odd);
+    const __m128 h = _mm_add_ps(_mm256_castps256_ps128(s), _mm256_extractf128_ps(s, 1));
+    const __m128 g = _mm_add_ps(h, _mm_movehl_ps(h, h));
+    out[i] = _mm_cvtss_f32(_mm_add_ss(g, _mm_shuffle_ps(g, g, 1)));
+  }
+}
+
+template <int S>
+__attribute__((target("avx2"))) void additive_direct_avx2(const float* c, const float* q, const uint8_t* codes,
+                                                          const uint32_t* ids, size_t n, float* out) {
+  additive_direct_ymm<S>(c, q, codes, ids, n, out);
+}
+
 // Blocks of 4 rows × 16 outputs (8 accumulators of 8 int32): per pair of
 // dimensions, one multiply-add of int16 pairs (vpmaddwd) and one add per
 // accumulator. The rows are widened to int16 once, so that a pair (x_2p,
@@ -372,6 +453,13 @@ template <int M>
 __attribute__((target("avx512f,avx512vl"))) void adc_direct_avx512(const float* c, const float* q, const uint8_t* pq,
                                                                    const uint32_t* ids, size_t n, float* out) {
   adc_direct_ymm<M>(c, q, pq, ids, n, out);
+}
+
+template <int S>
+__attribute__((target("avx512f,avx512vl"))) void additive_direct_avx512(const float* c, const float* q,
+                                                                        const uint8_t* codes, const uint32_t* ids,
+                                                                        size_t n, float* out) {
+  additive_direct_ymm<S>(c, q, codes, ids, n, out);
 }
 
 template <int M>
@@ -497,25 +585,30 @@ __attribute__((target("avx512f,avx512bw"))) void hash_codes_u8_avx512(const Quan
 
 #endif  // VISLOC_X86_KERNELS
 
-constexpr SearchKernels kScalarKernels{SimdLevel::kScalar,
-                                       hamming_scalar,
-                                       {adc_table_scalar<16>, adc_distances_scalar<16>, adc_direct_scalar<16>},
-                                       {adc_table_scalar<32>, adc_distances_scalar<32>, adc_direct_scalar<32>},
-                                       hash_codes_scalar,
-                                       hash_codes_u8_scalar};
+constexpr SearchKernels kScalarKernels{
+    SimdLevel::kScalar,
+    hamming_scalar,
+    {adc_table_scalar<16>, adc_distances_scalar<16>, adc_direct_scalar<16>},
+    {adc_table_scalar<32>, adc_distances_scalar<32>, adc_direct_scalar<32>},
+    {additive_direct_scalar<1>, additive_direct_scalar<2>, additive_direct_scalar<4>},
+    hash_codes_scalar,
+    hash_codes_u8_scalar};
 #ifdef VISLOC_X86_KERNELS
 constexpr SearchKernels kAvx2Kernels{SimdLevel::kAvx2,
                                      hamming_popcnt,
                                      {adc_table_avx2<16>, adc_distances_avx2<16>, adc_direct_avx2<16>},
                                      {adc_table_avx2<32>, adc_distances_avx2<32>, adc_direct_avx2<32>},
+                                     {additive_direct_avx2<1>, additive_direct_avx2<2>, additive_direct_avx2<4>},
                                      hash_codes_avx2,
                                      hash_codes_u8_avx2};
-constexpr SearchKernels kAvx512Kernels{SimdLevel::kAvx512,
-                                       hamming_popcnt,
-                                       {adc_table_avx512<16>, adc_distances_avx512<16>, adc_direct_avx512<16>},
-                                       {adc_table_avx512<32>, adc_distances_avx512<32>, adc_direct_avx512<32>},
-                                       hash_codes_avx512,
-                                       hash_codes_u8_avx512};
+constexpr SearchKernels kAvx512Kernels{
+    SimdLevel::kAvx512,
+    hamming_popcnt,
+    {adc_table_avx512<16>, adc_distances_avx512<16>, adc_direct_avx512<16>},
+    {adc_table_avx512<32>, adc_distances_avx512<32>, adc_direct_avx512<32>},
+    {additive_direct_avx512<1>, additive_direct_avx512<2>, additive_direct_avx512<4>},
+    hash_codes_avx512,
+    hash_codes_u8_avx512};
 #endif
 
 SimdLevel best_level() {
@@ -530,6 +623,19 @@ const AdcKernels& SearchKernels::adc(int subvectors) const {
   if (subvectors == kPqSubvectors) return adc16;
   if (subvectors == kPqFineSubvectors) return adc32;
   throw_error(ErrorCode::kInvalidArgument, "no ADC kernels for ", subvectors, " PQ sub-vectors (16 or 32)");
+}
+
+AdditiveKernels::Direct AdditiveKernels::direct(int splits) const {
+  switch (splits) {
+    case 1:
+      return direct1;
+    case 2:
+      return direct2;
+    case 4:
+      return direct4;
+    default:
+      throw_error(ErrorCode::kInvalidArgument, "no additive kernels for ", splits, " splits (1, 2 or 4)");
+  }
 }
 
 const char* to_string(SimdLevel level) {

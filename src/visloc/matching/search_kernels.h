@@ -25,6 +25,15 @@
 //                      then over the 8 lanes (adc_direct_scalar gives the
 //                      order). Cheaper when a feature ranks fewer than ~100
 //                      candidates.
+//   additive(S)        the residual codes' distance (pq_codebook.h, kind
+//                      residual; 16-byte codes, S = 1, 2 or 4 splits of the
+//                      vector, 16 / S codebooks of 256 entries of 128 / S
+//                      dimensions each, [m][k][j]): d_i = |q − x̂_i|², x̂_i's
+//                      split s the sum of its codebooks' rows, in increasing
+//                      codebook. In adc_direct's order (16 rows of 8 lanes,
+//                      even and odd rows, the same tree); per candidate it
+//                      reads 16 × 128 / S floats of codebook where the PQ's
+//                      reads 128.
 //   hash_codes         bit i of row r = [Σ_j Wᵀ[j][i] · x_rj > 0] over j = 0..127
 //                      in order (x centred): the ITQ/LSH projection's signs
 //   hash_codes_u8      the same signs for uint8 descriptors in exact integer
@@ -70,12 +79,25 @@ struct AdcKernels {
                  const uint32_t* ids, size_t n, float* distances) = nullptr;
 };
 
+// Codebooks of a residual code (the additive kernels): 16, each code 16 bytes.
+inline constexpr int kAdditiveCodebooks = 16;
+
+// The direct distances of residual codes, one per split count S.
+struct AdditiveKernels {
+  using Direct = void (*)(const float* codebooks /* [m][k][j] */, const float* query, const uint8_t* codes,
+                          const uint32_t* ids, size_t n, float* distances);
+  Direct direct1 = nullptr, direct2 = nullptr, direct4 = nullptr;
+  // By S (1, 2 or 4); else Error(kInvalidArgument).
+  Direct direct(int splits) const;
+};
+
 struct SearchKernels {
   SimdLevel level = SimdLevel::kScalar;
   void (*hamming_distances)(const HashCode& query, const HashCode* codes, const uint32_t* ids, size_t n,
                             uint8_t* distances, uint32_t* histogram /* 129 bins, added to */) = nullptr;
   AdcKernels adc16;  // 16-byte codes
   AdcKernels adc32;  // 32-byte codes
+  AdditiveKernels additive;  // 16-byte residual codes
   void (*hash_codes)(const float* projection_transposed /* [j][i], 128 × 128 */, const float* centred /* n × 128 */,
                      size_t n, HashCode* codes) = nullptr;
   void (*hash_codes_u8)(const QuantizedHashProjection& projection, const uint8_t* descriptors /* n × 128 */, size_t n,

@@ -51,10 +51,12 @@ TEST(Localizer, LocalizesHeldOutFountainImages) {
   const fs::path scene = fs::path(VISLOC_SHARED_DATA_DIR) / "strecha" / "fountain-P11";
   if (!fs::exists(scene / "colmap" / "database.db")) GTEST_SKIP() << "shared data absent: " << scene;
   // 16-byte PQ codes in both paper settings; 32-byte codes (segment format
-  // version 4) in the default one.
-  for (const int pq_bytes : {16, 32}) {
-    SCOPED_TRACE(std::to_string(pq_bytes) + "-byte PQ codes");
-    const fs::path map_dir = unique_temp_path("visloc_pipeline_test_fountain_pq" + std::to_string(pq_bytes));
+  // version 4) and 16-byte residual codes (codebook format 3; trained fast:
+  // plain k-means, a beam of 1) in the default one.
+  for (const auto& [pq_bytes, residual] : {std::pair{16, false}, std::pair{32, false}, std::pair{16, true}}) {
+    SCOPED_TRACE(std::to_string(pq_bytes) + "-byte " + (residual ? "residual" : "PQ") + " codes");
+    const fs::path map_dir =
+        unique_temp_path("visloc_pipeline_test_fountain_pq" + std::to_string(pq_bytes) + (residual ? "_residual" : ""));
     fs::remove_all(map_dir);
     ColmapImportOptions io;
     io.holdout_images = read_name_list(scene / "queries.txt");
@@ -62,8 +64,14 @@ TEST(Localizer, LocalizesHeldOutFountainImages) {
     io.pq.max_training = 20000;
     io.pq.iterations = 10;
     io.pq.subvectors = pq_bytes;
+    if (residual) {
+      io.pq.quantizer = PqQuantizer::kResidual;
+      io.pq.residual_progressive_dim = false;
+      io.pq.residual_beam = 1;
+    }
     import_colmap_map(scene / "colmap" / "sparse", scene / "colmap" / "database.db", map_dir, io);
     ASSERT_EQ(Map::open(map_dir).open_segment(0)->index().pq_subvectors, pq_bytes);
+    ASSERT_EQ(Map::open(map_dir).codebook().is_residual(), residual);
     std::map<std::string, CameraPose> truth;
     for (const auto& p : read_pose_list(map_dir / "holdout.txt")) truth[p.name] = p.cam_from_world;
     ASSERT_FALSE(truth.empty());
@@ -79,7 +87,7 @@ TEST(Localizer, LocalizesHeldOutFountainImages) {
     cam.has_focal = true;
 
     for (PaperSetting setting : {PaperSetting::k1, PaperSetting::k3Plus}) {
-      if (pq_bytes == 32 && setting != LocalizerOptions{}.setting) continue;
+      if ((pq_bytes == 32 || residual) && setting != LocalizerOptions{}.setting) continue;
       LocalizerOptions o;
       o.setting = setting;
       Localizer loc(map_dir, o);
