@@ -156,15 +156,13 @@ void import_model_map(ColmapModel model, const ModelSource& source, const fs::pa
   PqCodebook codebook;
   if (options.pq_training_database.empty()) {
     codebook = PqCodebook::train(desc.mean.data(), desc.num_points, options.pq);
-    res.pq_training_descriptors =
-        std::min({desc.num_points, options.pq.max_training,
-                  options.pq.quantizer == PqQuantizer::kResidual ? options.pq.residual_max_training : SIZE_MAX});
+    res.pq_training_descriptors = options.pq.training_rows(desc.num_points);
     res.pq_training_source = "map point descriptors";
   } else {
     auto x = database_training_descriptors(options.pq_training_database, options.pq_training_images,
                                            options.pq.max_training, options.pq.seed);
     codebook = PqCodebook::train(x.data(), x.size() / kDescriptorDim, options.pq);
-    res.pq_training_descriptors = x.size() / kDescriptorDim;
+    res.pq_training_descriptors = options.pq.training_rows(x.size() / kDescriptorDim);
     res.pq_training_source = "image descriptors of " + options.pq_training_database.string();
   }
   res.ms_pq = t.elapsed_ms();

@@ -969,6 +969,7 @@ SegmentBuildResult build_planned_segment(const fs::path& map_dir, const MapBuild
   opt.validate();
   opt.pq.subvectors = resolve_pq_code_bytes(map_dir, opt);  // refuses an explicit size unlike the map's
   opt.pq.quantizer = resolve_pq_quantizer(map_dir, opt);    // and a quantizer unlike its
+  opt.pq.validate();                                        // e.g. residual with 32-byte codes
   const fs::path codebook_path = map_dir / "pq_codebook.vlpq";
   if (!fs::exists(map_dir / "manifest.json") || !fs::exists(codebook_path))
     throw_error(ErrorCode::kNotFound, map_dir.string(),
@@ -1095,6 +1096,7 @@ MapBuildResult MapBuilder::run() {
   s.opt.hash_rotation = resolve_hash_rotation(s.map_dir, s.opt.hash_rotation);
   s.opt.pq.subvectors = resolve_pq_code_bytes(s.map_dir, s.opt);  // before anything is written
   s.opt.pq.quantizer = resolve_pq_quantizer(s.map_dir, s.opt);
+  s.opt.pq.validate();  // e.g. residual with 32-byte codes, before anything is written
   fs::create_directories(s.map_dir / "work" / "features");
   const BuildLock lock(s.map_dir / "work" / "build.lock");
   check_earlier_slurm_arrays();
@@ -1205,7 +1207,7 @@ void MapBuilder::train_codebook() {
     nlohmann::json pq_meta = {{"dimension", kDescriptorDim},
                               {"subvectors", ctx.codebook.subvectors()},
                               {"bits", 8},
-                              {"training_descriptors", training_count},
+                              {"training_descriptors", opt.pq.training_rows(training_count)},
                               {"training_source", "image descriptors sampled across the map"},
                               {"seed", opt.pq.seed}};
     pq_meta.update(nlohmann::json::parse(ctx.codebook.quantizer_json()));

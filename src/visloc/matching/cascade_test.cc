@@ -9,6 +9,9 @@
 #include <optional>
 #include <random>
 
+#include <faiss/impl/ProductAdditiveQuantizer.h>
+#include <faiss/impl/ResidualQuantizer.h>
+
 #include "visloc/baselines/faiss_baselines.h"
 #include "visloc/matching/binary_hasher.h"
 #include "visloc/matching/cascade_correspondences.h"
@@ -333,6 +336,29 @@ TEST(ProductQuantizer, ThirtyTwoByteCodesEncodeCloserAndRoundTrip) {
   }
 }
 
+// A residual code decoded by FAISS's own quantizer of the same codebooks.
+void decode_with_faiss(const PqCodebook& cb, const uint8_t* code, float* out) {
+  const int splits = cb.residual_splits();
+  const std::vector<float> books(cb.centroids().begin(), cb.centroids().end());
+  const size_t per_split = books.size() / size_t(splits);
+  if (splits == 1) {
+    faiss::ResidualQuantizer rq(128, 16, 8);
+    rq.codebooks = books;
+    rq.is_trained = true;
+    rq.decode(code, out, 1);
+    return;
+  }
+  faiss::ProductResidualQuantizer prq(128, size_t(splits), size_t(16 / splits), 8);
+  for (int s = 0; s < splits; ++s) {
+    prq.quantizers[size_t(s)]->codebooks.assign(books.begin() + std::ptrdiff_t(size_t(s) * per_split),
+                                                books.begin() + std::ptrdiff_t(size_t(s + 1) * per_split));
+    prq.quantizers[size_t(s)]->is_trained = true;
+  }
+  prq.codebooks = books;  // its decode reads the splits' codebooks from here, concatenated
+  prq.is_trained = true;
+  prq.decode(code, out, 1);
+}
+
 // Residual codebooks (16 added codebooks over 1, 2 or 4 splits): the codes
 // decode closer to the data than the PQ's of as many bytes, FAISS's codes and
 // our decoding agree (the beam search picks a code at least as close as its
@@ -379,21 +405,19 @@ TEST(ResidualQuantizer, EncodesCloserThanThePqAndRoundTrips) {
     EXPECT_TRUE(back.is_residual());
     EXPECT_EQ(back.residual_splits(), splits);
     EXPECT_TRUE(std::equal(back.centroids().begin(), back.centroids().end(), cb.centroids().begin()));
-    // A codebook read from a file encodes with the default beam (5; cb's was
-    // 1): as one made of the same codebooks, and about as close as cb's codes
-    // (a beam search keeps the best partial sums, so it may lose the greedy
-    // path: measured 0.15% farther here).
-    std::vector<uint8_t> again(200 * 16), same(200 * 16);
+    // The file keeps the encoder's beam (cb's is 1): the codebook read back
+    // encodes as cb did.
+    std::vector<uint8_t> again(200 * 16);
     back.encode(f.data(), 200, again.data());
-    PqCodebook::residual(std::vector<float>(cb.centroids().begin(), cb.centroids().end()), splits)
-        .encode(f.data(), 200, same.data());
-    EXPECT_EQ(again, same);
-    double e_again = 0, e_cb = 0;
-    for (size_t p = 0; p < 200; ++p) {
-      e_again += back.reconstruction_sqdist(&again[p * 16], &f[p * 128]);
-      e_cb += cb.reconstruction_sqdist(&codes[p * 16], &f[p * 128]);
+    EXPECT_TRUE(std::equal(again.begin(), again.end(), codes.begin()));
+    // Our decoding (each byte m one entry of codebook m, added into part
+    // m / (16 / S)) is FAISS's: the byte layout the kernels assume.
+    std::vector<float> ours(128), theirs(128);
+    for (size_t p = 0; p < 50; ++p) {
+      cb.decode(&codes[p * 16], ours.data());
+      decode_with_faiss(cb, &codes[p * 16], theirs.data());
+      for (int j = 0; j < 128; ++j) ASSERT_NEAR(ours[j], theirs[j], 1e-3f) << "point " << p << " dimension " << j;
     }
-    EXPECT_LE(e_again, e_cb * 1.02);
   }
   EXPECT_THROW(PqCodebook::train(f.data(), d.rows(), {.quantizer = PqQuantizer::kResidual, .residual_splits = 3}),
                Error);
@@ -405,22 +429,33 @@ TEST(ResidualQuantizer, EncodesCloserThanThePqAndRoundTrips) {
                                            .residual_progressive_dim = false,
                                            .residual_beam = 1,
                                            .iterations = 4});
-  // A version 3 file with cb's codebooks, a SUBVEC of `m` and, when given, a RESID of `s`.
-  auto write_codebook = [&](uint32_t version, uint32_t m, std::optional<uint32_t> s) {
+  // A version 3 file with cb's codebooks (`huge` at one value), a SUBVEC of
+  // `m` and, when given, a RESID of `s` and `beam`.
+  auto write_codebook = [&](uint32_t version, uint32_t m, std::optional<uint32_t> s, uint32_t beam, float huge) {
     SectionFileWriter w(path, "PQCB", version);
     w.add_text("META", "{}");
-    w.add_array<float>("CENT", cb.centroids());
+    std::vector<float> c(cb.centroids().begin(), cb.centroids().end());
+    if (huge != 0) c[c.size() / 3] = huge;
+    w.add_array<float>("CENT", c);
     w.add_array<uint32_t>("SUBVEC", std::span<const uint32_t>(&m, 1));
-    if (s) w.add_array<uint32_t>("RESID", std::span<const uint32_t>(&*s, 1));
+    const uint32_t resid[2] = {s.value_or(0), beam};
+    if (s) w.add_array<uint32_t>("RESID", std::span<const uint32_t>(resid, 2));
     w.commit();
   };
-  for (const auto& [version, m, s, message] :
-       {std::tuple{3u, 16u, std::optional<uint32_t>(3), "section 'RESID': 3 splits"},
-        std::tuple{3u, 16u, std::optional<uint32_t>(2), "section 'CENT'"},  // 4 splits' floats
-        std::tuple{3u, 32u, std::optional<uint32_t>(4), "has 16 codebooks, not 32"},
-        std::tuple{3u, 16u, std::optional<uint32_t>(), "RESID"},
-        std::tuple{2u, 16u, std::optional<uint32_t>(4), "no section 'RESID'"}}) {
-    write_codebook(version, m, s);
+  write_codebook(3, 16, 4, 3, 0);
+  EXPECT_EQ(PqCodebook::read(path).residual_splits(), 4);
+  for (const auto& [version, m, s, beam, huge, message] :
+       {std::tuple{3u, 16u, std::optional<uint32_t>(3), 5u, 0.f, "section 'RESID': 3 splits"},
+        std::tuple{3u, 16u, std::optional<uint32_t>(4), 0u, 0.f, "section 'RESID': a beam of 0"},
+        std::tuple{3u, 16u, std::optional<uint32_t>(4), 65u, 0.f, "section 'RESID': a beam of 65"},
+        std::tuple{3u, 16u, std::optional<uint32_t>(2), 5u, 0.f, "section 'CENT'"},  // 4 splits' floats
+        std::tuple{3u, 32u, std::optional<uint32_t>(4), 5u, 0.f, "has 16 codebooks, not 32"},
+        std::tuple{3u, 16u, std::optional<uint32_t>(), 5u, 0.f, "RESID"},
+        std::tuple{2u, 16u, std::optional<uint32_t>(4), 5u, 0.f, "no section 'RESID'"},
+        // Finite but huge: FAISS's beam search would overflow and read out of bounds.
+        std::tuple{3u, 16u, std::optional<uint32_t>(4), 5u, 1e20f, "beyond"},
+        std::tuple{3u, 16u, std::optional<uint32_t>(4), 5u, -7e4f, "beyond"}}) {
+    write_codebook(version, m, s, beam, huge);
     try {
       PqCodebook::read(path);
       ADD_FAILURE() << "accepted: " << message;

@@ -100,18 +100,24 @@ void PqTrainingOptions::validate() const {
     if (!valid_residual_splits(residual_splits))
       throw_error(ErrorCode::kInvalidArgument, "PqTrainingOptions.residual_splits must be 1, 2 or 4, got ",
                   residual_splits);
-    if (residual_beam < 1 || residual_beam > 64)
-      throw_error(ErrorCode::kInvalidArgument, "PqTrainingOptions.residual_beam must be in [1, 64], got ",
-                  residual_beam);
+    if (residual_beam < 1 || residual_beam > kResidualMaxBeam)
+      throw_error(ErrorCode::kInvalidArgument, "PqTrainingOptions.residual_beam must be in [1, ", kResidualMaxBeam,
+                  "], got ", residual_beam);
     if (residual_max_training < size_t(kPqCentroids))
       throw_error(ErrorCode::kInvalidArgument, "PqTrainingOptions.residual_max_training must be >= ", kPqCentroids);
   }
 }
 
+size_t PqTrainingOptions::training_rows(size_t n) const {
+  return std::min({n, max_training, quantizer == PqQuantizer::kResidual ? residual_max_training : SIZE_MAX});
+}
+
 PqCodebook PqCodebook::residual(std::vector<float> codebooks, int splits, int beam) {
   if (!valid_residual_splits(splits))
     throw_error(ErrorCode::kInvalidArgument, "a residual codebook has 1, 2 or 4 splits, got ", splits);
-  if (beam < 1) throw_error(ErrorCode::kInvalidArgument, "a residual codebook's beam must be >= 1, got ", beam);
+  if (beam < 1 || beam > kResidualMaxBeam)
+    throw_error(ErrorCode::kInvalidArgument, "a residual codebook's beam must be in [1, ", kResidualMaxBeam, "], got ",
+                beam);
   if (codebooks.size() != residual_floats(splits))
     throw_error(ErrorCode::kFormat, "a residual codebook of ", splits, " splits has ", residual_floats(splits),
                 " floats, got ", codebooks.size());
@@ -146,8 +152,7 @@ PqCodebook PqCodebook::train(const float* x, size_t n, const PqTrainingOptions& 
   const float* data = x;
   size_t rows = n;
   const bool residual_kind = options.quantizer == PqQuantizer::kResidual;
-  const size_t max_training =
-      residual_kind ? std::min(options.max_training, options.residual_max_training) : options.max_training;
+  const size_t max_training = options.training_rows(SIZE_MAX);
   if (n > max_training) {
     RandomGenerator rng(options.seed);
     const std::vector<size_t> idx = sample_sorted_indices(n, max_training, rng);
@@ -178,7 +183,11 @@ void PqCodebook::encode(const float* x, size_t n, uint8_t* codes) const {
   if (is_residual()) {
     const auto rq = make_faiss_residual(residual_splits_, residual_beam_, 1, 1, false, centroids_);
     VISLOC_CHECK(rq->code_size == size_t(kAdditiveCodebooks), "FAISS's residual codes have ", rq->code_size, " bytes");
-    rq->compute_codes(x, codes, n);
+    // In blocks: FAISS's beam search holds ~8 KB per row at a beam of 5 and
+    // one split, and batches only near 5 GiB.
+    constexpr size_t kBlock = 8192;
+    for (size_t i = 0; i < n; i += kBlock)
+      rq->compute_codes(x + i * kDim, codes + i * kAdditiveCodebooks, std::min(kBlock, n - i));
     return;
   }
   make_faiss_pq(centroids_, subvectors_).compute_codes(x, codes, n);
@@ -244,9 +253,10 @@ void PqCodebook::write(const std::filesystem::path& path, const std::string& met
   w.add_text("META", meta_json);
   w.add_array<float>("CENT", centroids_);
   if (is_residual()) {
-    const uint32_t m = static_cast<uint32_t>(subvectors_), s = static_cast<uint32_t>(residual_splits_);
+    const uint32_t m = static_cast<uint32_t>(subvectors_);
+    const uint32_t resid[2] = {static_cast<uint32_t>(residual_splits_), static_cast<uint32_t>(residual_beam_)};
     w.add_array<uint32_t>("SUBVEC", std::span<const uint32_t>(&m, 1));
-    w.add_array<uint32_t>("RESID", std::span<const uint32_t>(&s, 1));
+    w.add_array<uint32_t>("RESID", std::span<const uint32_t>(resid, 2));
   } else if (!default_layout) {
     const uint32_t m = static_cast<uint32_t>(subvectors_);
     w.add_array<uint32_t>("SUBVEC", std::span<const uint32_t>(&m, 1));
@@ -266,9 +276,14 @@ PqCodebook PqCodebook::read(const std::filesystem::path& path, std::string* meta
   } else if (r.has("SUBVEC")) {
     throw_error(ErrorCode::kFormat, path.string(), ": a version 1 codebook has no section 'SUBVEC' (16 sub-vectors)");
   }
-  int splits = 0;  // a PQ
+  int splits = 0, beam = kResidualBeam;  // splits 0: a PQ
   if (r.kind_version() >= 3) {
-    const uint32_t s = r.array<uint32_t>("RESID", 1)[0];
+    const auto resid = r.array<uint32_t>("RESID", 2);
+    const uint32_t s = resid[0];
+    if (resid[1] < 1 || resid[1] > uint32_t(kResidualMaxBeam))
+      throw_error(ErrorCode::kFormat, path.string(), ": section 'RESID': a beam of ", resid[1], " (1 to ",
+                  kResidualMaxBeam, ")");
+    beam = static_cast<int>(resid[1]);
     if (subvectors != kAdditiveCodebooks)
       throw_error(ErrorCode::kFormat, path.string(), ": a residual codebook (version 3) has 16 codebooks, not ",
                   subvectors);
@@ -284,10 +299,14 @@ PqCodebook PqCodebook::read(const std::filesystem::path& path, std::string* meta
   // codebooks of 128 / S.
   const int dims = splits > 0 ? kDim / splits : 128 / subvectors;
   auto c = r.array<float>("CENT", splits > 0 ? int64_t(residual_floats(splits)) : int64_t(kPqCentroidFloats));
+  // Descriptor entries and their residuals lie within ±512: a value far
+  // beyond (or not finite) is damage, and would overflow the encoder's
+  // squared distances (FAISS's beam search then reads out of bounds).
   for (size_t i = 0; i < c.size(); ++i)
-    if (!std::isfinite(c[i]))
+    if (!std::isfinite(c[i]) || std::abs(c[i]) > kPqMaxAbsCentroid)
       throw_error(ErrorCode::kFormat, path.string(), ": section 'CENT': centroid ", i / dims % kPqCentroids,
-                  " of subspace ", i / (size_t(kPqCentroids) * dims), " is not finite");
+                  " of subspace ", i / (size_t(kPqCentroids) * dims), " is ", c[i], ", not finite or beyond ±",
+                  kPqMaxAbsCentroid);
   // A subspace whose centroids are all equal cannot tell codes apart (every
   // ADC distance the same): the codebook was never trained.
   for (int m = 0; m < subvectors; ++m) {
@@ -300,7 +319,7 @@ PqCodebook PqCodebook::read(const std::filesystem::path& path, std::string* meta
                   m, " are all equal (an untrained or zeroed codebook)");
   }
   if (meta_json) *meta_json = std::string(r.text("META"));
-  if (splits > 0) return residual(std::vector<float>(c.begin(), c.end()), splits);
+  if (splits > 0) return residual(std::vector<float>(c.begin(), c.end()), splits, beam);
   return PqCodebook(std::vector<float>(c.begin(), c.end()), subvectors);
 }
 

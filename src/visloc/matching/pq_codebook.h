@@ -18,10 +18,13 @@
 // quantizer, beam search): the vector is cut into S = 1, 2 or 4 splits of
 // 128 / S dimensions, each the sum of its 16 / S codebooks' entries. bench
 // matching measured 0.86-0.90 of exact matching's 1-1 matches on the Strecha
-// scenes against 0.755 for the PQ, at the same bytes per point; a
-// candidate's distance reads 16 rows of 128 / S floats where the PQ's reads
-// 16 of 8, and ADC tables would cost as much as exhaustive search, so the
-// search always measures directly (search_kernels.h, additive).
+// scenes against 0.755 for the PQ, at the same bytes per point (S = 1 / 2;
+// S = 4: 0.819; FAISS's quantizers trained on every point of the scene, `bench
+// matching --method rerank-faiss-rq16 / prq2x8 / prq4x4`); a candidate's
+// distance reads 16 rows of 128 / S floats where the PQ's reads 16 of 8. A
+// table per query feature would take 4096 × 128 / S multiply-adds, more than
+// the ~40 candidates it ranks, so the search measures directly
+// (search_kernels.h, additive).
 // Layout: centroids[(m · 256 + k) · (128 / S) + j], codebook m of split
 // m / (16 / S).
 //
@@ -30,7 +33,9 @@
 // CENT (M × 256 × D float32). Version 1: M = 16. Version 2 adds section SUBVEC
 // (one uint32: M); the writer writes version 1 for M = 16, so 16-byte maps
 // stay readable by older readers. Version 3 (residual codebooks only) adds
-// section RESID (one uint32: S), CENT then holding 16 × 256 × 128 / S floats.
+// section RESID (two uint32: S and the encoder's beam), CENT then holding
+// 16 × 256 × 128 / S floats. Every version: values beyond ±65,536 (damage)
+// are refused.
 #pragma once
 
 #include <cstdint>
@@ -63,6 +68,9 @@ enum class PqQuantizer {
 const char* to_string(PqQuantizer quantizer);
 // The beam of a residual codebook's training and encoding (FAISS's default).
 inline constexpr int kResidualBeam = 5;
+inline constexpr int kResidualMaxBeam = 64;
+// Any codebook value beyond this magnitude is refused by the reader.
+inline constexpr float kPqMaxAbsCentroid = 65536.f;
 // Whether S is a supported split count of a residual codebook (1, 2 or 4).
 inline bool valid_residual_splits(int s) { return s == 1 || s == 2 || s == 4; }
 
@@ -79,9 +87,11 @@ struct PqTrainingOptions {
   // kResidual's k-means per codebook: progressive in the dimensions (FAISS's
   // default) or plain (faster, a little less accurate).
   bool residual_progressive_dim = true;
-  // kResidual's beam in training and in the codebook's encoding (a codebook
-  // read from a file encodes with kResidualBeam).
+  // kResidual's beam in training and in the codebook's encoding (stored in
+  // its file, so a resumed build encodes as the first run did).
   int residual_beam = kResidualBeam;
+  // The descriptors training uses of n given: the seeded sample's size.
+  size_t training_rows(size_t n) const;
   int iterations = 25;          // k-means iterations per sub-space (FAISS's default)
   uint64_t seed = 1;
   size_t max_training = 100000; // larger sets are subsampled (seeded)
