@@ -159,6 +159,18 @@ TEST(CityBenchmark, SmallCityRunsAndResumes) {
   EXPECT_TRUE(fs::exists(study / "city" / "shared" / "pq_codebook.vlpq"));
   EXPECT_EQ(run_segment_study(study, data, so), rows);  // resumes from result.json
   EXPECT_EQ(collect_segment_study_rows(study, "city"), rows);
+  {
+    // Residual codes are another study: its results and codebook are not reused.
+    SegmentStudyOptions residual = so;
+    residual.map.pq.quantizer = PqQuantizer::kResidual;
+    try {
+      run_segment_study(study, data, residual);
+      ADD_FAILURE() << "a product study resumed as a residual one";
+    } catch (const Error& e) {
+      EXPECT_EQ(e.code(), ErrorCode::kInvalidArgument);
+      EXPECT_NE(std::string(e.what()).find("study.json"), std::string::npos) << e.what();
+    }
+  }
   write_segment_study_report(study, {{"city", rows}});
   EXPECT_TRUE(fs::exists(study / "report.md"));
   EXPECT_TRUE(fs::exists(study / "segments_city_registration.svg"));

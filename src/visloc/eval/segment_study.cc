@@ -182,6 +182,11 @@ nlohmann::json study_fingerprint(const StudyDataset& d, const SegmentStudyOption
                                 {"wrong_rotation_deg", o.wrong_rotation_deg}};
   // Results of 16-byte maps, made before the choice existed, stay reusable.
   if (o.map.pq.subvectors != kPqSubvectors) fingerprint["pq_bytes"] = o.map.pq.subvectors;
+  // Likewise the product quantizer's.
+  if (o.map.pq.quantizer != PqQuantizer::kProduct) {
+    fingerprint["pq_quantizer"] = to_string(o.map.pq.quantizer);
+    fingerprint["pq_residual_splits"] = o.map.pq.residual_splits;
+  }
   return fingerprint;
 }
 
@@ -255,6 +260,7 @@ StudyMapBuild build_study_map(const fs::path& map_dir, const fs::path& study_dir
     link_or_copy(shared_codebook, map_dir / "pq_codebook.vlpq");
   MapBuildOptions mb = opt.map;
   mb.pq_code_bytes = opt.map.pq.subvectors;  // the study's choice (its fingerprint), never a leftover codebook's
+  mb.pq_quantizer = opt.map.pq.quantizer;    // likewise
   mb.images_dir = dataset.images_dir;
   mb.gps_csv = dataset.gps_csv;
   mb.gps_lists_subset = true;  // e.g. KITTI's even frames of a folder of all frames

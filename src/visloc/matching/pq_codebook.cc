@@ -184,10 +184,10 @@ void PqCodebook::encode(const float* x, size_t n, uint8_t* codes) const {
     const auto rq = make_faiss_residual(residual_splits_, residual_beam_, 1, 1, false, centroids_);
     VISLOC_CHECK(rq->code_size == size_t(kAdditiveCodebooks), "FAISS's residual codes have ", rq->code_size, " bytes");
     // In blocks: FAISS's beam search holds ~8 KB per row at a beam of 5 and
-    // one split, and batches only near 5 GiB.
-    constexpr size_t kBlock = 8192;
-    for (size_t i = 0; i < n; i += kBlock)
-      rq->compute_codes(x + i * kDim, codes + i * kAdditiveCodebooks, std::min(kBlock, n - i));
+    // one split (growing with the beam), and batches only near 5 GiB.
+    const size_t block = std::max<size_t>(1, 8192 * kResidualBeam / size_t(residual_beam_));
+    for (size_t i = 0; i < n; i += block)
+      rq->compute_codes(x + i * kDim, codes + i * kAdditiveCodebooks, std::min(block, n - i));
     return;
   }
   make_faiss_pq(centroids_, subvectors_).compute_codes(x, codes, n);
