@@ -81,6 +81,52 @@ struct SearchFixture {
   CascadeIndexView view() const { return {codes.size(), hasher.view(), codes.data(), pq.data(), &lookup}; }
 };
 
+// Ranks 50 points for each query (its source among them) by `reranker`:
+// every distance is that from the query as the quantizer sees it (rotated
+// by OPQ, else unchanged, its length kept) to the decoded point. Returns how
+// many queries found their source nearest; adds |rotated − query| to `moved`.
+size_t expect_distances_to_decoded_points(FaissPqReranker& reranker, const DescriptorMatrix& queries,
+                                          const std::vector<uint32_t>& sources, size_t points, double& moved) {
+  std::vector<float> d, q(kDescriptorDim), qt(kDescriptorDim), x(kDescriptorDim);
+  size_t found = 0;
+  for (size_t r = 0; r < queries.rows(); ++r) {
+    std::vector<uint32_t> ids(50);
+    for (uint32_t i = 0; i < ids.size(); ++i) ids[i] = (i * 59 + 7 * uint32_t(r)) % uint32_t(points);
+    ids[r % ids.size()] = sources[r];
+    d.resize(ids.size());
+    for (int j = 0; j < kDescriptorDim; ++j) q[j] = queries.row(r)[j];
+    reranker.distances(q.data(), ids, d.data());
+    reranker.transform(q.data(), qt.data());
+    double len_q = 0, len_qt = 0;
+    for (int j = 0; j < kDescriptorDim; ++j) {
+      len_q += q[j] * q[j], len_qt += qt[j] * qt[j];
+      moved += std::abs(double(qt[j]) - q[j]);
+    }
+    EXPECT_NEAR(len_qt, len_q, 1e-4 * len_q);
+    for (size_t i = 0; i < ids.size(); ++i) {
+      reranker.reconstruct(ids[i], x.data());
+      double want = 0;
+      for (int j = 0; j < kDescriptorDim; ++j) want += (qt[j] - x[j]) * (qt[j] - x[j]);
+      EXPECT_NEAR(d[i], want, 1e-3 * want + 1e-2);
+    }
+    found += ids[std::min_element(d.begin(), d.end()) - d.begin()] == sources[r];
+  }
+  return found;
+}
+
+// A reranker of the first `count` points under `options` is refused
+// (kInvalidArgument) with `message` in its error.
+void expect_refused(const std::vector<float>& points, size_t count, const FaissPqReranker::Options& options,
+                    const std::string& message) {
+  try {
+    FaissPqReranker(points.data(), count, options);
+    ADD_FAILURE() << "no error: " << message;
+  } catch (const Error& e) {
+    EXPECT_EQ(e.code(), ErrorCode::kInvalidArgument);
+    EXPECT_NE(std::string(e.what()).find(message), std::string::npos) << e.what();
+  }
+}
+
 }  // namespace
 
 TEST(RerankingStudy, NearestPassingRatioAtWorkedPoints) {
@@ -111,31 +157,8 @@ TEST(RerankingStudy, FaissDistancesAreThoseToTheDecodedPoints) {
     FaissPqReranker reranker(points.data(), db.rows(),
                              {.subquantizers = opq ? 16 : 32, .opq_rotation = opq, .opq_iterations = 8});
     EXPECT_EQ(reranker.code_bytes(), opq ? 16u : 32u);
-    std::vector<float> d, q(kDescriptorDim), qt(kDescriptorDim), x(kDescriptorDim);
-    size_t found = 0;
     double moved = 0;
-    for (size_t r = 0; r < queries.rows(); ++r) {
-      std::vector<uint32_t> ids(50);
-      for (uint32_t i = 0; i < ids.size(); ++i) ids[i] = (i * 59 + 7 * uint32_t(r)) % uint32_t(db.rows());
-      ids[r % ids.size()] = sources[r];
-      d.resize(ids.size());
-      for (int j = 0; j < kDescriptorDim; ++j) q[j] = queries.row(r)[j];
-      reranker.distances(q.data(), ids, d.data());
-      reranker.transform(q.data(), qt.data());
-      double len_q = 0, len_qt = 0;
-      for (int j = 0; j < kDescriptorDim; ++j) {
-        len_q += q[j] * q[j], len_qt += qt[j] * qt[j];
-        moved += std::abs(double(qt[j]) - q[j]);
-      }
-      EXPECT_NEAR(len_qt, len_q, 1e-4 * len_q);
-      for (size_t i = 0; i < ids.size(); ++i) {
-        reranker.reconstruct(ids[i], x.data());
-        double want = 0;
-        for (int j = 0; j < kDescriptorDim; ++j) want += (qt[j] - x[j]) * (qt[j] - x[j]);
-        EXPECT_NEAR(d[i], want, 1e-3 * want + 1e-2);
-      }
-      found += ids[std::min_element(d.begin(), d.end()) - d.begin()] == sources[r];
-    }
+    const size_t found = expect_distances_to_decoded_points(reranker, queries, sources, db.rows(), moved);
     if (opq)
       EXPECT_GT(moved, 100.0);  // rotated
     else
@@ -145,15 +168,8 @@ TEST(RerankingStudy, FaissDistancesAreThoseToTheDecodedPoints) {
   for (const auto& [points_given, options, message] :
        {std::tuple{size_t(255), FaissPqReranker::Options{}, "at least 256"},
         std::tuple{db.rows(), FaissPqReranker::Options{.subquantizers = 12}, "a divisor of 128"},
-        std::tuple{db.rows(), FaissPqReranker::Options{.opq_rotation = true, .opq_iterations = 0}, "opq_iterations"}}) {
-    try {
-      FaissPqReranker(points.data(), points_given, options);
-      ADD_FAILURE() << "no error: " << message;
-    } catch (const Error& e) {
-      EXPECT_EQ(e.code(), ErrorCode::kInvalidArgument);
-      EXPECT_NE(std::string(e.what()).find(message), std::string::npos) << e.what();
-    }
-  }
+        std::tuple{db.rows(), FaissPqReranker::Options{.opq_rotation = true, .opq_iterations = 0}, "opq_iterations"}})
+    expect_refused(points, points_given, options, message);
 }
 
 // The residual encodings (coarse centroids, then PQ of the residual; FAISS's
@@ -181,7 +197,7 @@ TEST(RerankingStudy, ResidualEncodingsDecodeCloserThanThePlainPq) {
     SCOPED_TRACE(name);
     FaissPqReranker reranker(points.data(), db.rows(), options);
     EXPECT_EQ(reranker.code_bytes(), bytes);
-    std::vector<float> x(kDescriptorDim), q(kDescriptorDim), d;
+    std::vector<float> x(kDescriptorDim);
     double error = 0;
     for (uint32_t i = 0; i < db.rows(); ++i) {
       reranker.reconstruct(i, x.data());
@@ -193,23 +209,8 @@ TEST(RerankingStudy, ResidualEncodingsDecodeCloserThanThePlainPq) {
       plain_error = error;
     else
       EXPECT_LT(error, 0.9 * plain_error) << "plain PQ's " << plain_error;
-    size_t found = 0;
-    for (size_t r = 0; r < queries.rows(); ++r) {
-      std::vector<uint32_t> ids(50);
-      for (uint32_t i = 0; i < ids.size(); ++i) ids[i] = (i * 59 + 7 * uint32_t(r)) % uint32_t(db.rows());
-      ids[r % ids.size()] = sources[r];
-      d.resize(ids.size());
-      for (int j = 0; j < kDescriptorDim; ++j) q[j] = queries.row(r)[j];
-      reranker.distances(q.data(), ids, d.data());
-      for (size_t i = 0; i < ids.size(); ++i) {
-        reranker.reconstruct(ids[i], x.data());
-        double want = 0;
-        for (int j = 0; j < kDescriptorDim; ++j) want += (q[j] - x[j]) * (q[j] - x[j]);
-        EXPECT_NEAR(d[i], want, 1e-3 * want + 1e-2);
-      }
-      found += ids[std::min_element(d.begin(), d.end()) - d.begin()] == sources[r];
-    }
-    EXPECT_GE(found, 18u);
+    double moved = 0;
+    EXPECT_GE(expect_distances_to_decoded_points(reranker, queries, sources, db.rows(), moved), 18u);
   }
   for (const auto& [points_given, options, message] :
        {std::tuple{db.rows(), FaissPqReranker::Options{.coarse_centroids = 1}, "coarse_centroids"},
@@ -221,16 +222,8 @@ TEST(RerankingStudy, ResidualEncodingsDecodeCloserThanThePlainPq) {
                    "exclude one another"},
         std::tuple{db.rows(), FaissPqReranker::Options{.residual_splits = 1, .residual_beam = 0}, "residual_beam"},
         std::tuple{db.rows(), FaissPqReranker::Options{.residual_splits = 3}, "residual_splits"},
-        std::tuple{db.rows(), FaissPqReranker::Options{.subquantizers = 8, .residual_splits = 16},
-                   "residual_splits"}}) {
-    try {
-      FaissPqReranker(points.data(), points_given, options);
-      ADD_FAILURE() << "no error: " << message;
-    } catch (const Error& e) {
-      EXPECT_EQ(e.code(), ErrorCode::kInvalidArgument);
-      EXPECT_NE(std::string(e.what()).find(message), std::string::npos) << e.what();
-    }
-  }
+        std::tuple{db.rows(), FaissPqReranker::Options{.subquantizers = 8, .residual_splits = 16}, "residual_splits"}})
+    expect_refused(points, points_given, options, message);
 }
 
 // The harness's check: the whole short lists ranked by the search's own PQ
