@@ -162,6 +162,8 @@ MapInfo map_info(const fs::path& dir) {
   info.manifest = map.manifest();
   info.codebook_bytes = fs::file_size(dir / map.manifest().pq_codebook_file);
   info.pq_code_bytes = map.codebook().code_bytes();
+  info.pq_quantizer = map.codebook().quantizer();
+  if (map.codebook().is_residual()) info.pq_residual_splits = map.codebook().residual_splits();
   info.total_bytes = info.codebook_bytes;
   if (!map.manifest().hash_rotation_file.empty()) {
     info.hash_rotation_bytes = fs::file_size(dir / map.manifest().hash_rotation_file);
@@ -213,6 +215,8 @@ nlohmann::json MapInfo::to_json() const {
             {"bytes", total_bytes},
             {"pq_codebook_bytes", codebook_bytes},
             {"pq_code_bytes", pq_code_bytes},
+            {"pq_quantizer", to_string(pq_quantizer)},
+            {"pq_residual_splits", pq_residual_splits ? nlohmann::json(pq_residual_splits) : nlohmann::json()},
             {"hash_rotation_bytes", hash_rotation_bytes}}},
           {"holdout_images", manifest.holdout_images}};
 }
@@ -247,8 +251,10 @@ std::string MapInfo::summary(const std::string& map_name) const {
   out << std::fixed << std::setprecision(1) << "total: " << double(total_per_point_bytes) / n
       << " bytes/point in per-point sections (xyz 12, or 6 quantized, + hash 16 + PQ " << pq_code_bytes << "); "
       << double(total_bytes) / n << " bytes/point in all files: segments (images, metadata"
-      << (hash_rotation_bytes ? "" : ", a hash rotation each") << "), the shared PQ codebook (" << codebook_bytes
-      << " bytes)"
+      << (hash_rotation_bytes ? "" : ", a hash rotation each") << "), the shared PQ codebook ("
+      << to_string(pq_quantizer);
+  if (pq_residual_splits) out << " over " << pq_residual_splits << " part(s)";
+  out << ", " << codebook_bytes << " bytes)"
       << (hash_rotation_bytes ? " and the shared hash rotation (" + std::to_string(hash_rotation_bytes) + " bytes)"
                               : std::string())
       << "\n";

@@ -108,6 +108,14 @@ def test_bad_build_and_import_options(tmp_path):
         visloc.build_map(tmp_path, tmp_path / "map", pq_bytes=24)
     with pytest.raises(ValueError, match="import_colmap: pq_bytes must be 16 or 32, got 8"):
         visloc.import_colmap(tmp_path, tmp_path / "db", tmp_path / "map", pq_bytes=8)
+    with pytest.raises(ValueError, match="build_map: pq_quantizer must be one of 'product', 'residual', got 'opq'"):
+        visloc.build_map(tmp_path, tmp_path / "map", pq_quantizer="opq")
+    with pytest.raises(ValueError, match="import_colmap: pq_residual_splits must be 1, 2 or 4, got 3"):
+        visloc.import_colmap(tmp_path, tmp_path / "db", tmp_path / "map", pq_quantizer="residual",
+                             pq_residual_splits=3)
+    # Residual codes are 16 bytes: refused before the (missing) model is read.
+    with pytest.raises(ValueError, match="residual codebook has 16-byte codes, not 32"):
+        visloc.import_colmap(tmp_path, tmp_path / "db", tmp_path / "map", pq_quantizer="residual", pq_bytes=32)
     with pytest.raises(ValueError, match="queries and truth"):
         visloc.evaluate(tmp_path, tmp_path / "out", images=tmp_path)
 
@@ -160,6 +168,13 @@ def test_python_build_records_its_options_for_the_cli(street):
     # started from Python with the options recorded in MAP/work/build.json.
     record = json.loads((street["map"] / "work" / "build.json").read_text())
     assert "--known-poses" in record["args"] and "--no-retrieval" in record["args"]
+    # The map's codes are the PQ's: asking for residual codes on it is refused
+    # before anything is written, and the build record stays the first one's.
+    with pytest.raises(ValueError, match="PQ codes are of the product quantizer"):
+        visloc.build_map(street["city"] / "images", street["map"], gps=str(street["city"] / "gps.csv"),
+                         poses="known", known_poses=street["city"] / "sparse", pq_quantizer="residual",
+                         pq_residual_splits=4)
+    assert json.loads((street["map"] / "work" / "build.json").read_text()) == record
     done = subprocess.run([CLI, "map", "build-segment", str(street["map"]), "0"], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
     assert done.stdout.startswith("segment 0:"), done.stdout
@@ -218,6 +233,31 @@ def test_localize_and_evaluate_street(street, tmp_path):
     assert report["queries"] == len(names)
     assert report["registered"] == sum(r.registered for r in results)
     assert (tmp_path / "eval" / "report.md").exists()
+
+
+def test_build_map_with_residual_codes(street, tmp_path):
+    # The same street with residual PQ codes (trained on one image's
+    # descriptors, to keep it quick): the map says so, and localizes as the
+    # product-coded one does.
+    city = street["city"]
+    visloc.build_map(city / "images", tmp_path / "map", gps=str(city / "gps.csv"), poses="known",
+                     known_poses=city / "sparse", jobs=1, min_placemarks=3, max_placemarks=3, overlap=1,
+                     retrieval=False, pq_training_images=1, pq_quantizer="residual", pq_residual_splits=4)
+    total = visloc.Map(tmp_path / "map").info()["total"]
+    assert (total["pq_quantizer"], total["pq_residual_splits"], total["pq_code_bytes"]) == ("residual", 4, 16)
+    product = visloc.Map(street["map"]).info()["total"]
+    assert (product["pq_quantizer"], product["pq_residual_splits"]) == ("product", None)
+    record = json.loads((tmp_path / "map" / "work" / "build.json").read_text())["args"]
+    assert record[record.index("--pq-quantizer") + 1] == "residual"
+    assert record[record.index("--pq-residual-splits") + 1] == "4"
+    names = (city / "queries" / "list.txt").read_text().split()
+    cams = read_intrinsics(city / "queries" / "intrinsics.txt")
+    registered = {}
+    for m in (street["map"], tmp_path / "map"):
+        loc = visloc.Localizer(m)
+        registered[m] = sum(loc.localize(city / "queries" / "images" / n, intrinsics=cams[n]).registered
+                            for n in names)
+    assert registered[tmp_path / "map"] >= registered[street["map"]] - 1, registered
 
 
 # --- fountain-P11 (shared data): the CLI's poses, numpy frames, threads ---------
