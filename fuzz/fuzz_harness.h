@@ -243,13 +243,19 @@ inline size_t mutate_section_file(uint8_t* data, size_t size, size_t max_size, u
       auto& payload = image->sections[random() % image->sections.size()].second;
       const size_t room = max_size > size ? std::min<size_t>(max_size - size, 4096) : 0;
       const size_t old_size = payload.size();
-      payload.resize(old_size + room);
-      payload.resize(LLVMFuzzerMutate(payload.data(), old_size, payload.size()));
-      if (random() % 16 == 0) image->header.kind_version += (random() % 3) - 1;
-      const std::vector<uint8_t> out = serialize_section_file(*image);
-      if (out.size() <= max_size) {
-        std::memcpy(data, out.data(), out.size());
-        return out.size();
+      // An empty payload with no room to grow (the file at max_size) is left
+      // to the whole-file mutation: LLVMFuzzerMutate writes a byte even when
+      // given no room, through the empty vector's null pointer (found by the
+      // fuzzer itself, on a residual codebook seed as large as -max_len).
+      if (old_size + room > 0) {
+        payload.resize(old_size + room);
+        payload.resize(LLVMFuzzerMutate(payload.data(), old_size, payload.size()));
+        if (random() % 16 == 0) image->header.kind_version += (random() % 3) - 1;
+        const std::vector<uint8_t> out = serialize_section_file(*image);
+        if (out.size() <= max_size) {
+          std::memcpy(data, out.data(), out.size());
+          return out.size();
+        }
       }
     }
   }

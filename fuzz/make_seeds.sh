@@ -72,6 +72,11 @@ quietly "$VISLOC" map import --colmap "$SEG_MODEL" --database "$SEG_DB" --pq-tra
 note "importing it again with 32-byte PQ codes (segment format version 4, codebook version 2)"
 quietly "$VISLOC" map import --colmap "$SEG_MODEL" --database "$SEG_DB" --pq-train-database "$SEG_DB" \
   --itq-iterations 10 --pq-bytes 32 --point-coordinates int16 --out "$WORK/imported32"
+note "importing it again with residual PQ codes (codebook version 3), trained on one image's descriptors"
+sqlite3 "$SEG_DB" "SELECT name FROM images ORDER BY image_id LIMIT 1" >"$WORK/one-image.txt"
+quietly "$VISLOC" map import --colmap "$SEG_MODEL" --database "$SEG_DB" --pq-train-database "$SEG_DB" \
+  --pq-train-images "$WORK/one-image.txt" --itq-iterations 10 --pq-quantizer residual --pq-residual-splits 4 \
+  --out "$WORK/imported_residual"
 
 # --- 4. A small retrieval map of the street's images.
 note "building a small retrieval map"
@@ -95,6 +100,7 @@ done
 seed pq_codebook "$MAP/pq_codebook.vlpq" map.vlpq
 seed pq_codebook "$WORK/imported/pq_codebook.vlpq" imported.vlpq
 seed pq_codebook "$WORK/imported32/pq_codebook.vlpq" imported32.vlpq
+seed pq_codebook "$WORK/imported_residual/pq_codebook.vlpq" imported-residual.vlpq
 seed hash_rotation "$MAP/hash_rotation.vlitq"
 for f in "$MAP"/descriptors/*.vldesc "$WORK"/imported/descriptors/*.vldesc; do
   seed point_descriptors "$f" "$(basename "$(dirname "$(dirname "$f")")")-$(basename "$f")"
