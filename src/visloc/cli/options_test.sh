@@ -26,6 +26,10 @@ check --vote-radius localize --map /nonexistent --vote-radius 2 q.jpg
 check --vote-ratio localize --map /nonexistent --vote-ratio 1.5 q.jpg
 check --vote-ratio localize --map /nonexistent --vote-ratio nan q.jpg
 check --segment-votes localize --map /nonexistent --segment-votes pixels q.jpg
+for v in 0 65 nan; do
+  check --pq-residual-beam map import --colmap /nonexistent --database /nonexistent --out /nonexistent \
+    --pq-quantizer residual --pq-residual-beam "$v"
+done
 rm -f /tmp/visloc_options_test.$$
 [ "$status" = 0 ] && echo "all numeric options refuse NaN and bad ranges"
 exit "$status"

@@ -163,7 +163,10 @@ MapInfo map_info(const fs::path& dir) {
   info.codebook_bytes = fs::file_size(dir / map.manifest().pq_codebook_file);
   info.pq_code_bytes = map.codebook().code_bytes();
   info.pq_quantizer = map.codebook().quantizer();
-  if (map.codebook().is_residual()) info.pq_residual_splits = map.codebook().residual_splits();
+  if (map.codebook().is_residual()) {
+    info.pq_residual_splits = map.codebook().residual_splits();
+    info.pq_residual_beam = map.codebook().residual_beam();
+  }
   info.total_bytes = info.codebook_bytes;
   if (!map.manifest().hash_rotation_file.empty()) {
     info.hash_rotation_bytes = fs::file_size(dir / map.manifest().hash_rotation_file);
@@ -217,6 +220,7 @@ nlohmann::json MapInfo::to_json() const {
             {"pq_code_bytes", pq_code_bytes},
             {"pq_quantizer", to_string(pq_quantizer)},
             {"pq_residual_splits", pq_residual_splits ? nlohmann::json(pq_residual_splits) : nlohmann::json()},
+            {"pq_residual_beam", pq_residual_beam ? nlohmann::json(pq_residual_beam) : nlohmann::json()},
             {"hash_rotation_bytes", hash_rotation_bytes}}},
           {"holdout_images", manifest.holdout_images}};
 }

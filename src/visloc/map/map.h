@@ -105,6 +105,7 @@ struct MapInfo {
   int pq_code_bytes = kPqCodeBytes;  // bytes per PQ code (the codebook's): 16 or 32
   PqQuantizer pq_quantizer = PqQuantizer::kProduct;  // the codebook's
   int pq_residual_splits = 0;                        // a residual codebook's parts; 0 for the PQ
+  int pq_residual_beam = 0;                          // a residual codebook's encoder beam; 0 for the PQ
   uint64_t hash_rotation_bytes = 0;
   size_t total_points = 0;
   uint64_t total_per_point_bytes = 0;  // Σ per-point sections

@@ -29,11 +29,16 @@ constexpr const char* kPqQuantizerHelp =
     "(0.90 at 1, 0.82 at 4) against 0.755 for the PQ; its training is slow: minutes; codebook format "
     "version 3)";
 
-void add_residual_splits(OptionTable& t, PqTrainingOptions& o) {
+void add_residual_options(OptionTable& t, PqTrainingOptions& o) {
   t.choice("--pq-residual-splits", o.residual_splits, {{"1", 1}, {"2", 2}, {"4", 4}},
            "With --pq-quantizer residual: parts of the descriptor (128 / S dimensions, 16 / S codebooks each); "
            "fewer parts rank better and cost more per candidate (a candidate reads 16 × 128 / S floats of "
            "codebook). A new map's: an existing map keeps its codebook's");
+  t.add("--pq-residual-beam", o.residual_beam,
+        "With --pq-quantizer residual: the beam of the codebooks' training and of the encoding (1 to 64; "
+        "FAISS's default 5). Training and encoding take about beam times as long. A new map's: an existing "
+        "map keeps its codebook's")
+      .range(1, kResidualMaxBeam);
 }
 
 void add_point_coordinates(OptionTable& t, SegmentWriteOptions& o) {
@@ -51,7 +56,7 @@ void add_pq_bytes_option(OptionTable& t, PqTrainingOptions& o) {
   t.choice("--pq-bytes", o.subvectors, {{"16", kPqSubvectors}, {"32", kPqFineSubvectors}}, kPqBytesHelp);
   t.choice("--pq-quantizer", o.quantizer, {{"product", PqQuantizer::kProduct}, {"residual", PqQuantizer::kResidual}},
            kPqQuantizerHelp);
-  add_residual_splits(t, o);
+  add_residual_options(t, o);
 }
 
 void add_options(OptionTable& t, MapBuildOptions& o) {
@@ -152,7 +157,7 @@ void add_options(OptionTable& t, MapBuildOptions& o) {
                       "' is not one of the choices (product, residual)");
       },
       std::string(kPqQuantizerHelp) + "; default: the existing map's, 'product' for a new map");
-  add_residual_splits(t, o.pq);
+  add_residual_options(t, o.pq);
   add_options(t, o.sift);
 }
 

@@ -115,6 +115,7 @@ class PqCodebook {
   PqQuantizer quantizer() const { return quantizer_; }
   bool is_residual() const { return quantizer_ == PqQuantizer::kResidual; }
   int residual_splits() const { return residual_splits_; }       // S (1 for a PQ)
+  int residual_beam() const { return residual_beam_; }           // the encoder's beam (a residual codebook's)
   int subvectors() const { return subvectors_; }                 // M
   int code_bytes() const { return subvectors_; }                 // bytes per code (8-bit sub-codes)
   int sub_dimension() const { return 128 / subvectors_; }        // D

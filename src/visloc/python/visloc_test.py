@@ -113,6 +113,8 @@ def test_bad_build_and_import_options(tmp_path):
     with pytest.raises(ValueError, match="import_colmap: pq_residual_splits must be 1, 2 or 4, got 3"):
         visloc.import_colmap(tmp_path, tmp_path / "db", tmp_path / "map", pq_quantizer="residual",
                              pq_residual_splits=3)
+    with pytest.raises(ValueError, match="build_map: pq_residual_beam must be in \\[1, 64\\], got 0"):
+        visloc.build_map(tmp_path, tmp_path / "map", pq_quantizer="residual", pq_residual_beam=0)
     # Residual codes are 16 bytes: refused before the (missing) model is read.
     with pytest.raises(ValueError, match="residual codebook has 16-byte codes, not 32"):
         visloc.import_colmap(tmp_path, tmp_path / "db", tmp_path / "map", pq_quantizer="residual", pq_bytes=32)
@@ -242,14 +244,18 @@ def test_build_map_with_residual_codes(street, tmp_path):
     city = street["city"]
     visloc.build_map(city / "images", tmp_path / "map", gps=str(city / "gps.csv"), poses="known",
                      known_poses=city / "sparse", jobs=1, min_placemarks=3, max_placemarks=3, overlap=1,
-                     retrieval=False, pq_training_images=1, pq_quantizer="residual", pq_residual_splits=4)
+                     retrieval=False, pq_training_images=1, pq_quantizer="residual", pq_residual_splits=4,
+                     pq_residual_beam=2)
     total = visloc.Map(tmp_path / "map").info()["total"]
-    assert (total["pq_quantizer"], total["pq_residual_splits"], total["pq_code_bytes"]) == ("residual", 4, 16)
+    assert (total["pq_quantizer"], total["pq_residual_splits"], total["pq_residual_beam"],
+            total["pq_code_bytes"]) == ("residual", 4, 2, 16)
     product = visloc.Map(street["map"]).info()["total"]
-    assert (product["pq_quantizer"], product["pq_residual_splits"]) == ("product", None)
+    assert (product["pq_quantizer"], product["pq_residual_splits"], product["pq_residual_beam"]) == \
+        ("product", None, None)
     record = json.loads((tmp_path / "map" / "work" / "build.json").read_text())["args"]
     assert record[record.index("--pq-quantizer") + 1] == "residual"
     assert record[record.index("--pq-residual-splits") + 1] == "4"
+    assert record[record.index("--pq-residual-beam") + 1] == "2"
     names = (city / "queries" / "list.txt").read_text().split()
     cams = read_intrinsics(city / "queries" / "intrinsics.txt")
     registered = {}
