@@ -26,10 +26,15 @@ check --vote-radius localize --map /nonexistent --vote-radius 2 q.jpg
 check --vote-ratio localize --map /nonexistent --vote-ratio 1.5 q.jpg
 check --vote-ratio localize --map /nonexistent --vote-ratio nan q.jpg
 check --segment-votes localize --map /nonexistent --segment-votes pixels q.jpg
-for v in 0 65 nan; do
-  check --pq-residual-beam map import --colmap /nonexistent --database /nonexistent --out /nonexistent \
-    --pq-quantizer residual --pq-residual-beam "$v"
+# The range's own message (an unknown flag would also exit 2 and name it).
+for v in 0 65; do
+  check "--pq-residual-beam: '$v' is not in \[1, 64\]" map import --colmap /nonexistent --database /nonexistent \
+    --out /nonexistent --pq-quantizer residual --pq-residual-beam "$v"
+  check "--pq-residual-beam: $v is not in \[1, 64\]" map build --images /nonexistent --out /nonexistent \
+    --pq-residual-beam "$v"
 done
+check "--pq-residual-splits: '3' is not one of the choices" map build --images /nonexistent --out /nonexistent \
+  --pq-residual-splits 3
 rm -f /tmp/visloc_options_test.$$
 [ "$status" = 0 ] && echo "all numeric options refuse NaN and bad ranges"
 exit "$status"

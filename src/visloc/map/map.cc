@@ -257,7 +257,7 @@ std::string MapInfo::summary(const std::string& map_name) const {
       << double(total_bytes) / n << " bytes/point in all files: segments (images, metadata"
       << (hash_rotation_bytes ? "" : ", a hash rotation each") << "), the shared PQ codebook ("
       << to_string(pq_quantizer);
-  if (pq_residual_splits) out << " over " << pq_residual_splits << " part(s)";
+  if (pq_residual_splits) out << " over " << pq_residual_splits << " part(s), beam " << pq_residual_beam;
   out << ", " << codebook_bytes << " bytes)"
       << (hash_rotation_bytes ? " and the shared hash rotation (" + std::to_string(hash_rotation_bytes) + " bytes)"
                               : std::string())

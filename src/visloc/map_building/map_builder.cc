@@ -76,6 +76,12 @@ void MapBuildOptions::validate() const {
   itq.validate();
   if (pq_code_bytes && !valid_pq_subvectors(*pq_code_bytes))
     throw_error(ErrorCode::kInvalidArgument, "map build: --pq-bytes must be 16 or 32, got ", *pq_code_bytes);
+  if (pq_residual_splits && !valid_residual_splits(*pq_residual_splits))
+    throw_error(ErrorCode::kInvalidArgument, "map build: --pq-residual-splits must be 1, 2 or 4, got ",
+                *pq_residual_splits);
+  if (pq_residual_beam && (*pq_residual_beam < 1 || *pq_residual_beam > kResidualMaxBeam))
+    throw_error(ErrorCode::kInvalidArgument, "map build: --pq-residual-beam must be in [1, ", kResidualMaxBeam,
+                "], got ", *pq_residual_beam);
   pq.validate();
   registration.validate();
   embedding.validate();
@@ -952,6 +958,27 @@ PqQuantizer resolve_pq_quantizer(const fs::path& map_dir, const MapBuildOptions&
   return existing;
 }
 
+void resolve_pq_residual(const fs::path& map_dir, const MapBuildOptions& options, PqTrainingOptions& pq) {
+  const fs::path codebook_path = map_dir / "pq_codebook.vlpq";
+  if (!fs::exists(codebook_path)) {
+    pq.residual_splits = options.pq_residual_splits.value_or(options.pq.residual_splits);
+    pq.residual_beam = options.pq_residual_beam.value_or(options.pq.residual_beam);
+    return;
+  }
+  const PqCodebook existing = PqCodebook::read(codebook_path);
+  if (!existing.is_residual()) return;
+  auto refuse_unlike = [&](const std::optional<int>& given, int has, const char* flag, const char* what) {
+    if (given && *given != has)
+      throw_error(ErrorCode::kInvalidArgument, map_dir.string(), ": the map's residual codes have ", what, " ", has,
+                  " (", codebook_path.string(), "); build it without ", flag, " (or with ", flag, " ", has,
+                  "), or build codes with ", flag, " ", *given, " into a new directory");
+  };
+  refuse_unlike(options.pq_residual_splits, existing.residual_splits(), "--pq-residual-splits", "parts");
+  refuse_unlike(options.pq_residual_beam, existing.residual_beam(), "--pq-residual-beam", "beam");
+  pq.residual_splits = existing.residual_splits();
+  pq.residual_beam = existing.residual_beam();
+}
+
 int resolve_pq_code_bytes(const fs::path& map_dir, const MapBuildOptions& options) {
   const fs::path codebook_path = map_dir / "pq_codebook.vlpq";
   if (!fs::exists(codebook_path)) return options.pq_code_bytes.value_or(options.pq.subvectors);
@@ -969,6 +996,7 @@ SegmentBuildResult build_planned_segment(const fs::path& map_dir, const MapBuild
   opt.validate();
   opt.pq.subvectors = resolve_pq_code_bytes(map_dir, opt);  // refuses an explicit size unlike the map's
   opt.pq.quantizer = resolve_pq_quantizer(map_dir, opt);    // and a quantizer unlike its
+  resolve_pq_residual(map_dir, opt, opt.pq);                // and residual parts or beam unlike its
   opt.pq.validate();                                        // e.g. residual with 32-byte codes
   const fs::path codebook_path = map_dir / "pq_codebook.vlpq";
   if (!fs::exists(map_dir / "manifest.json") || !fs::exists(codebook_path))
@@ -1096,6 +1124,7 @@ MapBuildResult MapBuilder::run() {
   s.opt.hash_rotation = resolve_hash_rotation(s.map_dir, s.opt.hash_rotation);
   s.opt.pq.subvectors = resolve_pq_code_bytes(s.map_dir, s.opt);  // before anything is written
   s.opt.pq.quantizer = resolve_pq_quantizer(s.map_dir, s.opt);
+  resolve_pq_residual(s.map_dir, s.opt, s.opt.pq);
   s.opt.pq.validate();  // e.g. residual with 32-byte codes, before anything is written
   fs::create_directories(s.map_dir / "work" / "features");
   const BuildLock lock(s.map_dir / "work" / "build.lock");

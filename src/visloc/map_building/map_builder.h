@@ -115,6 +115,10 @@ struct MapBuildOptions {
   // The PQ codes' quantizer (--pq-quantizer): as pq_code_bytes, the existing
   // map's when empty, else pq.quantizer for a new map (resolve_pq_quantizer).
   std::optional<PqQuantizer> pq_quantizer;
+  // Residual codes' parts (--pq-residual-splits) and beam
+  // (--pq-residual-beam): likewise an existing residual map's when empty, else
+  // pq.residual_splits / pq.residual_beam (resolve_pq_residual).
+  std::optional<int> pq_residual_splits, pq_residual_beam;
   PqTrainingOptions pq;
   size_t pq_training_descriptors = 100000;  // sampled across the training images:
   size_t pq_training_images = 1000;         // at most this many images, spread evenly over the map
@@ -224,6 +228,11 @@ int resolve_pq_code_bytes(const std::filesystem::path& map_dir, const MapBuildOp
 // options.pq_quantizer, else options.pq.quantizer; an explicit one unlike the
 // existing map's throws Error(kInvalidArgument).
 PqQuantizer resolve_pq_quantizer(const std::filesystem::path& map_dir, const MapBuildOptions& options);
+// The residual parts and beam of a build of `map_dir`, into `pq`: an existing
+// residual codebook's, else options.pq_residual_splits / pq_residual_beam,
+// else options.pq's. Either given and unlike an existing residual codebook's
+// throws Error(kInvalidArgument); a map with PQ codes ignores both.
+void resolve_pq_residual(const std::filesystem::path& map_dir, const MapBuildOptions& options, PqTrainingOptions& pq);
 
 MapBuildResult build_map(const std::filesystem::path& map_dir, const MapBuildOptions& options,
                          const std::function<void(const MapBuildProgress&)>& progress = {});

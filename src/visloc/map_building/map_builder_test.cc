@@ -98,6 +98,51 @@ TEST(MapBuildOptions, PqCodeBytesFollowTheExistingMapsCodebook) {
   fs::remove_all(dir);
 }
 
+// Residual parts and beam likewise: a new map's from the options (explicit
+// over pq's), an existing residual map's whatever pq says, an explicit value
+// unlike its refused before the build writes anything; a product map ignores
+// them.
+TEST(MapBuildOptions, ResidualPartsAndBeamFollowTheExistingMapsCodebook) {
+  const fs::path dir = unique_temp_dir("visloc_pq_residual");
+  MapBuildOptions o;
+  o.images_dir = dir;
+  o.pq.residual_beam = 3;
+  o.pq_residual_splits = 4;
+  PqTrainingOptions pq;
+  resolve_pq_residual(dir, o, pq);
+  EXPECT_EQ(pq.residual_splits, 4);
+  EXPECT_EQ(pq.residual_beam, 3);
+  std::vector<float> product(kPqCentroidFloats), residual(size_t(16) * 256 * 128);
+  for (size_t i = 0; i < product.size(); ++i) product[i] = float(i % 89);
+  for (size_t i = 0; i < residual.size(); ++i) residual[i] = float(i % 97) - 40;
+  PqCodebook(product).write(dir / "pq_codebook.vlpq", "{}");
+  pq = {};
+  resolve_pq_residual(dir, o, pq);  // a product map: nothing to follow or refuse
+  EXPECT_EQ(pq.residual_splits, PqTrainingOptions{}.residual_splits);
+  PqCodebook::residual(residual, 1, 7).write(dir / "pq_codebook.vlpq", "{}");
+  MapBuildOptions resumed;
+  resumed.images_dir = dir;
+  resumed.pq.residual_splits = 2;
+  resumed.pq.residual_beam = 5;
+  resolve_pq_residual(dir, resumed, pq);
+  EXPECT_EQ(pq.residual_splits, 1);
+  EXPECT_EQ(pq.residual_beam, 7);
+  resumed.pq_residual_splits = 1;
+  resumed.pq_residual_beam = 7;
+  EXPECT_NO_THROW(resolve_pq_residual(dir, resumed, pq));
+  for (const char* flag : {"--pq-residual-splits 1", "--pq-residual-beam 7"}) {
+    MapBuildOptions unlike = resumed;
+    if (std::string(flag).find("splits") != std::string::npos)
+      unlike.pq_residual_splits = 4;
+    else
+      unlike.pq_residual_beam = 2;
+    const std::string error = error_of([&] { build_map(dir, unlike); });
+    EXPECT_NE(error.find(flag), std::string::npos) << error;
+    EXPECT_FALSE(fs::exists(dir / "work")) << "the refused build wrote its work directory";
+  }
+  fs::remove_all(dir);
+}
+
 // The quantizer of a build likewise: the existing codebook's whatever
 // pq.quantizer says; an explicit --pq-quantizer unlike it is refused before
 // the build writes anything, naming the flag and the map's quantizer.

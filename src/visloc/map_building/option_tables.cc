@@ -29,16 +29,39 @@ constexpr const char* kPqQuantizerHelp =
     "(0.90 at 1, 0.82 at 4) against 0.755 for the PQ; its training is slow: minutes; codebook format "
     "version 3)";
 
+constexpr const char* kResidualSplitsHelp =
+    "With --pq-quantizer residual: parts of the descriptor (128 / S dimensions, 16 / S codebooks each); "
+    "fewer parts rank better and cost more per candidate (a candidate reads 16 × 128 / S floats of codebook)";
+constexpr const char* kResidualBeamHelp =
+    "With --pq-quantizer residual: the beam of the codebooks' training and of the encoding, 1 to 64 (FAISS's "
+    "default 5); a wider beam encodes closer and trains and encodes longer";
+
 void add_residual_options(OptionTable& t, PqTrainingOptions& o) {
-  t.choice("--pq-residual-splits", o.residual_splits, {{"1", 1}, {"2", 2}, {"4", 4}},
-           "With --pq-quantizer residual: parts of the descriptor (128 / S dimensions, 16 / S codebooks each); "
-           "fewer parts rank better and cost more per candidate (a candidate reads 16 × 128 / S floats of "
-           "codebook). A new map's: an existing map keeps its codebook's");
-  t.add("--pq-residual-beam", o.residual_beam,
-        "With --pq-quantizer residual: the beam of the codebooks' training and of the encoding (1 to 64; "
-        "FAISS's default 5). Training and encoding take about beam times as long. A new map's: an existing "
-        "map keeps its codebook's")
-      .range(1, kResidualMaxBeam);
+  t.choice("--pq-residual-splits", o.residual_splits, {{"1", 1}, {"2", 2}, {"4", 4}}, kResidualSplitsHelp);
+  t.add("--pq-residual-beam", o.residual_beam, kResidualBeamHelp).range(1, kResidualMaxBeam);
+}
+
+// --pq-residual-splits / --pq-residual-beam of `map build`: empty unless
+// given (an existing map keeps its codebook's; resolve_pq_residual).
+void add_resumable_residual_options(OptionTable& t, MapBuildOptions& o) {
+  t.text(
+      "--pq-residual-splits", "",
+      [&o](const std::string& text) {
+        if (text.empty()) return;
+        const int64_t splits = parse_whole_number(text, "--pq-residual-splits", INT_MIN, INT_MAX);
+        if (!valid_residual_splits(int(splits)))
+          throw_error(ErrorCode::kInvalidArgument, "--pq-residual-splits: '", text,
+                      "' is not one of the choices (1, 2, 4)");
+        o.pq_residual_splits = int(splits);
+      },
+      std::string(kResidualSplitsHelp) + "; default: the existing map's, 2 for a new map");
+  t.text(
+      "--pq-residual-beam", "",
+      [&o](const std::string& text) {
+        if (text.empty()) return;
+        o.pq_residual_beam = int(parse_whole_number(text, "--pq-residual-beam", 1, kResidualMaxBeam));
+      },
+      std::string(kResidualBeamHelp) + "; default: the existing map's, 5 for a new map");
 }
 
 void add_point_coordinates(OptionTable& t, SegmentWriteOptions& o) {
@@ -157,7 +180,7 @@ void add_options(OptionTable& t, MapBuildOptions& o) {
                       "' is not one of the choices (product, residual)");
       },
       std::string(kPqQuantizerHelp) + "; default: the existing map's, 'product' for a new map");
-  add_residual_options(t, o.pq);
+  add_resumable_residual_options(t, o);
   add_options(t, o.sift);
 }
 

@@ -501,20 +501,21 @@ bool take_pq_bytes(Kwargs& k, const std::string& where, int& bytes) {
 
 // The keywords `pq_quantizer` ('product' or 'residual'; into `quantizer`,
 // returns whether it was given), `pq_residual_splits` (1, 2 or 4) and
-// `pq_residual_beam` (1 to 64; both into `pq`).
-bool take_pq_quantizer(Kwargs& k, const std::string& where, PqQuantizer& quantizer, PqTrainingOptions& pq) {
+// `pq_residual_beam` (1 to 64), each left empty when not given.
+bool take_pq_quantizer(Kwargs& k, const std::string& where, PqQuantizer& quantizer, std::optional<int>& splits,
+                       std::optional<int>& beam) {
   if (int given = 0; k.take("pq_residual_splits", given)) {
     if (!valid_residual_splits(given))
       raise_error(ErrorCode::kInvalidArgument,
                   where + ": pq_residual_splits must be 1, 2 or 4, got " + std::to_string(given));
-    pq.residual_splits = given;
+    splits = given;
   }
   if (int given = 0; k.take("pq_residual_beam", given)) {
     if (given < 1 || given > kResidualMaxBeam)
       raise_error(ErrorCode::kInvalidArgument, where + ": pq_residual_beam must be in [1, " +
                                                    std::to_string(kResidualMaxBeam) + "], got " +
                                                    std::to_string(given));
-    pq.residual_beam = given;
+    beam = given;
   }
   std::string name;
   if (!k.take_choice("pq_quantizer", name, {"product", "residual"})) return false;
@@ -572,8 +573,8 @@ nlohmann::json build_record(const MapBuildOptions& o, const fs::path& map_dir) {
   add("--point-coordinates", point_coordinates_name(o.segment_file.coordinates));
   if (o.pq_code_bytes) add("--pq-bytes", std::to_string(*o.pq_code_bytes));
   if (o.pq_quantizer) add("--pq-quantizer", to_string(*o.pq_quantizer));
-  add("--pq-residual-splits", std::to_string(o.pq.residual_splits));
-  add("--pq-residual-beam", std::to_string(o.pq.residual_beam));
+  if (o.pq_residual_splits) add("--pq-residual-splits", std::to_string(*o.pq_residual_splits));
+  if (o.pq_residual_beam) add("--pq-residual-beam", std::to_string(*o.pq_residual_beam));
   add("--max-side", std::to_string(o.sift.max_image_side));
   add("--max-features", std::to_string(o.sift.max_features));
   add("--contrast-threshold", number_text(o.sift.contrast_threshold));
@@ -939,7 +940,8 @@ void bind_build_map(py::module_& m) {
           o.hash_rotation = parse_hash_rotation_scope(hash_rotation);
         take_point_coordinates(k, o.segment_file);
         if (int bytes = 0; take_pq_bytes(k, "build_map", bytes)) o.pq_code_bytes = bytes;
-        if (PqQuantizer q{}; take_pq_quantizer(k, "build_map", q, o.pq)) o.pq_quantizer = q;
+        if (PqQuantizer q{}; take_pq_quantizer(k, "build_map", q, o.pq_residual_splits, o.pq_residual_beam))
+          o.pq_quantizer = q;
         k.take("keep_work", o.keep_work);
         take_sift_options(k, o.sift);
         k.finish();
@@ -992,8 +994,8 @@ hash_rotation, point_coordinates ('auto', 'float32', 'int16'), pq_bytes (16 or
 32; default: an existing map's, 16 for a new one), pq_quantizer ('product' or
 'residual': 16-byte codes of 16 codebooks added, a finer ranking at a slower
 search and minutes of training; default: an existing map's, 'product' for a
-new one), pq_residual_splits (1, 2 or 4; default 2), pq_residual_beam (1 to 64;
-default 5), keep_work and the SIFT
+new one), pq_residual_splits (1, 2 or 4) and pq_residual_beam (1 to 64) of
+residual codes (default: an existing map's, 2 and 5 for a new one), keep_work and the SIFT
 options. progress(dict) is called as the
 build advances. Local executor only (Slurm builds: the CLI). Segments are
 built `jobs` at a time (default: one per core), each SIFT on OpenCV's
@@ -1018,7 +1020,10 @@ void bind_import_colmap(py::module_& m) {
           o.hash_rotation = parse_hash_rotation_scope(hash_rotation);
         take_point_coordinates(k, o.segment_file);
         take_pq_bytes(k, "import_colmap", o.pq.subvectors);
-        take_pq_quantizer(k, "import_colmap", o.pq.quantizer, o.pq);
+        std::optional<int> residual_splits, residual_beam;
+        take_pq_quantizer(k, "import_colmap", o.pq.quantizer, residual_splits, residual_beam);
+        o.pq.residual_splits = residual_splits.value_or(o.pq.residual_splits);
+        o.pq.residual_beam = residual_beam.value_or(o.pq.residual_beam);
         k.take("itq_iterations", o.itq.iterations);
         k.take("seed", o.itq.seed);
         k.take("keep_descriptors", o.keep_descriptors);

@@ -256,6 +256,10 @@ def test_build_map_with_residual_codes(street, tmp_path):
     assert record[record.index("--pq-quantizer") + 1] == "residual"
     assert record[record.index("--pq-residual-splits") + 1] == "4"
     assert record[record.index("--pq-residual-beam") + 1] == "2"
+    # Resumed with another beam: refused, naming the map's.
+    with pytest.raises(ValueError, match="--pq-residual-beam 2"):
+        visloc.build_map(city / "images", tmp_path / "map", gps=str(city / "gps.csv"), poses="known",
+                         known_poses=city / "sparse", pq_residual_beam=3)
     names = (city / "queries" / "list.txt").read_text().split()
     cams = read_intrinsics(city / "queries" / "intrinsics.txt")
     registered = {}
