@@ -186,8 +186,8 @@ nlohmann::json study_fingerprint(const StudyDataset& d, const SegmentStudyOption
   if (o.map.pq.quantizer != PqQuantizer::kProduct) {
     fingerprint["pq_quantizer"] = to_string(o.map.pq.quantizer);
     fingerprint["pq_residual_splits"] = o.map.pq.residual_splits;
-    // Studies made before the beam was an option used FAISS's default.
-    if (o.map.pq.residual_beam != kResidualBeam) fingerprint["pq_residual_beam"] = o.map.pq.residual_beam;
+    // Studies made before the beam was an option used FAISS's default, 5.
+    if (o.map.pq.residual_beam != kFaissResidualBeam) fingerprint["pq_residual_beam"] = o.map.pq.residual_beam;
   }
   return fingerprint;
 }

@@ -33,8 +33,9 @@ constexpr const char* kResidualSplitsHelp =
     "With --pq-quantizer residual: parts of the descriptor (128 / S dimensions, 16 / S codebooks each); "
     "fewer parts rank better and cost more per candidate (a candidate reads 16 × 128 / S floats of codebook)";
 constexpr const char* kResidualBeamHelp =
-    "With --pq-quantizer residual: the beam of the codebooks' training and of the encoding, 1 to 64 (FAISS's "
-    "default 5); a wider beam encodes closer and trains and encodes longer";
+    "With --pq-quantizer residual: the beam of the codebooks' training and of the encoding, 1 to 64; a wider "
+    "beam encodes closer and trains and encodes longer (on the Strecha scenes 1 ranked as well as FAISS's "
+    "default 5, 0.872 against 0.869 of exact matching's 1-1 matches, and trained 3.6x faster)";
 
 void add_residual_options(OptionTable& t, PqTrainingOptions& o) {
   t.choice("--pq-residual-splits", o.residual_splits, {{"1", 1}, {"2", 2}, {"4", 4}}, kResidualSplitsHelp);
@@ -61,7 +62,7 @@ void add_resumable_residual_options(OptionTable& t, MapBuildOptions& o) {
         if (text.empty()) return;
         o.pq_residual_beam = int(parse_whole_number(text, "--pq-residual-beam", 1, kResidualMaxBeam));
       },
-      std::string(kResidualBeamHelp) + "; default: the existing map's, 5 for a new map");
+      std::string(kResidualBeamHelp) + "; default: the existing map's, 1 for a new map");
 }
 
 void add_point_coordinates(OptionTable& t, SegmentWriteOptions& o) {

@@ -410,6 +410,9 @@ TEST(ResidualQuantizer, EncodesCloserThanThePqAndRoundTrips) {
     std::vector<uint8_t> again(200 * 16);
     back.encode(f.data(), 200, again.data());
     EXPECT_TRUE(std::equal(again.begin(), again.end(), codes.begin()));
+    const std::vector<float> books(cb.centroids().begin(), cb.centroids().end());
+    PqCodebook::residual(books, splits, 3).write(path, "{}");
+    EXPECT_EQ(PqCodebook::read(path).residual_beam(), 3) << "a beam unlike the default";
     // Our decoding (each byte m one entry of codebook m, added into part
     // m / (16 / S)) is FAISS's: the byte layout the kernels assume.
     std::vector<float> ours(128), theirs(128);

@@ -185,7 +185,7 @@ void PqCodebook::encode(const float* x, size_t n, uint8_t* codes) const {
     VISLOC_CHECK(rq->code_size == size_t(kAdditiveCodebooks), "FAISS's residual codes have ", rq->code_size, " bytes");
     // In blocks: FAISS's beam search holds ~8 KB per row at a beam of 5 and
     // one split (growing with the beam), and batches only near 5 GiB.
-    const size_t block = std::max<size_t>(1, 8192 * kResidualBeam / size_t(residual_beam_));
+    const size_t block = std::max<size_t>(1, 8192 * kFaissResidualBeam / size_t(residual_beam_));
     for (size_t i = 0; i < n; i += block)
       rq->compute_codes(x + i * kDim, codes + i * kAdditiveCodebooks, std::min(block, n - i));
     return;

@@ -995,7 +995,7 @@ hash_rotation, point_coordinates ('auto', 'float32', 'int16'), pq_bytes (16 or
 'residual': 16-byte codes of 16 codebooks added, a finer ranking at a slower
 search and minutes of training; default: an existing map's, 'product' for a
 new one), pq_residual_splits (1, 2 or 4) and pq_residual_beam (1 to 64) of
-residual codes (default: an existing map's, 2 and 5 for a new one), keep_work and the SIFT
+residual codes (default: an existing map's, 2 and 1 for a new one), keep_work and the SIFT
 options. progress(dict) is called as the
 build advances. Local executor only (Slurm builds: the CLI). Segments are
 built `jobs` at a time (default: one per core), each SIFT on OpenCV's
@@ -1045,7 +1045,7 @@ void bind_import_colmap(py::module_& m) {
 removed from the model, kept as queries), pq_train_database,
 pq_train_images, hash_rotation ('segment' or 'map'), point_coordinates ('auto',
 'float32', 'int16'), pq_bytes (16 or 32), pq_quantizer ('product' or 'residual'),
-pq_residual_splits (1, 2 or 4; default 2), pq_residual_beam (1 to 64; default 5),
+pq_residual_splits (1, 2 or 4; default 2), pq_residual_beam (1 to 64; default 1),
 itq_iterations, seed, keep_descriptors, overwrite. Returns the import statistics as a dict.)doc");
 }
 
