@@ -35,6 +35,8 @@ for v in 0 65; do
 done
 check "--pq-residual-splits: '3' is not one of the choices" map build --images /nonexistent --out /nonexistent \
   --pq-residual-splits 3
+check "--pq-residual-kmeans: fast not in {progressive,plain}" map import --colmap /nonexistent \
+  --database /nonexistent --out /nonexistent --pq-residual-kmeans fast
 rm -f /tmp/visloc_options_test.$$
 [ "$status" = 0 ] && echo "all numeric options refuse NaN and bad ranges"
 exit "$status"

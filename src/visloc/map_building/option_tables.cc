@@ -37,9 +37,17 @@ constexpr const char* kResidualBeamHelp =
     "beam encodes closer and trains and encodes longer (on the Strecha scenes 1 ranked as well as FAISS's "
     "default 5, 0.872 against 0.869 of exact matching's 1-1 matches, and trained 3.6x faster)";
 
+// Training only: a resumed build, which keeps its codebook, ignores it.
+void add_residual_kmeans(OptionTable& t, PqTrainingOptions& o) {
+  t.choice("--pq-residual-kmeans", o.residual_progressive_dim, {{"progressive", true}, {"plain", false}},
+           "With --pq-quantizer residual: each codebook's k-means, 'progressive' in the dimensions (FAISS's "
+           "default: k-means on a growing prefix of the dimensions, several runs) or 'plain' (one run: faster)");
+}
+
 void add_residual_options(OptionTable& t, PqTrainingOptions& o) {
   t.choice("--pq-residual-splits", o.residual_splits, {{"1", 1}, {"2", 2}, {"4", 4}}, kResidualSplitsHelp);
   t.add("--pq-residual-beam", o.residual_beam, kResidualBeamHelp).range(1, kResidualMaxBeam);
+  add_residual_kmeans(t, o);
 }
 
 // --pq-residual-splits / --pq-residual-beam of `map build`: empty unless
@@ -182,6 +190,7 @@ void add_options(OptionTable& t, MapBuildOptions& o) {
       },
       std::string(kPqQuantizerHelp) + "; default: the existing map's, 'product' for a new map");
   add_resumable_residual_options(t, o);
+  add_residual_kmeans(t, o.pq);
   add_options(t, o.sift);
 }
 

@@ -523,6 +523,13 @@ bool take_pq_quantizer(Kwargs& k, const std::string& where, PqQuantizer& quantiz
   return true;
 }
 
+// The keyword `pq_residual_kmeans` ('progressive' or 'plain'), if given.
+void take_residual_kmeans(Kwargs& k, PqTrainingOptions& pq) {
+  std::string name;
+  if (k.take_choice("pq_residual_kmeans", name, {"progressive", "plain"}))
+    pq.residual_progressive_dim = name == "progressive";
+}
+
 // The keyword `point_coordinates` ('auto', 'float32', 'int16'), if given.
 void take_point_coordinates(Kwargs& k, SegmentWriteOptions& o) {
   std::string name;
@@ -575,6 +582,7 @@ nlohmann::json build_record(const MapBuildOptions& o, const fs::path& map_dir) {
   if (o.pq_quantizer) add("--pq-quantizer", to_string(*o.pq_quantizer));
   if (o.pq_residual_splits) add("--pq-residual-splits", std::to_string(*o.pq_residual_splits));
   if (o.pq_residual_beam) add("--pq-residual-beam", std::to_string(*o.pq_residual_beam));
+  if (!o.pq.residual_progressive_dim) add("--pq-residual-kmeans", "plain");
   add("--max-side", std::to_string(o.sift.max_image_side));
   add("--max-features", std::to_string(o.sift.max_features));
   add("--contrast-threshold", number_text(o.sift.contrast_threshold));
@@ -942,6 +950,7 @@ void bind_build_map(py::module_& m) {
         if (int bytes = 0; take_pq_bytes(k, "build_map", bytes)) o.pq_code_bytes = bytes;
         if (PqQuantizer q{}; take_pq_quantizer(k, "build_map", q, o.pq_residual_splits, o.pq_residual_beam))
           o.pq_quantizer = q;
+        take_residual_kmeans(k, o.pq);
         k.take("keep_work", o.keep_work);
         take_sift_options(k, o.sift);
         k.finish();
@@ -995,7 +1004,8 @@ hash_rotation, point_coordinates ('auto', 'float32', 'int16'), pq_bytes (16 or
 'residual': 16-byte codes of 16 codebooks added, a finer ranking at a slower
 search and minutes of training; default: an existing map's, 'product' for a
 new one), pq_residual_splits (1, 2 or 4) and pq_residual_beam (1 to 64) of
-residual codes (default: an existing map's, 2 and 1 for a new one), keep_work and the SIFT
+residual codes (default: an existing map's, 2 and 1 for a new one),
+pq_residual_kmeans ('progressive' or 'plain': their training), keep_work and the SIFT
 options. progress(dict) is called as the
 build advances. Local executor only (Slurm builds: the CLI). Segments are
 built `jobs` at a time (default: one per core), each SIFT on OpenCV's
@@ -1024,6 +1034,7 @@ void bind_import_colmap(py::module_& m) {
         take_pq_quantizer(k, "import_colmap", o.pq.quantizer, residual_splits, residual_beam);
         o.pq.residual_splits = residual_splits.value_or(o.pq.residual_splits);
         o.pq.residual_beam = residual_beam.value_or(o.pq.residual_beam);
+        take_residual_kmeans(k, o.pq);
         k.take("itq_iterations", o.itq.iterations);
         k.take("seed", o.itq.seed);
         k.take("keep_descriptors", o.keep_descriptors);
@@ -1046,6 +1057,7 @@ removed from the model, kept as queries), pq_train_database,
 pq_train_images, hash_rotation ('segment' or 'map'), point_coordinates ('auto',
 'float32', 'int16'), pq_bytes (16 or 32), pq_quantizer ('product' or 'residual'),
 pq_residual_splits (1, 2 or 4; default 2), pq_residual_beam (1 to 64; default 1),
+pq_residual_kmeans ('progressive' or 'plain'),
 itq_iterations, seed, keep_descriptors, overwrite. Returns the import statistics as a dict.)doc");
 }
 
