@@ -188,6 +188,8 @@ nlohmann::json study_fingerprint(const StudyDataset& d, const SegmentStudyOption
     fingerprint["pq_residual_splits"] = o.map.pq.residual_splits;
     // Studies made before the beam was an option used FAISS's default, 5.
     if (o.map.pq.residual_beam != kFaissResidualBeam) fingerprint["pq_residual_beam"] = o.map.pq.residual_beam;
+    // And FAISS's progressive k-means.
+    if (!o.map.pq.residual_progressive_dim) fingerprint["pq_residual_kmeans"] = "plain";
   }
   return fingerprint;
 }

@@ -26,7 +26,7 @@ constexpr const char* kPqQuantizerHelp =
     "codes of 16 codebooks added over --pq-residual-splits parts of the descriptor, trained and encoded by "
     "FAISS's residual quantizer: the same bytes per point, a finer ranking, a slower precise step; on the "
     "Strecha scenes FAISS's quantizers of this kind kept 0.87 of exact matching's 1-1 matches at 2 splits "
-    "(0.90 at 1, 0.82 at 4) against 0.755 for the PQ; its training is slow: minutes; codebook format "
+    "(0.90 at 1, 0.82 at 4) against 0.755 for the PQ; training takes seconds (fountain-P11: 6 s); codebook format "
     "version 3)";
 
 constexpr const char* kResidualSplitsHelp =
@@ -40,8 +40,10 @@ constexpr const char* kResidualBeamHelp =
 // Training only: a resumed build, which keeps its codebook, ignores it.
 void add_residual_kmeans(OptionTable& t, PqTrainingOptions& o) {
   t.choice("--pq-residual-kmeans", o.residual_progressive_dim, {{"progressive", true}, {"plain", false}},
-           "With --pq-quantizer residual: each codebook's k-means, 'progressive' in the dimensions (FAISS's "
-           "default: k-means on a growing prefix of the dimensions, several runs) or 'plain' (one run: faster)");
+           "With --pq-quantizer residual: each codebook's k-means, 'plain' (one run) or 'progressive' in the "
+           "dimensions (FAISS's default: k-means on a growing prefix of the dimensions, several runs); on the "
+           "Strecha scenes both ranked alike (0.871 and 0.872 of exact matching's 1-1 matches) and progressive "
+           "trained 38x longer");
 }
 
 void add_residual_options(OptionTable& t, PqTrainingOptions& o) {

@@ -582,7 +582,7 @@ nlohmann::json build_record(const MapBuildOptions& o, const fs::path& map_dir) {
   if (o.pq_quantizer) add("--pq-quantizer", to_string(*o.pq_quantizer));
   if (o.pq_residual_splits) add("--pq-residual-splits", std::to_string(*o.pq_residual_splits));
   if (o.pq_residual_beam) add("--pq-residual-beam", std::to_string(*o.pq_residual_beam));
-  if (!o.pq.residual_progressive_dim) add("--pq-residual-kmeans", "plain");
+  add("--pq-residual-kmeans", o.pq.residual_progressive_dim ? "progressive" : "plain");
   add("--max-side", std::to_string(o.sift.max_image_side));
   add("--max-features", std::to_string(o.sift.max_features));
   add("--contrast-threshold", number_text(o.sift.contrast_threshold));
@@ -1005,7 +1005,7 @@ hash_rotation, point_coordinates ('auto', 'float32', 'int16'), pq_bytes (16 or
 search and minutes of training; default: an existing map's, 'product' for a
 new one), pq_residual_splits (1, 2 or 4) and pq_residual_beam (1 to 64) of
 residual codes (default: an existing map's, 2 and 1 for a new one),
-pq_residual_kmeans ('progressive' or 'plain': their training), keep_work and the SIFT
+pq_residual_kmeans ('plain', the default, or 'progressive': their training), keep_work and the SIFT
 options. progress(dict) is called as the
 build advances. Local executor only (Slurm builds: the CLI). Segments are
 built `jobs` at a time (default: one per core), each SIFT on OpenCV's
@@ -1057,7 +1057,7 @@ removed from the model, kept as queries), pq_train_database,
 pq_train_images, hash_rotation ('segment' or 'map'), point_coordinates ('auto',
 'float32', 'int16'), pq_bytes (16 or 32), pq_quantizer ('product' or 'residual'),
 pq_residual_splits (1, 2 or 4; default 2), pq_residual_beam (1 to 64; default 1),
-pq_residual_kmeans ('progressive' or 'plain'),
+pq_residual_kmeans ('plain', the default, or 'progressive'),
 itq_iterations, seed, keep_descriptors, overwrite. Returns the import statistics as a dict.)doc");
 }
 

@@ -247,7 +247,7 @@ def test_build_map_with_residual_codes(street, tmp_path):
     visloc.build_map(city / "images", tmp_path / "map", gps=str(city / "gps.csv"), poses="known",
                      known_poses=city / "sparse", jobs=1, min_placemarks=3, max_placemarks=3, overlap=1,
                      retrieval=False, pq_training_images=1, pq_quantizer="residual", pq_residual_splits=4,
-                     pq_residual_beam=2, pq_residual_kmeans="plain")
+                     pq_residual_beam=2)
     total = visloc.Map(tmp_path / "map").info()["total"]
     assert (total["pq_quantizer"], total["pq_residual_splits"], total["pq_residual_beam"],
             total["pq_code_bytes"]) == ("residual", 4, 2, 16)
@@ -258,7 +258,7 @@ def test_build_map_with_residual_codes(street, tmp_path):
     assert record[record.index("--pq-quantizer") + 1] == "residual"
     assert record[record.index("--pq-residual-splits") + 1] == "4"
     assert record[record.index("--pq-residual-beam") + 1] == "2"
-    assert record[record.index("--pq-residual-kmeans") + 1] == "plain"
+    assert record[record.index("--pq-residual-kmeans") + 1] == "plain"  # the default
     # Resumed with another beam: refused, naming the map's.
     with pytest.raises(ValueError, match="--pq-residual-beam 2"):
         visloc.build_map(city / "images", tmp_path / "map", gps=str(city / "gps.csv"), poses="known",
