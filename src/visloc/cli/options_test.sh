@@ -27,6 +27,10 @@ check --vote-ratio localize --map /nonexistent --vote-ratio 1.5 q.jpg
 check --vote-ratio localize --map /nonexistent --vote-ratio nan q.jpg
 check --segment-votes localize --map /nonexistent --segment-votes pixels q.jpg
 # The range's own message (an unknown flag would also exit 2 and name it).
+check --pq-residual-beam map import --colmap /nonexistent --database /nonexistent --out /nonexistent \
+  --pq-quantizer residual --pq-residual-beam nan
+check "--pq-residual-beam: 'nan' is not a whole number" map build --images /nonexistent --out /nonexistent \
+  --pq-residual-beam nan
 for v in 0 65; do
   check "--pq-residual-beam: '$v' is not in \[1, 64\]" map import --colmap /nonexistent --database /nonexistent \
     --out /nonexistent --pq-quantizer residual --pq-residual-beam "$v"

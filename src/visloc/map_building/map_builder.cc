@@ -967,14 +967,16 @@ void resolve_pq_residual(const fs::path& map_dir, const MapBuildOptions& options
   }
   const PqCodebook existing = PqCodebook::read(codebook_path);
   if (!existing.is_residual()) return;
-  auto refuse_unlike = [&](const std::optional<int>& given, int has, const char* flag, const char* what) {
+  auto refuse_unlike = [&](const std::optional<int>& given, int has, const char* flag, const std::string& what) {
     if (given && *given != has)
-      throw_error(ErrorCode::kInvalidArgument, map_dir.string(), ": the map's residual codes have ", what, " ", has,
-                  " (", codebook_path.string(), "); build it without ", flag, " (or with ", flag, " ", has,
+      throw_error(ErrorCode::kInvalidArgument, map_dir.string(), ": the map's residual codes ", what, " (",
+                  codebook_path.string(), "); build it without ", flag, " (or with ", flag, " ", has,
                   "), or build codes with ", flag, " ", *given, " into a new directory");
   };
-  refuse_unlike(options.pq_residual_splits, existing.residual_splits(), "--pq-residual-splits", "parts");
-  refuse_unlike(options.pq_residual_beam, existing.residual_beam(), "--pq-residual-beam", "beam");
+  refuse_unlike(options.pq_residual_splits, existing.residual_splits(), "--pq-residual-splits",
+                "are over " + std::to_string(existing.residual_splits()) + " part(s)");
+  refuse_unlike(options.pq_residual_beam, existing.residual_beam(), "--pq-residual-beam",
+                "have a beam of " + std::to_string(existing.residual_beam()));
   pq.residual_splits = existing.residual_splits();
   pq.residual_beam = existing.residual_beam();
 }

@@ -89,8 +89,8 @@ struct PqTrainingOptions {
   PqQuantizer quantizer = PqQuantizer::kProduct;
   int subvectors = kPqSubvectors;  // M: 16 (16-byte codes) or 32 (32-byte codes); 16 with kResidual
   int residual_splits = 2;         // S with kResidual: 1, 2 or 4
-  // kResidual trains on at most this many descriptors (its progressive k-means
-  // per codebook costs ~ 16 × the PQ's).
+  // kResidual trains on at most this many descriptors (16 k-means over 128 / S
+  // dimensions each, where the PQ's 16 are over 8).
   size_t residual_max_training = 30000;
   // kResidual's k-means per codebook: progressive in the dimensions (FAISS's
   // default) or plain, one run (the default). On the four Strecha scenes,
@@ -160,7 +160,7 @@ class PqCodebook {
   PqQuantizer quantizer_ = PqQuantizer::kProduct;
   int subvectors_ = kPqSubvectors;
   int residual_splits_ = 1;
-  int residual_beam_ = 5;
+  int residual_beam_ = kResidualBeam;
   std::vector<float> centroids_;   // PQ: M × 256 × D; residual: 16 × 256 × 128 / S
   std::vector<float> transposed_;  // PQ: M × D × 256
 };

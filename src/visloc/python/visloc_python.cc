@@ -1002,7 +1002,7 @@ registration_threshold, retrieval, retrieval_dims, pq_training_images,
 hash_rotation, point_coordinates ('auto', 'float32', 'int16'), pq_bytes (16 or
 32; default: an existing map's, 16 for a new one), pq_quantizer ('product' or
 'residual': 16-byte codes of 16 codebooks added, a finer ranking at a slower
-search and minutes of training; default: an existing map's, 'product' for a
+search, seconds of training; default: an existing map's, 'product' for a
 new one), pq_residual_splits (1, 2 or 4) and pq_residual_beam (1 to 64) of
 residual codes (default: an existing map's, 2 and 1 for a new one),
 pq_residual_kmeans ('plain', the default, or 'progressive': their training), keep_work and the SIFT
