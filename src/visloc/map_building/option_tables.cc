@@ -2,6 +2,8 @@
 // `visloc map build` (MapBuildOptions) and `visloc map import` (its sources
 // and ColmapImportOptions).
 #include <climits>
+#include <optional>
+#include <string>
 
 #include "visloc/map_building/colmap_import.h"
 #include "visloc/map_building/map_builder.h"
@@ -53,20 +55,27 @@ void add_residual_options(OptionTable& t, PqTrainingOptions& o) {
   add_residual_kmeans(t, o);
 }
 
+// A whole-number option of `map build` left empty unless given (an existing
+// map's value then applies): a value `valid` refuses names `choices`.
+void add_optional_whole_choice(OptionTable& t, const std::string& flag, std::optional<int>& field, bool (*valid)(int),
+                               const std::string& choices, std::string help) {
+  t.text(
+      flag, "",
+      [&field, flag, valid, choices](const std::string& text) {
+        if (text.empty()) return;
+        const int64_t value = parse_whole_number(text, flag, INT_MIN, INT_MAX);
+        if (!valid(int(value)))
+          throw_error(ErrorCode::kInvalidArgument, flag, ": '", text, "' is not one of the choices (", choices, ")");
+        field = int(value);
+      },
+      std::move(help));
+}
+
 // --pq-residual-splits / --pq-residual-beam of `map build`: empty unless
 // given (an existing map keeps its codebook's; resolve_pq_residual).
 void add_resumable_residual_options(OptionTable& t, MapBuildOptions& o) {
-  t.text(
-      "--pq-residual-splits", "",
-      [&o](const std::string& text) {
-        if (text.empty()) return;
-        const int64_t splits = parse_whole_number(text, "--pq-residual-splits", INT_MIN, INT_MAX);
-        if (!valid_residual_splits(int(splits)))
-          throw_error(ErrorCode::kInvalidArgument, "--pq-residual-splits: '", text,
-                      "' is not one of the choices (1, 2, 4)");
-        o.pq_residual_splits = int(splits);
-      },
-      std::string(kResidualSplitsHelp) + "; default: the existing map's, 2 for a new map");
+  add_optional_whole_choice(t, "--pq-residual-splits", o.pq_residual_splits, valid_residual_splits, "1, 2, 4",
+                            std::string(kResidualSplitsHelp) + "; default: the existing map's, 2 for a new map");
   t.text(
       "--pq-residual-beam", "",
       [&o](const std::string& text) {
@@ -169,16 +178,8 @@ void add_options(OptionTable& t, MapBuildOptions& o) {
       "hashed once, and the localizer can vote for segments with the query's local features) or 'segment' "
       "(one per segment, in its file); default: the existing map's, 'map' for a new map");
   add_point_coordinates(t, o.segment_file);
-  t.text(
-      "--pq-bytes", "",
-      [&o](const std::string& text) {
-        if (text.empty()) return;
-        const int64_t bytes = parse_whole_number(text, "--pq-bytes", INT_MIN, INT_MAX);
-        if (!valid_pq_subvectors(int(bytes)))
-          throw_error(ErrorCode::kInvalidArgument, "--pq-bytes: '", text, "' is not one of the choices (16, 32)");
-        o.pq_code_bytes = int(bytes);
-      },
-      std::string(kPqBytesHelp) + "; default: the existing map's, 16 for a new map");
+  add_optional_whole_choice(t, "--pq-bytes", o.pq_code_bytes, valid_pq_subvectors, "16, 32",
+                            std::string(kPqBytesHelp) + "; default: the existing map's, 16 for a new map");
   t.text(
       "--pq-quantizer", "",
       [&o](const std::string& text) {
