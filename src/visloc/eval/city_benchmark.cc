@@ -134,6 +134,11 @@ void add_pose_evidence(const LocalizationResult& r, nlohmann::json* entry) {
   (*entry)["confidence"] = r.confidence;
   if (r.segment < 0) return;
   (*entry)["confidence_features"] = r.confidence_features.to_json();
+  if (r.under_street.assessed) {
+    (*entry)["drop_below_map_camera_m"] = r.under_street.drop_below_camera_m;
+    if (r.under_street.above_ground_m) (*entry)["above_map_ground_m"] = *r.under_street.above_ground_m;
+    if (r.under_street.under_street) (*entry)["under_street"] = true;
+  }
   if (r.uncertainty.valid) {
     (*entry)["position_sigma"] = r.uncertainty.position_sigma;
     (*entry)["rotation_sigma_deg"] = r.uncertainty.rotation_sigma_deg;

@@ -103,34 +103,44 @@ TEST(Evaluation, CountsWrongPosesApartFromMissesAndReadsBackAsSamples) {
   const CameraPose near = CameraPose::from_matrix(Eigen::Matrix3d::Identity(), Eigen::Vector3d(0.05, 0, 0));
   const CameraPose far = CameraPose::from_matrix(Eigen::Matrix3d::Identity(), Eigen::Vector3d(8, 0, 0));
   std::map<std::string, QueryTruth> t;
-  for (const char* n : {"a", "b", "c", "d"}) t[n].cam_from_world = truth;
+  for (const char* n : {"a", "b", "c", "d", "e"}) t[n].cam_from_world = truth;
   std::vector<LocalizationResult> results = {pose_result("a", true, near, 0.99), pose_result("b", true, far, 0.9),
-                                             pose_result("c", false, near, 0.2), LocalizationResult{}};
+                                             pose_result("c", false, near, 0.2), LocalizationResult{},
+                                             pose_result("e", false, far, 0.9)};
   results[3].image = "d";
+  results[4].under_street.assessed = results[4].under_street.under_street = true;  // e: above the threshold
   std::vector<LocalizationResult> negatives = {pose_result("/x/n1.jpg", true, far, 0.95),
-                                               pose_result("/x/n2.jpg", false, far, 0.1)};
+                                               pose_result("/x/n2.jpg", false, far, 0.1),
+                                               pose_result("/x/n3.jpg", false, far, 0.1)};
+  negatives[2].under_street.assessed = negatives[2].under_street.under_street = true;  // n3: below it too
   LocalizerOptions lo;
   lo.min_confidence = 0.5;
   const EvaluationReport rep = evaluate(results, t, negatives, lo);
-  EXPECT_EQ(rep.queries, 4u);
+  EXPECT_EQ(rep.queries, 5u);
   EXPECT_EQ(rep.registered, 2u);
   EXPECT_EQ(rep.wrong_positives, 1u);
-  EXPECT_EQ(rep.negatives, 2u);
+  EXPECT_EQ(rep.negatives, 3u);
   EXPECT_EQ(rep.negatives_registered, 1u);
   const nlohmann::json j = rep.to_json(results, {});
   EXPECT_EQ(j["wrong_poses"]["total"], 2);
   EXPECT_EQ(j["confidence"]["rejected_right_poses"], 1);  // c: right pose, 40 inliers, confidence 0.2
-  EXPECT_EQ(j["confidence"]["rejected_wrong_poses"], 1);  // n2
+  EXPECT_EQ(j["confidence"]["rejected_wrong_poses"], 2);  // n2, n3 (below the threshold)
+  EXPECT_EQ(j["under_street"]["rejected_wrong_poses"], 1);  // e
+  EXPECT_EQ(j["under_street"]["rejected_right_poses"], 0);
   EXPECT_DOUBLE_EQ(j["uncertainty"]["within_1_sigma"].get<double>(), 0.5);  // a within 0.1, b not
 
   const auto dir = unique_temp_path("visloc_eval_conf");
   write_report(dir, rep, results, {});
   EXPECT_TRUE(std::filesystem::exists(dir / "precision_recall.png"));
   const auto samples = read_confidence_samples(dir / "report.json", WrongPoseRule{});
-  ASSERT_EQ(samples.size(), 5u);  // a, b, c and the two negatives (d has no pose)
+  ASSERT_EQ(samples.size(), 7u);  // a, b, c, e and the three negatives (d has no pose)
   size_t right = 0;
   for (const auto& s : samples) right += s.right;
   EXPECT_EQ(right, 2u);  // a and c
+  const nlohmann::json written = nlohmann::json::parse(read_file(dir / "report.json"));
+  size_t marked = 0;
+  for (const auto& q : written["per_query"]) marked += q.value("under_street", false);
+  EXPECT_EQ(marked, 2u);  // e and n3
   write_file_atomic(dir / "bad.json", "{\"per_query\": 3}");
   EXPECT_THROW(read_confidence_samples(dir / "bad.json", WrongPoseRule{}), Error);
   std::filesystem::remove_all(dir);

@@ -36,11 +36,30 @@ nlohmann::json stats(const std::vector<double>& v) {
   return {{"q25", quantile(v, 0.25)}, {"median", quantile(v, 0.5)}, {"q75", quantile(v, 0.75)}};
 }
 
-
 // The query's pose, registered or not, is within the rule (never for a negative).
 bool pose_is_right(const QueryEvaluation& q, const WrongPoseRule& rule) {
   return !q.negative && q.pose_position_error >= 0 && q.pose_position_error <= rule.position_m &&
          q.pose_rotation_error <= rule.rotation_deg;
+}
+
+// What the confidence threshold turned away among the poses with enough
+// inliers, and what the under-street check turned away above the threshold.
+void add_gate_counts(const std::vector<QueryEvaluation>& per_query, const WrongPoseRule& rule, double min_confidence,
+                     size_t min_inliers, nlohmann::json& j) {
+  size_t gated_right = 0, gated_wrong = 0, under_right = 0, under_wrong = 0;
+  for (const auto& q : per_query) {
+    if (!q.confidence_features || q.inliers < min_inliers || q.registered) continue;
+    const bool right = pose_is_right(q, rule);
+    if (q.under_street && q.confidence >= min_confidence)
+      (right ? under_right : under_wrong)++;
+    else
+      (right ? gated_right : gated_wrong)++;
+  }
+  j["confidence"] = {{"min_confidence", min_confidence},
+                     {"min_inliers", min_inliers},
+                     {"rejected_right_poses", gated_right},
+                     {"rejected_wrong_poses", gated_wrong}};
+  j["under_street"] = {{"rejected_right_poses", under_right}, {"rejected_wrong_poses", under_wrong}};
 }
 
 }  // namespace
@@ -78,6 +97,7 @@ EvaluationReport evaluate(const std::vector<LocalizationResult>& results,
     if (r.segment >= 0 && r.confidence_features.inliers > 0) q->confidence_features = r.confidence_features;
     q->uncertainty = r.uncertainty;
     q->segment = r.segment;
+    q->under_street = r.under_street.under_street;
     q->times = r.times;
   };
   auto note_frame = [&rep](const char* frame) {
@@ -195,18 +215,7 @@ nlohmann::json EvaluationReport::to_json(const std::vector<LocalizationResult>& 
                       {"total", wrong_positives + negatives_registered},
                       {"rule", {{"position_m", rule.position_m}, {"rotation_deg", rule.rotation_deg}}}};
   j["negatives"] = {{"queries", negatives}, {"registered", negatives_registered}};
-  // Confidence: the threshold used, what it kept and lost.
-  {
-    size_t gated_right = 0, gated_wrong = 0;
-    for (const auto& q : per_query) {
-      if (!q.confidence_features || q.inliers < min_inliers || q.registered) continue;
-      (pose_is_right(q, rule) ? gated_right : gated_wrong)++;
-    }
-    j["confidence"] = {{"min_confidence", min_confidence},
-                       {"min_inliers", min_inliers},
-                       {"rejected_right_poses", gated_right},
-                       {"rejected_wrong_poses", gated_wrong}};
-  }
+  add_gate_counts(per_query, rule, min_confidence, min_inliers, j);
   // Uncertainty: the fraction of the registered positives' errors within 1σ and 2σ.
   {
     size_t n = 0, in1 = 0, in2 = 0;
@@ -238,6 +247,7 @@ nlohmann::json EvaluationReport::to_json(const std::vector<LocalizationResult>& 
                         {"position_error_m", q.position_error},
                         {"rotation_error_deg", q.rotation_error}};
     if (q.negative) e["negative"] = true;
+    if (q.under_street) e["under_street"] = true;
     auto vec = [](const Eigen::Vector3d& v) { return nlohmann::json::array({v.x(), v.y(), v.z()}); };
     if (q.true_center) e["true_center"] = vec(*q.true_center);
     if (q.estimated_center) e["estimated_center"] = vec(*q.estimated_center);
@@ -427,13 +437,15 @@ void write_report(const std::filesystem::path& dir, const EvaluationReport& repo
     md << "Intrinsics from the --intrinsics list for " << j["queries_with_given_intrinsics"] << " of " << j["queries"]
        << " queries.\n\n";
   md << "Wrong poses (registered more than " << num(j["wrong_poses"]["rule"]["position_m"]) << " m or "
-     << num(j["wrong_poses"]["rule"]["rotation_deg"]) << "° from the truth, or a registered negative): "
-     << j["wrong_poses"]["total"] << " (" << j["wrong_poses"]["positives"] << " of the queries, "
-     << j["wrong_poses"]["negatives"] << " of " << j["negatives"]["queries"] << " negatives); misses: "
-     << (report.queries - report.registered) << ".\n\n"
+     << num(j["wrong_poses"]["rule"]["rotation_deg"])
+     << "° from the truth, or a registered negative): " << j["wrong_poses"]["total"] << " ("
+     << j["wrong_poses"]["positives"] << " of the queries, " << j["wrong_poses"]["negatives"] << " of "
+     << j["negatives"]["queries"] << " negatives); misses: " << (report.queries - report.registered) << ".\n\n"
      << "Confidence threshold " << num(j["confidence"]["min_confidence"]) << ": it turned away "
      << j["confidence"]["rejected_wrong_poses"] << " wrong and " << j["confidence"]["rejected_right_poses"]
-     << " right poses that had at least " << j["confidence"]["min_inliers"] << " inliers.\n\n"
+     << " right poses that had at least " << j["confidence"]["min_inliers"] << " inliers; the under-street check "
+     << j["under_street"]["rejected_wrong_poses"] << " wrong and " << j["under_street"]["rejected_right_poses"]
+     << " right ones above the threshold.\n\n"
      << "Uncertainty: of " << j["uncertainty"]["registered_with_sigma"] << " registered queries, "
      << num(j["uncertainty"]["within_1_sigma"]) << " have their position error within 1σ and "
      << num(j["uncertainty"]["within_2_sigma"]) << " within 2σ (median σ "

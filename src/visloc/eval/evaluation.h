@@ -42,6 +42,7 @@ struct QueryEvaluation {
   size_t inliers = 0;
   double confidence = 0;
   std::optional<ConfidenceFeatures> confidence_features;  // with a pose
+  bool under_street = false;  // the pose's camera under the street (LocalizationResult::under_street)
   PoseUncertainty uncertainty;
   bool uncertainty_in_metres = false;  // GPS truth: the error is compared with the ENU σ
   std::optional<Eigen::Vector3d> estimated_center, true_center;

@@ -178,6 +178,60 @@ void MapCameraRange::assess(const CameraPose& pose, ConfidenceFeatures* f) const
   f->tilt_excess_deg = std::max(0.0, std::abs(tilt) - max_abs_tilt_deg_);
 }
 
+void UnderStreetOptions::validate() const {
+  const auto check = [](bool ok, const char* field, double value) {
+    if (!ok) throw_error(ErrorCode::kInvalidArgument, "under_street.", field, " out of range: ", value);
+  };
+  check(max_drop_m >= 0 && std::isfinite(max_drop_m), "max_drop_m", max_drop_m);
+  check(max_slope >= 0 && std::isfinite(max_slope), "max_slope", max_slope);
+  check(max_below_ground_m >= 0 && std::isfinite(max_below_ground_m), "max_below_ground_m", max_below_ground_m);
+  check(ground_radius_m > 0 && std::isfinite(ground_radius_m), "ground_radius_m", ground_radius_m);
+  check(ground_quantile >= 0 && ground_quantile <= 1, "ground_quantile", ground_quantile);
+}
+
+UnderStreetAssessment assess_under_street(const CameraPose& cam_from_segment, const std::vector<SegmentImage>& images,
+                                          std::span<const float> xyz, const Similarity3d& enu_from_segment,
+                                          const UnderStreetOptions& options, std::vector<float>& heights) {
+  UnderStreetAssessment a;
+  const Eigen::Vector3d c = cam_from_segment.center();
+  const double scale = enu_from_segment.scale;
+  if (!options.enabled || !c.allFinite() || !(scale > 0) || !std::isfinite(scale)) return a;
+  // The ENU up in the segment frame; metres = segment units × scale.
+  const Eigen::Vector3d up = enu_from_segment.rotation.transpose() * Eigen::Vector3d::UnitZ();
+  const auto plan_distance_m = [&](const Eigen::Vector3d& d) { return (d - up.dot(d) * up).norm() * scale; };
+  double nearest = INFINITY;
+  for (const SegmentImage& im : images) {
+    const auto& q = im.cam_from_world_q_wxyz;
+    const Eigen::Quaterniond rot(q[0], q[1], q[2], q[3]);
+    if (!(rot.norm() > 0.5)) continue;
+    const Eigen::Vector3d t(im.cam_from_world_t[0], im.cam_from_world_t[1], im.cam_from_world_t[2]);
+    const Eigen::Vector3d m = -(rot.normalized().toRotationMatrix().transpose() * t);
+    if (!m.allFinite()) continue;
+    const double d = plan_distance_m(c - m);
+    if (d < nearest) {
+      nearest = d;
+      a.camera_plan_distance_m = d;
+      a.drop_below_camera_m = up.dot(m - c) * scale;
+    }
+  }
+  if (!std::isfinite(nearest)) return a;
+  a.assessed = true;
+  heights.clear();
+  const double radius_sq = options.ground_radius_m * options.ground_radius_m;
+  for (size_t i = 0; i + 2 < xyz.size(); i += 3) {
+    const Eigen::Vector3d d = Eigen::Vector3d(xyz[i], xyz[i + 1], xyz[i + 2]) - c;
+    const double plan = plan_distance_m(d);
+    if (plan * plan <= radius_sq && std::isfinite(plan)) heights.push_back(static_cast<float>(up.dot(d) * scale));
+  }
+  if (heights.empty()) return a;
+  const size_t k = std::min(heights.size() - 1, static_cast<size_t>(options.ground_quantile * double(heights.size())));
+  std::nth_element(heights.begin(), heights.begin() + static_cast<std::ptrdiff_t>(k), heights.end());
+  a.above_ground_m = -double(heights[k]);  // the ground's height relative to the camera, negated
+  a.under_street = a.drop_below_camera_m > options.max_drop_m + options.max_slope * a.camera_plan_distance_m &&
+                   *a.above_ground_m < -options.max_below_ground_m;
+  return a;
+}
+
 const double kDefaultMinConfidence = 0.66897996067596854;
 
 double explained_fraction(std::span<const float> xyz, const CameraPose& cam_from_segment, const PinholeCamera& camera,

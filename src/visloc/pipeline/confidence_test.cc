@@ -360,5 +360,138 @@ TEST(ElsewhereInlierShare, CountsInliersWhoseNearestMapPointIsInAnUnrelatedSegme
   EXPECT_THROW(elsewhere_inlier_share(votes, query_feature, std::vector<int32_t>{0}, 2, related), Error);
 }
 
+// The street_cameras() street's ground (z = 0) and facades (y = 8, up to
+// 10 m), as segment points; `scale`: segment units per metre.
+std::vector<float> street_points(double units_per_metre) {
+  std::vector<float> xyz;
+  for (int x = -10; x <= 45; ++x) {
+    for (int y = -4; y <= 6; y += 2) {
+      for (double v : {double(x), double(y), 0.0}) xyz.push_back(static_cast<float>(v * units_per_metre));
+    }
+    for (int z = 0; z <= 10; ++z)
+      for (double v : {double(x), 8.0, double(z)}) xyz.push_back(static_cast<float>(v * units_per_metre));
+  }
+  return xyz;
+}
+
+// The cameras of street_cameras() in segment units (metres × units_per_metre).
+std::vector<SegmentImage> scaled_street_cameras(double units_per_metre, double height_m = 2) {
+  std::vector<SegmentImage> images = street_cameras();
+  for (auto& im : images) {
+    const auto& q = im.cam_from_world_q_wxyz;
+    const Eigen::Matrix3d R = Eigen::Quaterniond(q[0], q[1], q[2], q[3]).toRotationMatrix();
+    Eigen::Vector3d c =
+        -R.transpose() * Eigen::Vector3d(im.cam_from_world_t[0], im.cam_from_world_t[1], im.cam_from_world_t[2]);
+    c.z() = height_m;
+    const Eigen::Vector3d t = -R * (c * units_per_metre);
+    im.cam_from_world_t = {t.x(), t.y(), t.z()};
+  }
+  return images;
+}
+
+TEST(UnderStreet, ACameraBelowBothTheStreetsCamerasAndItsGround) {
+  std::vector<float> heights;
+  const UnderStreetOptions options;
+  for (const double units : {1.0, 0.5}) {  // segment units per metre; enu_from_segment scales back
+    SCOPED_TRACE("units per metre " + std::to_string(units));
+    Similarity3d enu_from_segment;
+    enu_from_segment.scale = 1 / units;
+    const auto images = scaled_street_cameras(units);
+    const auto xyz = street_points(units);
+    auto at = [&](const Eigen::Vector3d& centre_m) {
+      return assess_under_street(pose_at(centre_m * units, 0), images, xyz, enu_from_segment, options, heights);
+    };
+    // A phone held on the street: 0.5 m below the map cameras, 1.5 m above the ground.
+    const UnderStreetAssessment phone = at({12, 1, 1.5});
+    ASSERT_TRUE(phone.assessed);
+    EXPECT_NEAR(phone.drop_below_camera_m, 0.5, 1e-9);
+    EXPECT_NEAR(phone.camera_plan_distance_m, std::hypot(2.0, 1.0), 1e-9);
+    ASSERT_TRUE(phone.above_ground_m);
+    EXPECT_NEAR(*phone.above_ground_m, 1.5, 1e-5);
+    EXPECT_FALSE(phone.under_street);
+    // 6 m under the road: below both.
+    const UnderStreetAssessment under = at({12, 1, -6});
+    EXPECT_NEAR(under.drop_below_camera_m, 8, 1e-9);
+    EXPECT_NEAR(*under.above_ground_m, -6, 1e-5);
+    EXPECT_TRUE(under.under_street);
+    // 2.5 m under the road, 4.5 m below the cameras (> 3 + 0.35 × 2.2).
+    EXPECT_TRUE(at({12, 1, -2.5}).under_street);
+    // 0.5 m under the road (a sunken step): not beyond the ground margin.
+    EXPECT_FALSE(at({12, 1, -0.5}).under_street);
+  }
+  Similarity3d identity;
+  const auto images = scaled_street_cameras(1);
+  // 25 m off the street in plan (a lower street down a hill): 8 m below the
+  // cameras is within the slope's 3 + 0.35 × 25 m, though below this ground.
+  const UnderStreetAssessment downhill =
+      assess_under_street(pose_at({12, 25, -6}, 0), images, street_points(1), identity, options, heights);
+  EXPECT_NEAR(*downhill.above_ground_m, -6, 1e-5);
+  EXPECT_FALSE(downhill.under_street);
+  // No map point within 30 m in plan: no ground, never under the street.
+  std::vector<float> far_points = street_points(1);
+  for (size_t i = 1; i < far_points.size(); i += 3) far_points[i] += 200;
+  const UnderStreetAssessment no_ground =
+      assess_under_street(pose_at({12, 1, -6}, 0), images, far_points, identity, options, heights);
+  EXPECT_TRUE(no_ground.assessed);
+  EXPECT_FALSE(no_ground.above_ground_m);
+  EXPECT_FALSE(no_ground.under_street);
+  // A drone flight's map, its cameras 40 m up: a phone on the ground is far
+  // below them, but above the ground.
+  const UnderStreetAssessment drone = assess_under_street(pose_at({12, 1, 1.5}, 0), scaled_street_cameras(1, 40),
+                                                          street_points(1), identity, options, heights);
+  EXPECT_NEAR(drone.drop_below_camera_m, 38.5, 1e-9);
+  EXPECT_FALSE(drone.under_street);
+  // A few points triangulated under the road (1% of those near) do not lower the ground.
+  std::vector<float> noisy = street_points(1);
+  const size_t points = noisy.size() / 3;
+  for (size_t i = 0; i < points / 100; ++i)
+    for (float v : {12.0f, 1.0f, -20.0f}) noisy.push_back(v);
+  const UnderStreetAssessment robust =
+      assess_under_street(pose_at({12, 1, -2.5}, 0), images, noisy, identity, options, heights);
+  EXPECT_NEAR(*robust.above_ground_m, -2.5, 1e-5);
+  EXPECT_TRUE(robust.under_street);
+  // A segment frame turned against ENU: the up direction comes from enu_from_segment.
+  {
+    Similarity3d turned;
+    turned.rotation =
+        (Eigen::AngleAxisd(0.5, Eigen::Vector3d::UnitX()) * Eigen::AngleAxisd(-0.3, Eigen::Vector3d::UnitY()))
+            .toRotationMatrix();
+    const Eigen::Matrix3d seg_from_enu = turned.rotation.transpose();
+    std::vector<SegmentImage> turned_images = images;
+    for (auto& im : turned_images) {
+      const auto& q = im.cam_from_world_q_wxyz;
+      const Eigen::Matrix3d R =
+          Eigen::Quaterniond(q[0], q[1], q[2], q[3]).toRotationMatrix() * seg_from_enu.transpose();
+      const Eigen::Quaterniond tq(R);
+      im.cam_from_world_q_wxyz = {tq.w(), tq.x(), tq.y(), tq.z()};
+    }
+    std::vector<float> turned_xyz = street_points(1);
+    for (size_t i = 0; i + 2 < turned_xyz.size(); i += 3) {
+      const Eigen::Vector3d p = seg_from_enu * Eigen::Vector3d(turned_xyz[i], turned_xyz[i + 1], turned_xyz[i + 2]);
+      for (int k = 0; k < 3; ++k) turned_xyz[i + k] = static_cast<float>(p[k]);
+    }
+    const CameraPose enu_pose = pose_at({12, 1, -6}, 0);
+    const CameraPose pose =
+        CameraPose::from_matrix(enu_pose.rotation_matrix() * seg_from_enu.transpose(), enu_pose.translation);
+    const UnderStreetAssessment t = assess_under_street(pose, turned_images, turned_xyz, turned, options, heights);
+    EXPECT_NEAR(t.drop_below_camera_m, 8, 1e-6);
+    EXPECT_NEAR(*t.above_ground_m, -6, 1e-4);
+    EXPECT_TRUE(t.under_street);
+  }
+  // Disabled: not assessed.
+  UnderStreetOptions off;
+  off.enabled = false;
+  EXPECT_FALSE(assess_under_street(pose_at({12, 1, -6}, 0), images, street_points(1), identity, off, heights).assessed);
+  UnderStreetOptions bad;
+  bad.ground_quantile = 1.5;
+  EXPECT_THROW(bad.validate(), Error);
+  bad = {};
+  bad.max_drop_m = -1;
+  EXPECT_THROW(bad.validate(), Error);
+  bad = {};
+  bad.ground_radius_m = 0;
+  EXPECT_THROW(bad.validate(), Error);
+}
+
 }  // namespace
 }  // namespace visloc

@@ -22,6 +22,14 @@ nlohmann::json to_json(const LocalizationResult& r) {
       if (u.relative_position_sigma > 0) a["relative_position_sigma"] = u.relative_position_sigma;
       j["uncertainty"] = a;
     }
+    if (r.under_street.assessed) {
+      const UnderStreetAssessment& u = r.under_street;
+      nlohmann::json a = {{"under_street", u.under_street},
+                          {"drop_below_map_camera_m", u.drop_below_camera_m},
+                          {"map_camera_plan_distance_m", u.camera_plan_distance_m}};
+      if (u.above_ground_m) a["above_map_ground_m"] = *u.above_ground_m;
+      j["plausibility"] = a;
+    }
     const auto q = r.cam_from_segment.q_wxyz();
     j["q_wxyz"] = {q[0], q[1], q[2], q[3]};
     const auto& t = r.cam_from_segment.translation;

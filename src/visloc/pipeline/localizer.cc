@@ -52,6 +52,7 @@ void LocalizerOptions::validate() const {
   if (!(min_confidence >= 0 && min_confidence <= 1))
     throw_error(ErrorCode::kInvalidArgument, "min_confidence must be in [0, 1], got ", min_confidence);
   point_votes.validate();
+  under_street.validate();
 }
 
 SegmentVoteSource parse_segment_vote_source(const std::string& name) {
@@ -137,6 +138,7 @@ struct QueryWorkspace {
   SegmentPointVoteResult point_votes;
   CascadeMatches matches;             // of the segment being searched
   CorrespondenceSet correspondences;  // the same matches, as RANSAC takes them
+  std::vector<float> point_heights;   // the under-street check's scratch
 };
 
 class WorkspacePool {
@@ -648,7 +650,12 @@ void Localizer::Impl::Search::assess_best(bool final_assessment) {
     cf.explained = explained_fraction(best_segment_->xyz(), res.cam_from_segment, camera_, res.focal_px,
                                       res.principal_point_offset, best_quality_.inlier_depth_p90, res.inliers);
   res.confidence = model.evaluate(cf);
-  res.registered = best_has_enough_inliers_ && res.confidence >= options_.min_confidence;
+  res.under_street = {};
+  if (frame.georegistered)
+    res.under_street = assess_under_street(res.cam_from_segment, best_segment_->images(), best_segment_->xyz(),
+                                           frame.enu_from_segment, options_.under_street, ws_.point_heights);
+  res.registered =
+      best_has_enough_inliers_ && res.confidence >= options_.min_confidence && !res.under_street.under_street;
   if (best_quality_.covariance.valid) {
     res.uncertainty =
         pose_uncertainty(best_quality_.covariance, res.cam_from_segment,

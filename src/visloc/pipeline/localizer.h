@@ -107,6 +107,9 @@ struct LocalizerOptions {
   // threshold, chosen for a precision of ≥ 99.5% on its fit data; 0 keeps
   // every pose with enough inliers (the paper's rule).
   double min_confidence = kDefaultMinConfidence;
+  // ... and, on a geo-registered segment, only when its camera is not under
+  // the street (confidence.h, UnderStreetOptions).
+  UnderStreetOptions under_street;
   void validate() const;
 };
 
@@ -151,10 +154,14 @@ struct LocalizationResult {
   int segment = -1;                  // segment id of the best pose
   size_t inliers = 0;
   // Score in [0, 1] that the pose is right (confidence.h), 0 without a pose;
-  // registered = inliers ≥ min_inliers and confidence ≥ min_confidence.
+  // registered = inliers ≥ min_inliers and confidence ≥ min_confidence (and
+  // the camera not under the street).
   double confidence = 0;
   ConfidenceFeatures confidence_features;  // what it was computed from (segment ≥ 0)
   PoseUncertainty uncertainty;
+  // The under-street check of the best pose (assessed on a geo-registered
+  // segment); under_street.under_street keeps the pose from registering.
+  UnderStreetAssessment under_street;
   CameraPose cam_from_segment;       // world-to-camera in the segment frame
   double focal_px = 0;
   bool focal_estimated = false;

@@ -53,6 +53,14 @@ void add_options(OptionTable& t, LocalizerOptions& o) {
         "... and at this confidence in [0, 1] (the builtin model's probability that the pose is right; "
         "the default is chosen for a precision of 99.5%; 0: inliers only, the paper's rule)")
       .range(0.0, 1.0);
+  t.flag("!--allow-under-street", o.under_street.enabled,
+         "Register a pose even when its camera stands under the street (geo-registered maps: more than "
+         "--max-drop-below-map m, plus 0.35 m per metre of plan distance, below the nearest map camera, and "
+         "more than 1 m below the ground the map's points give within 30 m)");
+  t.add("--max-drop-below-map", o.under_street.max_drop_m,
+        "Metres a camera may stand below the nearest map camera (beyond the slope) before it counts as under "
+        "the street")
+      .range(0.0, 1e6);
   t.flag("!--no-exif-focal", o.use_exif_focal, "Ignore EXIF focal lengths");
   add_options(t, o.sift);
   t.text("--cache-mib", std::to_string(o.cache_bytes >> 20),
