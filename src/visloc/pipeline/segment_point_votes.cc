@@ -100,6 +100,8 @@ struct SegmentPointVotes::Nearest {
   // feature within reach of more than kMaxSegments segments is not
   // distinctive (overlap relates a segment to a few neighbours only).
   uint32_t dropped = UINT32_MAX;
+  // Radius 1's candidate ids, reused from feature to feature.
+  std::vector<uint32_t> gathered;
 
   void reset(uint32_t max_distance, float distinct_ratio) {
     bound = distance = cut = max_distance;
@@ -198,11 +200,54 @@ bool SegmentPointVotes::nearest(const HashCode& q, const uint8_t* excluded, Near
   // found, the farthest rival that matters to the distinctiveness test, or
   // the bound itself) is under 8 bits, radius 1 can only offer points beyond it.
   if (!skipped_a_bucket && out.cut < static_cast<uint32_t>(kHashTables)) return out.count > 0;
-  const int radius1_max_bucket = std::max(1, options_.max_bucket / 16);
+  // Radius 1's 128 buckets in three passes, so that the loads of each pass
+  // are independent and the CPU overlaps them (bucket by bucket, each
+  // offset, id and code load waited on the one before): the buckets' ranges,
+  // their ids prefetched; the ids gathered, their codes prefetched; the
+  // codes compared, in the same order as bucket by bucket, so the same
+  // points are offered in the same order.
+  const uint32_t radius1_max_bucket = static_cast<uint32_t>(std::max(1, options_.max_bucket / 16));
+  constexpr int kProbes = kHashTables * kHashTableBits;
+  uint32_t begins[kProbes], ends[kProbes];
+  uint8_t tables[kProbes];
+  int probes = 0;
+  const bool ids16 = lookup_.uses_16bit_ids();
   for (int t = 0; t < kHashTables; ++t) {
     const uint32_t key = hash_subcode(q, t);
-    for (int bit = 0; bit < 16; ++bit)
-      probe_bucket(t, key ^ (1u << bit), q, excluded, out, compared, radius1_max_bucket);
+    for (int bit = 0; bit < kHashTableBits; ++bit) {
+      uint32_t begin, end;
+      lookup_.bucket_range(t, key ^ (1u << bit), begin, end);
+      if (end - begin > radius1_max_bucket || begin == end) continue;
+      if (ids16)
+        __builtin_prefetch(lookup_.ids16(t) + begin);
+      else
+        __builtin_prefetch(lookup_.ids32(t) + begin);
+      begins[probes] = begin;
+      ends[probes] = end;
+      tables[probes++] = static_cast<uint8_t>(t);
+    }
+  }
+  std::vector<uint32_t>& gathered = out.gathered;
+  gathered.clear();
+  for (int k = 0; k < probes; ++k) {
+    if (ids16) {
+      const uint16_t* ids = lookup_.ids16(tables[k]);
+      for (uint32_t i = begins[k]; i < ends[k]; ++i) gathered.push_back(ids[i]);
+    } else {
+      const uint32_t* ids = lookup_.ids32(tables[k]);
+      for (uint32_t i = begins[k]; i < ends[k]; ++i) gathered.push_back(ids[i]);
+    }
+  }
+  for (const uint32_t id : gathered) __builtin_prefetch(&codes_[id]);
+  compared += gathered.size();
+  const HashCode* codes = codes_.data();
+  const uint32_t* segment_of = segment_of_.data();
+  for (const uint32_t id : gathered) {
+    const uint32_t d = hamming_distance(q, codes[id]);
+    if (d > out.cut) continue;
+    const uint32_t segment = segment_of[id];
+    if (excluded && excluded[segment]) continue;
+    out.offer(d, segment);
   }
   return out.count > 0;
 }
