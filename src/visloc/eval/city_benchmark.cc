@@ -561,6 +561,7 @@ nlohmann::json city_report_json(const fs::path& city_dir, const CityBenchmarkOpt
         {"point_votes_used", t.point_votes},
         {"point_vote_index_bytes", t.point_vote_bytes},
         {"points_per_segment", opt.localizer.point_votes.points_per_segment},
+        {"max_points", opt.localizer.point_votes.max_points},
         {"probe_radius", opt.localizer.point_votes.probe_radius},
         {"distinct_ratio", std::round(double(opt.localizer.point_votes.distinct_ratio) * 1000) / 1000},
         {"normalize_by_chance", opt.localizer.point_votes.normalize_by_chance}}},

@@ -310,11 +310,14 @@ Localizer::~Localizer() = default;
 void Localizer::Impl::build_point_votes(const SegmentPointVoteOptions& options) {
   auto votes = std::make_unique<SegmentPointVotes>(options);
   const size_t n = map.manifest().segments.size();
+  std::vector<size_t> points(n);
+  for (size_t i = 0; i < n; ++i) points[i] = map.manifest().segments[i].points;
+  const std::vector<size_t> indexed = point_vote_counts(points, options);
   std::unordered_map<std::string, std::vector<uint32_t>> segments_of_image;
   for (size_t i = 0; i < n; ++i) {
     const std::unique_ptr<Segment> seg = map.open_segment(i);
     if (!seg->uses_map_hasher()) return;  // a segment with its own rotation: codes do not compare
-    votes->add_segment(static_cast<uint32_t>(i), {seg->index().codes, seg->num_points()});
+    votes->add_segment(static_cast<uint32_t>(i), {seg->index().codes, seg->num_points()}, indexed[i]);
     for (const SegmentImage& image : seg->images()) segments_of_image[image.name].push_back(static_cast<uint32_t>(i));
   }
   // Segments that share an image (overlap placemarks) may hold the same points.

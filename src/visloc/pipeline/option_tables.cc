@@ -25,7 +25,11 @@ void add_options(OptionTable& t, LocalizerOptions& o) {
            "retrieved images filling the places they leave; images alone on a map with a rotation per "
            "segment)");
   t.add("--vote-points", o.point_votes.points_per_segment,
-        "Point votes: points indexed per segment (0: all; each costs ~65 bytes of memory)")
+        "Point votes: points indexed per segment at most (0: all; each costs ~65 bytes of memory)")
+      .range(0, 1 << 28);
+  t.add("--vote-max-points", o.point_votes.max_points,
+        "Point votes: points indexed over the whole map at most; a map of more indexes each segment's share, "
+        "evenly strided (0: no bound)")
       .range(0, 1 << 28);
   t.add("--vote-radius", o.point_votes.probe_radius,
         "Point votes: lookup-table buckets probed per table: the feature's 16-bit sub-code (0) and also "

@@ -24,10 +24,23 @@ SegmentPointVotes::SegmentPointVotes(const SegmentPointVoteOptions& options) : o
   options_.validate();
 }
 
-void SegmentPointVotes::add_segment(uint32_t segment, std::span<const HashCode> codes) {
+std::vector<size_t> point_vote_counts(std::span<const size_t> segment_points, const SegmentPointVoteOptions& options) {
+  std::vector<size_t> keep(segment_points.begin(), segment_points.end());
+  size_t total = 0;
+  for (size_t& k : keep) {
+    if (options.points_per_segment > 0) k = std::min(k, size_t(options.points_per_segment));
+    total += k;
+  }
+  if (options.max_points > 0 && total > options.max_points)
+    for (size_t& k : keep) k = static_cast<size_t>((static_cast<unsigned __int128>(k) * options.max_points) / total);
+  return keep;
+}
+
+void SegmentPointVotes::add_segment(uint32_t segment, std::span<const HashCode> codes, size_t at_most) {
   if (finalized_) throw_error(ErrorCode::kInternal, "SegmentPointVotes: add_segment after finalize");
   const size_t n = codes.size();
-  const size_t keep = options_.points_per_segment > 0 ? std::min(n, size_t(options_.points_per_segment)) : n;
+  size_t keep = options_.points_per_segment > 0 ? std::min(n, size_t(options_.points_per_segment)) : n;
+  keep = std::min(keep, at_most);
   if (codes_.size() + keep > CascadeLookup::kMaxPoints)
     throw_error(ErrorCode::kInvalidArgument, "SegmentPointVotes: more than ", CascadeLookup::kMaxPoints,
                 " points; lower points_per_segment");

@@ -53,6 +53,7 @@
 // of a query with few distinctive features a lottery.
 #pragma once
 
+#include <cstddef>
 #include <cstdint>
 #include <span>
 #include <vector>
@@ -63,7 +64,18 @@
 namespace visloc {
 
 struct SegmentPointVoteOptions {
-  int points_per_segment = 8192;  // points indexed per segment (0: all)
+  // Points indexed per segment (0: all, the default) and over the whole map
+  // (0: no bound): a map of more points indexes each segment's share of
+  // max_points, evenly strided (point_vote_counts). Every point votes where
+  // the memory allows: indexing all points rather than 8,192 per segment put
+  // the true segment among the first 4 candidates for 378 against 375 of 384
+  // positives on the 13-segment city of `bench city --grid-blocks-x 3`
+  // (190,488 points) and 259 against 255 of 261 on a city of copied
+  // buildings (99,436 points), registrations unchanged but one (`bench city`
+  // beside a CI build, session 37). 262,144 points take about 16 MiB (65
+  // bytes each), a sixteenth of the city benchmark's 256 MiB budget.
+  int points_per_segment = 0;
+  size_t max_points = size_t(1) << 18;
   int max_hamming = 32;           // a vote needs a point at most this far (bits of 128)
   int max_bucket = 4096;          // buckets with more points are not probed (radius 1's: max(1, max_bucket / 16))
   // Per table, the feature's sub-code's bucket (0), also the 16 1 bit off (1).
@@ -111,12 +123,18 @@ struct SegmentPointVoteResult {
   }
 };
 
+// How many points of each segment to index (for add_segment's `at_most`):
+// min(points, points_per_segment) each, scaled down in proportion (floor)
+// when their sum exceeds max_points.
+std::vector<size_t> point_vote_counts(std::span<const size_t> segment_points, const SegmentPointVoteOptions& options);
+
 class SegmentPointVotes {
  public:
   explicit SegmentPointVotes(const SegmentPointVoteOptions& options = {});
-  // Adds a segment's point codes (subsampled to points_per_segment). Call
-  // finalize() once every segment is added; segment ids need not be dense.
-  void add_segment(uint32_t segment, std::span<const HashCode> codes);
+  // Adds a segment's point codes (subsampled to points_per_segment and to
+  // `at_most`, evenly strided). Call finalize() once every segment is added;
+  // segment ids need not be dense.
+  void add_segment(uint32_t segment, std::span<const HashCode> codes, size_t at_most = SIZE_MAX);
   // `related[s]`: segments that may hold the same physical points as s (they
   // share images): left out of s's chance votes (normalize_by_chance) and of
   // the distinctiveness test's d1 for a feature nearest to s.

@@ -413,6 +413,33 @@ TEST(SegmentPointVotes, KeepsAnEvenStrideOfEachSegmentsPoints) {
   EXPECT_FLOAT_EQ(r.total_votes, 0);
 }
 
+TEST(SegmentPointVotes, IndexesEveryPointUpToTheMapsBound) {
+  const std::vector<size_t> points = {1000, 3000, 0, 6000};
+  SegmentPointVoteOptions all;  // the defaults: every point, up to 262,144 over the map
+  EXPECT_EQ(point_vote_counts(points, all), points);
+  SegmentPointVoteOptions bounded{.points_per_segment = 0, .max_points = 5000};
+  EXPECT_EQ(point_vote_counts(points, bounded), (std::vector<size_t>{500, 1500, 0, 3000}));  // each its share
+  SegmentPointVoteOptions both{.points_per_segment = 2000, .max_points = 2500};  // 1000 + 2000 + 2000 capped
+  EXPECT_EQ(point_vote_counts(points, both), (std::vector<size_t>{500, 1000, 0, 1000}));
+  SegmentPointVoteOptions unbounded{.points_per_segment = 0, .max_points = 0};
+  EXPECT_EQ(point_vote_counts(points, unbounded), points);
+  // add_segment keeps an even stride of at most `at_most` points.
+  RandomGenerator rng(17);
+  const std::vector<HashCode> a = random_codes(100, rng);
+  SegmentPointVotes votes(bounded);
+  votes.add_segment(0, a, 20);
+  votes.finalize();
+  EXPECT_EQ(votes.num_points(), 20u);
+  std::vector<float> scratch;
+  SegmentPointVoteResult r;
+  const HashCode kept[] = {a[0], a[5], a[95]};
+  votes.vote(kept, scratch, r);
+  EXPECT_FLOAT_EQ(r.total_votes, 3);
+  const HashCode dropped[] = {a[3], a[51]};
+  votes.vote(dropped, scratch, r);
+  EXPECT_FLOAT_EQ(r.total_votes, 0);
+}
+
 TEST(SegmentPointVotes, SkipsOverfullBuckets) {
   // 50 copies of one code fill one bucket of every table.
   std::vector<HashCode> same(50, HashCode{{0x0123456789ABCDEFull, 0xFEDCBA9876543210ull}});

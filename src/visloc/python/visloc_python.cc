@@ -235,6 +235,9 @@ void take_localizer_options(Kwargs& k, LocalizerOptions& o) {
   if (k.take_choice("segment_votes", segment_votes, {"auto", "images", "points", "both"}))
     o.segment_votes = parse_segment_vote_source(segment_votes);
   k.take("vote_points", o.point_votes.points_per_segment);
+  k.take("vote_max_points", o.point_votes.max_points);
+  k.take("under_street_check", o.under_street.enabled);
+  k.take("max_drop_below_map", o.under_street.max_drop_m);
   k.take("vote_chance_normalization", o.point_votes.normalize_by_chance);
   k.take("vote_radius", o.point_votes.probe_radius);
   k.take("vote_ratio", o.point_votes.distinct_ratio);
@@ -726,8 +729,9 @@ void bind_localizer(py::module_& m) {
 Localizer(map_dir, **options): options are LocalizerOptions fields, named as
 the `visloc localize` flags: setting ('1', '2', '3', '3+'), top_images,
 max_segments, fallback_segments, segment_votes ('auto', 'points', 'images',
-'both'), vote_points, vote_radius, vote_ratio, vote_chance_normalization, accept_inliers, early_stop, full_search_fallback, threshold_px,
-min_inliers, min_confidence, use_exif_focal, seed, cache_mib, max_image_side,
+'both'), vote_points, vote_max_points, vote_radius, vote_ratio, vote_chance_normalization, accept_inliers, early_stop,
+full_search_fallback, threshold_px, min_inliers, min_confidence, under_street_check (False: --allow-under-street),
+max_drop_below_map, use_exif_focal, seed, cache_mib, max_image_side,
 max_features, contrast_threshold, root_sift, max_pixels. OpenCV's thread count,
 which SIFT uses, is process-wide: see visloc.set_opencv_threads.
 Thread-safe: localize() releases the GIL, so threads localize in parallel.)doc")
