@@ -92,7 +92,8 @@ typedef struct visloc_stage_times {
 
 /* Written completely by every localize call (zeroed first). */
 typedef struct visloc_result {
-  int registered;          /* 1: the pose is reliable (min_inliers inliers and min_confidence) */
+  int registered;          /* 1: the pose is reliable (min_inliers inliers and min_confidence; on a
+                              geo-registered map, its camera not under the street: docs/embedding.md) */
   int segment;             /* map segment of the pose; -1 when no pose */
   int inliers;
   int features;            /* SIFT features of the photo */

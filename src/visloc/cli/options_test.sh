@@ -22,6 +22,8 @@ for v in nan inf; do
 done
 check --min-confidence localize --map /nonexistent --min-confidence 1.5 q.jpg
 check --vote-points localize --map /nonexistent --vote-points -1 q.jpg
+check --vote-max-points localize --map /nonexistent --vote-max-points -1 q.jpg
+for v in nan inf -1; do check --max-drop-below-map localize --map /nonexistent --max-drop-below-map "$v" q.jpg; done
 check --vote-radius localize --map /nonexistent --vote-radius 2 q.jpg
 check --vote-ratio localize --map /nonexistent --vote-ratio 1.5 q.jpg
 check --vote-ratio localize --map /nonexistent --vote-ratio nan q.jpg

@@ -18,15 +18,16 @@
 #include <sstream>
 
 #include "visloc/eval/evaluation.h"
+#include "visloc/eval/plot.h"
 #include "visloc/geo/gps_csv.h"
 #include "visloc/geometry/pose_list.h"
+#include "visloc/image/image_io.h"
 #include "visloc/map/map.h"
 #include "visloc/map/segment_file.h"
 #include "visloc/synth/city_scene.h"
 #include "visloc/synth/ray_renderer.h"
 #include "visloc/util/error.h"
 #include "visloc/util/file_io.h"
-#include "visloc/image/image_io.h"
 
 namespace visloc {
 namespace fs = std::filesystem;
@@ -136,6 +137,7 @@ void add_pose_evidence(const LocalizationResult& r, nlohmann::json* entry) {
   (*entry)["confidence_features"] = r.confidence_features.to_json();
   if (r.under_street.assessed) {
     (*entry)["drop_below_map_camera_m"] = r.under_street.drop_below_camera_m;
+    (*entry)["map_camera_plan_distance_m"] = r.under_street.camera_plan_distance_m;
     if (r.under_street.above_ground_m) (*entry)["above_map_ground_m"] = *r.under_street.above_ground_m;
     if (r.under_street.under_street) (*entry)["under_street"] = true;
   }
@@ -502,6 +504,7 @@ struct CityQueryCounts {
   // Confidence: poses with enough inliers that the threshold turned away,
   // right and wrong; uncertainty: registered positives' errors within 1σ, 2σ.
   size_t turned_away_right = 0, turned_away_wrong = 0, with_sigma = 0, within1 = 0, within2 = 0;
+  size_t under_street_right = 0, under_street_wrong = 0;  // turned away above the threshold
 };
 
 CityQueryCounts count_city_queries(const CityLocalizationTally& t, const CityBenchmarkOptions& opt) {
@@ -521,7 +524,10 @@ CityQueryCounts count_city_queries(const CityLocalizationTally& t, const CityBen
       const bool right = kind != "foreign" && q.contains("pose_position_error_m") &&
                          q["pose_position_error_m"].get<double>() <= opt.wrong_position_m &&
                          q["pose_rotation_error_deg"].get<double>() <= opt.wrong_rotation_deg;
-      (right ? c.turned_away_right : c.turned_away_wrong)++;
+      if (q.value("under_street", false) && q["confidence"].get<double>() >= opt.localizer.min_confidence)
+        (right ? c.under_street_right : c.under_street_wrong)++;
+      else
+        (right ? c.turned_away_right : c.turned_away_wrong)++;
     }
     if (kind == "positive" && q["registered"].get<bool>() && q.contains("position_sigma")) {
       const double e = q["position_error_m"].get<double>(), sigma = q["position_sigma"].get<double>();
@@ -580,6 +586,8 @@ nlohmann::json city_report_json(const fs::path& city_dir, const CityBenchmarkOpt
        {{"min_confidence", opt.localizer.min_confidence},
         {"turned_away_right_poses", c.turned_away_right},
         {"turned_away_wrong_poses", c.turned_away_wrong}}},
+      {"under_street",
+       {{"turned_away_right_poses", c.under_street_right}, {"turned_away_wrong_poses", c.under_street_wrong}}},
       {"uncertainty",
        {{"sigma_scale", ConfidenceModel::builtin().sigma_scale},
         {"registered_positives_with_sigma", c.with_sigma},
@@ -611,6 +619,43 @@ nlohmann::json city_report_json(const fs::path& city_dir, const CityBenchmarkOpt
         {"missed_excluding_features", median_or_zero(t.ms_missed)}}},
       {"per_query", t.per_query}};
 }
+
+namespace {
+// Plots beside the report: where retrieval ranked the true segment (ranks
+// 1..max_segments + fallback_segments, then "not among them"), and the
+// cumulative position error of the registered positives.
+void write_city_plots(const fs::path& out, const CityLocalizationTally& t, const CityQueryCounts& c) {
+  const size_t ranks = c.rank_histogram.size();  // [0]: not among the candidates
+  size_t most = 1;
+  for (size_t n : c.rank_histogram) most = std::max(most, n);
+  Plot bars("Rank of the true segment among the candidates (positives)", "rank (last: not among them)", "positives",
+            0.5, double(ranks) + 0.5, 0, double(most) * 1.1);
+  for (size_t k = 0; k < ranks; ++k) {
+    const double x = double(k == 0 ? ranks : k);
+    const double n = double(c.rank_histogram[k]);
+    for (int dx = -6; dx <= 6; ++dx)  // a bar 13 px wide of 1-px lines: the plot draws lines
+      bars.line(x + dx * 0.02, 0, x + dx * 0.02, n, k == 0 ? "#d62728" : "#1f77b4",
+                k == 0 ? cv::Scalar(40, 39, 214) : cv::Scalar(180, 119, 31));
+    bars.label(x, n, std::to_string(c.rank_histogram[k]), -6, -4);
+  }
+  bars.save(out / "retrieval_ranks");
+  std::vector<double> e = t.positives.errors_m;
+  std::sort(e.begin(), e.end());
+  const double xmax = e.empty() ? 1.0 : std::max(0.05, e[std::min(e.size() - 1, e.size() * 95 / 100)] * 1.2);
+  Plot curve("Cumulative position error (positives)", "position error (m)", "fraction of positives", 0, xmax, 0, 1);
+  double prev_x = 0, prev_y = 0;
+  const double count = double(std::max<size_t>(1, t.positives.count));
+  for (size_t i = 0; i < e.size(); ++i) {
+    const double x = std::min(e[i], xmax), y = double(i + 1) / count;
+    curve.line(prev_x, prev_y, x, prev_y, "#1f77b4", {180, 119, 31}, 2);
+    curve.line(x, prev_y, x, y, "#1f77b4", {180, 119, 31}, 2);
+    prev_x = x;
+    prev_y = y;
+  }
+  curve.line(prev_x, prev_y, xmax, prev_y, "#1f77b4", {180, 119, 31}, 2);
+  curve.save(out / "error_curve");
+}
+}  // namespace
 
 // report.md.
 namespace {
@@ -659,9 +704,11 @@ std::string city_report_markdown(const nlohmann::json& report, const CityBenchma
      << "mapped facades) is not a wrong pose: " << (t.negatives.registered - t.negatives.wrong) << " here.\n\n"
      << "Confidence threshold " << opt.localizer.min_confidence << ": of the poses with at least "
      << opt.localizer.ransac.min_inliers << " inliers it turned away " << c.turned_away_wrong << " wrong and "
-     << c.turned_away_right << " right ones. Uncertainty: of " << c.with_sigma << " registered positives, "
-     << (c.with_sigma ? double(c.within1) / double(c.with_sigma) : 0.0) << " have their position error within 1σ and "
-     << (c.with_sigma ? double(c.within2) / double(c.with_sigma) : 0.0) << " within 2σ.\n\n"
+     << c.turned_away_right << " right ones; the under-street check " << c.under_street_wrong << " wrong and "
+     << c.under_street_right << " right ones above the threshold. Uncertainty: of " << c.with_sigma
+     << " registered positives, " << (c.with_sigma ? double(c.within1) / double(c.with_sigma) : 0.0)
+     << " have their position error within 1σ and " << (c.with_sigma ? double(c.within2) / double(c.with_sigma) : 0.0)
+     << " within 2σ.\n\n"
      << "Retrieval (candidates ranked by "
      << (t.image_votes && t.point_votes ? (opt.localizer.segment_votes == SegmentVoteSource::kBoth
                                                ? "image and point votes"
@@ -686,16 +733,18 @@ std::string city_report_markdown(const nlohmann::json& report, const CityBenchma
   if (!t.top_vote_share.empty())
     md << " Votes: the top candidate holds a median " << median(t.top_vote_share) << " of the votes, spread over a median "
        << median(t.voted_segments) << " segments.";
-  md << "\n\nMedian milliseconds per positive: " << (t.ms_total.empty() ? 0.0 : median(t.ms_total))
-     << " in all, " << (t.ms_excluding_features.empty() ? 0.0 : median(t.ms_excluding_features))
+  md << "\n\nMedian milliseconds per positive: " << (t.ms_total.empty() ? 0.0 : median(t.ms_total)) << " in all, "
+     << (t.ms_excluding_features.empty() ? 0.0 : median(t.ms_excluding_features))
      << " excluding features (one core): retrieval " << median_or_zero(t.ms_retrieval) << ", matching "
      << median_or_zero(t.ms_matching) << ", RANSAC " << median_or_zero(t.ms_ransac) << "; registered positives "
-     << median_or_zero(t.ms_registered) << ", missed " << median_or_zero(t.ms_missed) << ". Peak memory of the process that localized: "
-     << std::setprecision(1) << double(t.peak_city_queries) / (1024.0 * 1024.0) << " MiB over the city's queries, "
+     << median_or_zero(t.ms_registered) << ", missed " << median_or_zero(t.ms_missed)
+     << ". Peak memory of the process that localized: " << std::setprecision(1)
+     << double(t.peak_city_queries) / (1024.0 * 1024.0) << " MiB over the city's queries, "
      << double(peak_memory_bytes()) / (1024.0 * 1024.0) << " MiB with the foreign photos ("
      << (opt.stage == CityBenchmarkStage::kLocalize ? "a separate process that only localized"
                                                     : "the same process built the map: an upper bound")
-     << ").\n";
+     << ").\n\nPlots: retrieval_ranks.png (.svg), the rank of the true segment; error_curve.png (.svg), the "
+     << "positives' cumulative position error.\n";
   return md.str();
 }
 }  // namespace
@@ -725,6 +774,7 @@ nlohmann::json run_city_benchmark(const fs::path& out, const CityBenchmarkOption
   const std::string markdown = city_report_markdown(report, opt, split, build_summary, tally, counts);
   write_file_atomic(out / "report.json", report.dump(2));
   write_file_atomic(out / "report.md", markdown);
+  write_city_plots(out, tally, counts);
   return report;
 }
 

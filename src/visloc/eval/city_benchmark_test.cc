@@ -84,6 +84,7 @@ TEST(CityBenchmark, SmallCityRunsAndResumes) {
   const nlohmann::json r = run_city_benchmark(dir, o);
   ASSERT_TRUE(fs::exists(dir / "report.json"));
   ASSERT_TRUE(fs::exists(dir / "report.md"));
+  EXPECT_TRUE(fs::exists(dir / "retrieval_ranks.png") && fs::exists(dir / "error_curve.svg"));  // the plots
   EXPECT_EQ(r["city"]["roads"].get<int>(), 4);
   EXPECT_EQ(r["city"]["roads_left_out"].size(), 1u);
   EXPECT_EQ(r["city"]["road_end_placemarks_left_out"].get<int>(), 3);

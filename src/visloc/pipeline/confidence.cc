@@ -191,11 +191,12 @@ void UnderStreetOptions::validate() const {
 
 UnderStreetAssessment assess_under_street(const CameraPose& cam_from_segment, const std::vector<SegmentImage>& images,
                                           std::span<const float> xyz, const Similarity3d& enu_from_segment,
-                                          const UnderStreetOptions& options, std::vector<float>& heights) {
+                                          const UnderStreetOptions& options, std::vector<float>& heights,
+                                          bool measure_ground) {
   UnderStreetAssessment a;
   const Eigen::Vector3d c = cam_from_segment.center();
   const double scale = enu_from_segment.scale;
-  if (!options.enabled || !c.allFinite() || !(scale > 0) || !std::isfinite(scale)) return a;
+  if (!c.allFinite() || !(scale > 0) || !std::isfinite(scale)) return a;
   // The ENU up in the segment frame; metres = segment units × scale.
   const Eigen::Vector3d up = enu_from_segment.rotation.transpose() * Eigen::Vector3d::UnitZ();
   const auto plan_distance_m = [&](const Eigen::Vector3d& d) { return (d - up.dot(d) * up).norm() * scale; };
@@ -216,6 +217,8 @@ UnderStreetAssessment assess_under_street(const CameraPose& cam_from_segment, co
   }
   if (!std::isfinite(nearest)) return a;
   a.assessed = true;
+  a.below_camera_bound = a.drop_below_camera_m > options.max_drop_m + options.max_slope * a.camera_plan_distance_m;
+  if (!a.below_camera_bound && !measure_ground) return a;
   heights.clear();
   const double radius_sq = options.ground_radius_m * options.ground_radius_m;
   for (size_t i = 0; i + 2 < xyz.size(); i += 3) {
@@ -227,8 +230,7 @@ UnderStreetAssessment assess_under_street(const CameraPose& cam_from_segment, co
   const size_t k = std::min(heights.size() - 1, static_cast<size_t>(options.ground_quantile * double(heights.size())));
   std::nth_element(heights.begin(), heights.begin() + static_cast<std::ptrdiff_t>(k), heights.end());
   a.above_ground_m = -double(heights[k]);  // the ground's height relative to the camera, negated
-  a.under_street = a.drop_below_camera_m > options.max_drop_m + options.max_slope * a.camera_plan_distance_m &&
-                   *a.above_ground_m < -options.max_below_ground_m;
+  a.under_street = a.below_camera_bound && *a.above_ground_m < -options.max_below_ground_m;
   return a;
 }
 

@@ -59,6 +59,7 @@
 #include <Eigen/Core>
 #include <nlohmann/json.hpp>
 
+#include "visloc/geo/similarity_transform.h"
 #include "visloc/geometry/camera.h"
 #include "visloc/geometry/pose.h"
 #include "visloc/map/segment_file.h"
@@ -184,9 +185,9 @@ double ambiguous_inlier_share(std::span<const uint32_t> candidate_offsets, std::
 // The share of a pose's inliers seen elsewhere in the map: of the inliers
 // whose query feature has a nearest point within the vote bound, whether or
 // not it was distinctive enough to vote (SegmentPointVoteResult: its nearest indexed map
-// point over every segment, by the map-wide hash codes; the index holds up
-// to points_per_segment evenly strided points of each segment, so a right
-// inlier's own point is often not in it, and keeps at most 16 tied
+// point over every segment, by the map-wide hash codes; on a map of more
+// points than the index's max_points it holds an evenly strided share of
+// each segment, so a right inlier's own point may not be in it; it keeps at most 16 tied
 // segments), those whose nearest points (ties) lie in neither the pose's segment `segment` nor one of `related`
 // (segments sharing an image with it, which may hold the same points). A pose
 // on a copy of a building elsewhere in the map (a chain store's facade, a row
@@ -250,13 +251,18 @@ struct UnderStreetAssessment {
   double drop_below_camera_m = 0;        // below the plan-nearest map camera (negative: above it)
   double camera_plan_distance_m = 0;     // to that camera
   std::optional<double> above_ground_m;  // above the points' ground (none within ground_radius_m: unset)
+  bool below_camera_bound = false;       // the first condition
   bool under_street = false;             // both conditions (never without a ground)
 };
 
 // `xyz`: the segment's points (x, y, z per point, segment frame); `heights`
-// is scratch, reused across calls.
+// is scratch, reused across calls. The pass over the points (the ground) is
+// made when the camera bound holds, or always with `measure_ground` (for the
+// report). `options.enabled` is not read here: the localizer assesses every
+// pose on a geo-registered segment and refuses only when it is set.
 UnderStreetAssessment assess_under_street(const CameraPose& cam_from_segment, const std::vector<SegmentImage>& images,
                                           std::span<const float> xyz, const Similarity3d& enu_from_segment,
-                                          const UnderStreetOptions& options, std::vector<float>& heights);
+                                          const UnderStreetOptions& options, std::vector<float>& heights,
+                                          bool measure_ground = true);
 
 }  // namespace visloc

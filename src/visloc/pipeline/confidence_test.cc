@@ -418,6 +418,14 @@ TEST(UnderStreet, ACameraBelowBothTheStreetsCamerasAndItsGround) {
     EXPECT_TRUE(at({12, 1, -2.5}).under_street);
     // 0.5 m under the road (a sunken step): not beyond the ground margin.
     EXPECT_FALSE(at({12, 1, -0.5}).under_street);
+    // The ground bound alone: map cameras 6 m up (a bus's roof), a camera
+    // 5.5 m below them but only 0.5 m under the road.
+    const UnderStreetAssessment step =
+        assess_under_street(pose_at(Eigen::Vector3d(12, 1, -0.5) * units, 0), scaled_street_cameras(units, 6), xyz,
+                            enu_from_segment, options, heights);
+    EXPECT_TRUE(step.below_camera_bound);
+    EXPECT_NEAR(*step.above_ground_m, -0.5, 1e-5);
+    EXPECT_FALSE(step.under_street);
   }
   Similarity3d identity;
   const auto images = scaled_street_cameras(1);
@@ -478,10 +486,14 @@ TEST(UnderStreet, ACameraBelowBothTheStreetsCamerasAndItsGround) {
     EXPECT_NEAR(*t.above_ground_m, -6, 1e-4);
     EXPECT_TRUE(t.under_street);
   }
-  // Disabled: not assessed.
-  UnderStreetOptions off;
-  off.enabled = false;
-  EXPECT_FALSE(assess_under_street(pose_at({12, 1, -6}, 0), images, street_points(1), identity, off, heights).assessed);
+  // Without measure_ground the points are read only when the camera bound holds.
+  const UnderStreetAssessment quick =
+      assess_under_street(pose_at({12, 1, 1.5}, 0), images, street_points(1), identity, options, heights, false);
+  EXPECT_TRUE(quick.assessed);
+  EXPECT_FALSE(quick.below_camera_bound);
+  EXPECT_FALSE(quick.above_ground_m);
+  EXPECT_TRUE(assess_under_street(pose_at({12, 1, -6}, 0), images, street_points(1), identity, options, heights, false)
+                  .under_street);
   UnderStreetOptions bad;
   bad.ground_quantile = 1.5;
   EXPECT_THROW(bad.validate(), Error);

@@ -656,9 +656,10 @@ void Localizer::Impl::Search::assess_best(bool final_assessment) {
   res.under_street = {};
   if (frame.georegistered)
     res.under_street = assess_under_street(res.cam_from_segment, best_segment_->images(), best_segment_->xyz(),
-                                           frame.enu_from_segment, options_.under_street, ws_.point_heights);
-  res.registered =
-      best_has_enough_inliers_ && res.confidence >= options_.min_confidence && !res.under_street.under_street;
+                                           frame.enu_from_segment, options_.under_street, ws_.point_heights,
+                                           /*measure_ground=*/final_assessment);
+  res.registered = best_has_enough_inliers_ && res.confidence >= options_.min_confidence &&
+                   !(options_.under_street.enabled && res.under_street.under_street);
   if (best_quality_.covariance.valid) {
     res.uncertainty =
         pose_uncertainty(best_quality_.covariance, res.cam_from_segment,

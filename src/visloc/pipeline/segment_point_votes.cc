@@ -14,6 +14,9 @@ void SegmentPointVoteOptions::validate() const {
   if (max_hamming < 0 || max_hamming > kHashBits)
     throw_error(ErrorCode::kInvalidArgument, "max_hamming must be in [0, ", kHashBits, "], got ", max_hamming);
   if (max_bucket < 1) throw_error(ErrorCode::kInvalidArgument, "max_bucket must be >= 1, got ", max_bucket);
+  if (max_points > CascadeLookup::kMaxPoints)
+    throw_error(ErrorCode::kInvalidArgument, "vote_max_points must be at most ", CascadeLookup::kMaxPoints,
+                " (0: no bound), got ", max_points);
   if (probe_radius < 0 || probe_radius > 1)
     throw_error(ErrorCode::kInvalidArgument, "vote_radius (probe radius) must be 0 or 1, got ", probe_radius);
   if (!(distinct_ratio >= 0.01f && distinct_ratio <= 1))
@@ -43,7 +46,7 @@ void SegmentPointVotes::add_segment(uint32_t segment, std::span<const HashCode> 
   keep = std::min(keep, at_most);
   if (codes_.size() + keep > CascadeLookup::kMaxPoints)
     throw_error(ErrorCode::kInvalidArgument, "SegmentPointVotes: more than ", CascadeLookup::kMaxPoints,
-                " points; lower points_per_segment");
+                " points; lower points_per_segment or max_points (--vote-points, --vote-max-points)");
   for (size_t k = 0; k < keep; ++k) {
     // Evenly strided: point floor(k·n / keep).
     const size_t i = keep == n ? k : static_cast<size_t>((static_cast<unsigned __int128>(k) * n) / keep);
@@ -54,6 +57,8 @@ void SegmentPointVotes::add_segment(uint32_t segment, std::span<const HashCode> 
 }
 
 void SegmentPointVotes::finalize(const std::vector<std::vector<uint32_t>>& related) {
+  codes_.shrink_to_fit();
+  segment_of_.shrink_to_fit();
   lookup_ = CascadeLookup(codes_, /*neighbourhood_sizes=*/false);  // votes probe buckets, they do not order by size
   related_.assign(options_.distinct_ratio < 1.0f ? max_segment_plus_one_ : 0, {});
   for (size_t s = 0; s < related.size() && s < related_.size(); ++s) {
@@ -353,6 +358,7 @@ void SegmentPointVotes::vote(std::span<const HashCode> query, std::vector<float>
   float* nearest_shares = scratch.data() + n_segments;
   size_t compared = 0;
   Nearest best;
+  best.gathered.reserve(4096);  // radius 1's candidates of one feature; grows at most a few times per query
   for (const HashCode& q : query) {
     if (nearest(q, nullptr, best, compared)) {
       out.feature_segments.insert(out.feature_segments.end(), best.segments, best.segments + best.count);

@@ -9,11 +9,11 @@
 // searching all segments registered most of the misses. Local features keep
 // the evidence that a global descriptor averages away.
 //
-// Index: for each segment, the hash codes of up to `points_per_segment` of
-// its points (evenly strided over the segment's points; a cap so that the
-// index stays small on a city of many segments: 16 B code + 4 B segment +
-// the lookup tables, ~65 B per point in all), one CascadeLookup over all of them (the
-// 8 lookup tables of 16-bit sub-codes, as the cascade's coarse step).
+// Index: the hash codes of every point of every segment, up to max_points
+// over the map (each segment its share beyond, evenly strided; ~65 B per
+// point with the segment ids and the lookup tables), one CascadeLookup over
+// all of them (the 8 lookup tables of 16-bit sub-codes, as the cascade's
+// coarse step).
 //
 // Vote of one query feature: among the points whose sub-code equals one of
 // its 8 sub-codes (radius 0) or, with probe_radius 1, differs from it in one

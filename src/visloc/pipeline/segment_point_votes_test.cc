@@ -1,6 +1,8 @@
 #include "visloc/pipeline/segment_point_votes.h"
 
 #include <gtest/gtest.h>
+
+#include <bit>
 #include <tuple>
 
 #include "visloc/util/error.h"
@@ -363,6 +365,37 @@ TEST(SegmentPointVotes, RadiusOneFindsPointsThatDifferInEverySubCode) {
   EXPECT_FLOAT_EQ(votes_of(r, 2), 1.0f);
   // a[9] in table 1 and in the radius-1 buckets of tables 2-7 (6), `far` in one of table 1.
   EXPECT_EQ(r.candidates_compared, 8u);
+}
+
+// More than 65,536 points: the lookup's 32-bit ids, radius 1's gathered
+// path. Every query is a point with one bit off in each sub-code (8 bits),
+// so radius 1 runs and finds it; the candidates compared are those of the
+// plain definition, every point in the query's exact and one-bit-off buckets.
+TEST(SegmentPointVotes, RadiusOneOnAMapOfMoreThan65536Points) {
+  RandomGenerator rng(31);
+  const std::vector<HashCode> a = random_codes(70000, rng);
+  SegmentPointVotes votes({.points_per_segment = 0, .max_points = 0, .distinct_ratio = 1.0f});
+  constexpr size_t kSegments = 4, kPerSegment = 17500;
+  for (size_t s = 0; s < kSegments; ++s)
+    votes.add_segment(static_cast<uint32_t>(s), std::span(a).subspan(s * kPerSegment, kPerSegment));
+  votes.finalize();
+  ASSERT_EQ(votes.num_points(), a.size());
+  std::vector<float> scratch;
+  SegmentPointVoteResult r;
+  for (size_t i = 11; i < a.size(); i += 2917) {
+    HashCode q = a[i];
+    for (int table = 0; table < kHashTables; ++table) q = flip_subcode_bit(q, table, (table * 5 + int(i)) % 16);
+    const HashCode query[] = {q};
+    votes.vote(query, scratch, r);
+    EXPECT_FLOAT_EQ(votes_of(r, static_cast<uint32_t>(i / kPerSegment)), 1.0f) << i;
+    size_t expected = 0;
+    for (const HashCode& p : a)
+      for (int table = 0; table < kHashTables; ++table) {
+        const uint32_t diff = hash_subcode(p, table) ^ hash_subcode(q, table);
+        expected += std::popcount(diff) <= 1;
+      }
+    EXPECT_EQ(r.candidates_compared, expected) << i;
+  }
 }
 
 TEST(SegmentPointVotes, RadiusOneStillRunsWhenAnExactBucketWasSkipped) {
