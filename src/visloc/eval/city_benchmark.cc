@@ -643,16 +643,7 @@ void write_city_plots(const fs::path& out, const CityLocalizationTally& t, const
   std::sort(e.begin(), e.end());
   const double xmax = e.empty() ? 1.0 : std::max(0.05, e[std::min(e.size() - 1, e.size() * 95 / 100)] * 1.2);
   Plot curve("Cumulative position error (positives)", "position error (m)", "fraction of positives", 0, xmax, 0, 1);
-  double prev_x = 0, prev_y = 0;
-  const double count = double(std::max<size_t>(1, t.positives.count));
-  for (size_t i = 0; i < e.size(); ++i) {
-    const double x = std::min(e[i], xmax), y = double(i + 1) / count;
-    curve.line(prev_x, prev_y, x, prev_y, "#1f77b4", {180, 119, 31}, 2);
-    curve.line(x, prev_y, x, y, "#1f77b4", {180, 119, 31}, 2);
-    prev_x = x;
-    prev_y = y;
-  }
-  curve.line(prev_x, prev_y, xmax, prev_y, "#1f77b4", {180, 119, 31}, 2);
+  curve.cumulative_steps(e, double(std::max<size_t>(1, t.positives.count)), xmax);
   curve.save(out / "error_curve");
 }
 }  // namespace

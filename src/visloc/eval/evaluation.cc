@@ -474,15 +474,7 @@ void write_report(const std::filesystem::path& dir, const EvaluationReport& repo
     curve.label(threshold, 1, Plot::fmt(threshold) + " m", 3, 12 + 14 * (shown++ % 3));
   }
   curve.label(0, 0.06, under_text, 8, 0);
-  double prev_x = 0, prev_y = 0;
-  for (size_t i = 0; i < pos.size(); ++i) {
-    const double x = std::min(pos[i], xmax), y = double(i + 1) / std::max<size_t>(1, report.queries);
-    curve.line(prev_x, prev_y, x, prev_y, "#1f77b4", {180, 119, 31}, 2);
-    curve.line(x, prev_y, x, y, "#1f77b4", {180, 119, 31}, 2);
-    prev_x = x;
-    prev_y = y;
-  }
-  curve.line(prev_x, prev_y, xmax, prev_y, "#1f77b4", {180, 119, 31}, 2);
+  curve.cumulative_steps(pos, double(std::max<size_t>(1, report.queries)), xmax);
   curve.save(dir / "error_curve");
   const std::string top_view_note = write_top_view(dir / "top_view", report, map_dir);
   if (!top_view_note.empty()) {

@@ -79,6 +79,19 @@ struct Plot {
     cv::putText(png, text, {int(px(x)) + dx, int(py(y)) + dy}, cv::FONT_HERSHEY_SIMPLEX, 0.4, {0, 0, 0}, 1,
                 cv::LINE_AA);
   }
+  // A cumulative curve: a step up by 1 / count at each of the sorted values,
+  // drawn to xmax (values beyond it at xmax).
+  void cumulative_steps(const std::vector<double>& sorted, double count, double xmax) {
+    double prev_x = 0, prev_y = 0;
+    for (size_t i = 0; i < sorted.size(); ++i) {
+      const double x = std::min(sorted[i], xmax), y = double(i + 1) / count;
+      line(prev_x, prev_y, x, prev_y, "#1f77b4", {180, 119, 31}, 2);
+      line(x, prev_y, x, y, "#1f77b4", {180, 119, 31}, 2);
+      prev_x = x;
+      prev_y = y;
+    }
+    line(prev_x, prev_y, xmax, prev_y, "#1f77b4", {180, 119, 31}, 2);
+  }
   void save(const std::filesystem::path& stem) {
     svg << "</svg>\n";
     write_file_atomic(stem.string() + ".svg", svg.str());
