@@ -354,8 +354,21 @@ std::vector<CascadeConfig> cascade_configs(float ratio) {
     configs.push_back(plain);
   }
   configs.push_back({"ccs-full-r1-group1M", false, opts(1, true, false, group)});
+  // Query-directed probing: per table the exact bucket and the k one-bit-away
+  // buckets whose bits lie nearest their hyperplanes (lut_flips; 16 is
+  // ccs-full-r1).
+  for (int flips : {8, 6, 4, 2}) {
+    CascadeConfig directed{"ccs-full-r1-flips" + std::to_string(flips), false, opts(1, true, false, best)};
+    directed.options.lut_flips = flips;
+    configs.push_back(directed);
+  }
   configs.push_back({"ccs-prioritized-r0", false, opts(0, true, true, best)});
   configs.push_back({"ccs-prioritized-r1", false, opts(1, true, true, best)});
+  {
+    CascadeConfig directed{"ccs-prioritized-r1-flips4", false, opts(1, true, true, best)};
+    directed.options.lut_flips = 4;
+    configs.push_back(directed);
+  }
   configs.push_back({"ccs-prioritized-r1-group1M", false, opts(1, true, true, group)});
   return configs;
 }

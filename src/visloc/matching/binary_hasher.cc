@@ -140,17 +140,22 @@ void quantize_hash_projection(BinaryHasherView h, QuantizedHashProjection& out) 
       c[i] += double(q) * mean;
     }
   }
+  // Any sum of 128 products of |Wq| ≤ 32,767 and x ≤ 255 lies within
+  // ±1,069,514,880 < 2^30, so a threshold clamped to ±2^30 sets the same bits
+  // (at 2^30 never, at −2^30 always) and keeps Σ − t_i within int32 (the
+  // margins of query-directed probing).
+  constexpr double kBound = 1073741824.0;  // 2^30
   for (int i = 0; i < kHashBits; ++i) {
     const double t = std::floor(c[i]);
     // NaN (a non-finite mean) or above every sum: the bit is never set.
-    out.thresholds[i] = !(t < 2147483647.0) ? INT32_MAX : t < -2147483648.0 ? INT32_MIN : static_cast<int32_t>(t);
+    out.thresholds[i] = !(t < kBound) ? int32_t(kBound) : t < -kBound ? -int32_t(kBound) : static_cast<int32_t>(t);
   }
 }
 
-void encode_hash(BinaryHasherView h, const uint8_t* x, size_t n, HashCode* codes, HashWorkspace& ws) {
+void encode_hash(BinaryHasherView h, const uint8_t* x, size_t n, HashCode* codes, HashWorkspace& ws, int32_t* margins) {
   if (n == 0) return;
   quantize_hash_projection(h, ws.quantized);
-  search_kernels().hash_codes_u8(ws.quantized, x, n, codes);
+  search_kernels().hash_codes_u8(ws.quantized, x, n, codes, margins);
 }
 void encode_hash(BinaryHasherView h, const float* x, size_t n, HashCode* codes, HashWorkspace& ws) {
   encode_float(h, x, n, codes, ws);

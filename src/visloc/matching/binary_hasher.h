@@ -64,7 +64,8 @@ struct BinaryHasher {
 // The integer form of a hasher, for uint8 descriptors:
 //   Wq[i][j] = round(scale · W[i][j]), scale = 32,767 / max|W| (int16; the
 //              product in double, so |Wq − scale · W| ≤ 1/2),
-//   threshold_i = ⌊Σ_j Wq[i][j] · μ_j⌋ (summed in double, clamped to int32),
+//   threshold_i = ⌊Σ_j Wq[i][j] · μ_j⌋ (summed in double, clamped to ±2^30,
+//                 beyond every sum, so that Σ − threshold_i fits in int32),
 //   bit i = [Σ_j Wq[i][j] · x_j > threshold_i], summed exactly in int32.
 // For an integer sum P, P > c ⇔ P > ⌊c⌋, so this is the sign of Wq(x − μ)
 // (up to the double rounding of the threshold's sum, exact for SIFT-range
@@ -92,8 +93,11 @@ struct HashWorkspace {
 // arithmetic with the QuantizedHashProjection, float rows (e.g. a map point's
 // mean descriptor) in float. The two agree except where a projection is
 // within the rounding bound above of 0.
+// With `margins` (n × 128), the uint8 form also writes each bit's distance
+// from its hyperplane in the integer scale (search_kernels.h, hash_codes_u8):
+// the smaller, the likelier a near neighbour has the bit flipped.
 void encode_hash(BinaryHasherView hasher, const uint8_t* descriptors, size_t n, HashCode* codes,
-                 HashWorkspace& workspace);
+                 HashWorkspace& workspace, int32_t* margins = nullptr);
 void encode_hash(BinaryHasherView hasher, const float* descriptors, size_t n, HashCode* codes,
                  HashWorkspace& workspace);
 

@@ -114,6 +114,9 @@ void CascadeSearchOptions::validate() const {
   if (max_one_to_many < 1 || max_one_to_many > 64)
     throw_error(ErrorCode::kInvalidArgument, "CascadeSearchOptions.max_one_to_many must be in [1, 64], got ",
                 max_one_to_many);
+  if (lut_flips < 0 || lut_flips > kHashTableBits)
+    throw_error(ErrorCode::kInvalidArgument, "CascadeSearchOptions.lut_flips must be in [0, ", kHashTableBits,
+                "], got ", lut_flips);
   if (early_stop < 0)
     throw_error(ErrorCode::kInvalidArgument, "CascadeSearchOptions.early_stop must be >= 0, got ", early_stop);
   if (!cpu_supports(simd))
@@ -133,7 +136,8 @@ void CascadeMatches::clear() {
 
 size_t CascadeWorkspace::capacity_bytes() const {
   return seen.capacity() + query_codes.capacity() * sizeof(HashCode) + sizes.capacity() * 4 + order.capacity() * 8 +
-         candidates.capacity() * 4 + hamming.capacity() + shortlist.capacity() * 4 + ranked_distances.capacity() * 4 +
+         candidates.capacity() * 4 + margins.capacity() * 4 + margin_codes.capacity() * sizeof(HashCode) +
+         hamming.capacity() + shortlist.capacity() * 4 + ranked_distances.capacity() * 4 +
          encode.projection_transposed.capacity() * 4 + encode.centred.capacity() * 4 +
          encode.quantized.weight_pairs.capacity() * 2 + encode.quantized.weights_transposed.capacity() * 2 +
          encode.quantized.thresholds.capacity() * 4 + table.capacity() * 4 + counts.capacity() * 4;
@@ -184,8 +188,22 @@ constexpr size_t kDirectAdcMaxCandidates = 160;
 static_assert(CascadeLookup::kMaxPoints * (kPqMaxSubvectors / 4) <= (size_t(1) << 31));
 
 // The probes of one table: the exact bucket, then (radius 1) the 16 buckets
-// one bit away, in that order.
+// one bit away, in that order; or, query-directed, those of the bits in
+// `flips` (directed_flips), in that order.
 inline uint32_t probe_bucket(uint32_t key, int b) { return b == 0 ? key : key ^ (1u << (b - 1)); }
+inline uint32_t probe_bucket(uint32_t key, int b, const uint8_t* flips) {
+  return b == 0 ? key : key ^ (1u << flips[b - 1]);
+}
+
+// Batcher's odd-even merge sort of 16 keys (63 compare-exchanges; sorts every
+// 0-1 input, so every input).
+constexpr uint8_t kSortNetwork16[63][2] = {
+    {0, 1},   {2, 3},  {4, 5},  {6, 7},   {8, 9},   {10, 11}, {12, 13}, {14, 15}, {0, 2},   {1, 3},   {4, 6},
+    {5, 7},   {8, 10}, {9, 11}, {12, 14}, {13, 15}, {1, 2},   {5, 6},   {9, 10},  {13, 14}, {0, 4},   {1, 5},
+    {2, 6},   {3, 7},  {8, 12}, {9, 13},  {10, 14}, {11, 15}, {2, 4},   {3, 5},   {10, 12}, {11, 13}, {1, 2},
+    {3, 4},   {5, 6},  {9, 10}, {11, 12}, {13, 14}, {0, 8},   {1, 9},   {2, 10},  {3, 11},  {4, 12},  {5, 13},
+    {6, 14},  {7, 15}, {4, 8},  {5, 9},   {6, 10},  {7, 11},  {2, 4},   {3, 5},   {6, 8},   {7, 9},   {10, 12},
+    {11, 13}, {1, 2},  {3, 4},  {5, 6},   {7, 8},   {9, 10},  {11, 12}, {13, 14}};
 
 // The rank in CascadeLookup uses std::popcount: VISLOC_POPCNT_CLONES
 // (binary_hasher.h) makes it one instruction where the CPU has POPCNT.
@@ -226,15 +244,20 @@ struct ProbeRanges {
 // The probes' first step: the non-empty probed buckets and their ranks, from
 // the bitmap and rank words alone (`begin` holds the ranks). With
 // kPrefetchOffsets, each bucket's offsets are prefetched for probe_offsets.
+// `flips`: query-directed probing's bits, (probes − 1) per table, or null
+// (every bit, in order).
 template <bool kPrefetchOffsets>
-VISLOC_POPCNT_CLONES void probe_ranks(const CascadeLookup& lookup, const HashCode& code, int probes, ProbeRanges& r) {
+VISLOC_POPCNT_CLONES void probe_ranks(const CascadeLookup& lookup, const HashCode& code, int probes, ProbeRanges& r,
+                                      const uint8_t* flips) {
   int c = 0;
   for (int k = 0; k < kHashTables; ++k) {
     const uint32_t key = hash_subcode(code, k);
     [[maybe_unused]] const uint32_t* o = lookup.table_offsets(k);
+    const uint8_t* table_flips = flips ? flips + k * (probes - 1) : nullptr;
     for (int b = 0; b < probes; ++b) {
       uint32_t rank;
-      const uint32_t non_empty = lookup.bucket_rank(k, probe_bucket(key, b), rank);
+      const uint32_t bucket = table_flips ? probe_bucket(key, b, table_flips) : probe_bucket(key, b);
+      const uint32_t non_empty = lookup.bucket_rank(k, bucket, rank);
       r.begin[c] = rank;
       r.table[c] = static_cast<uint8_t>(k);
       if constexpr (kPrefetchOffsets) __builtin_prefetch(o + rank);
@@ -258,9 +281,39 @@ void probe_offsets(const CascadeLookup& lookup, ProbeRanges& r) {
   r.listed = listed;
 }
 
-void probe_ranges(const CascadeLookup& lookup, const HashCode& code, int probes, ProbeRanges& r) {
-  probe_ranks<false>(lookup, code, probes, r);
+void probe_ranges(const CascadeLookup& lookup, const HashCode& code, int probes, ProbeRanges& r, const uint8_t* flips) {
+  probe_ranks<false>(lookup, code, probes, r, flips);
   probe_offsets(lookup, r);
+}
+
+// The probes of a feature: radius 0 or 1, every one-bit neighbour, or
+// query-directed (margins non-null: the feature's 128).
+struct ProbePlan {
+  int probes = 1;
+  int flips = 0;                     // directed: bits probed per table
+  const int32_t* margins = nullptr;  // directed: 128 per feature
+  // The feature's flip bits into `scratch` (kHashTables × flips), or null.
+  const uint8_t* flip_bits(uint32_t feature, uint8_t* scratch) const {
+    if (!margins) return nullptr;
+    directed_flips(margins + size_t(feature) * kHashBits, flips, scratch);
+    return scratch;
+  }
+};
+
+// The search's probes; query-directed probing without the caller's margins
+// computes them into the workspace.
+ProbePlan probe_plan(const CascadeIndexView& index, const DescriptorMatrix& queries,
+                     const CascadeSearchOptions& options, std::span<const int32_t> margins, CascadeWorkspace& ws) {
+  if (options.lut_radius == 0) return {};
+  if (options.lut_flips == kHashTableBits) return {kHashTableBits + 1, 0, nullptr};
+  const size_t nq = queries.rows();
+  if (margins.size() != nq * kHashBits) {
+    ws.margins.resize(nq * kHashBits);
+    ws.margin_codes.resize(nq);
+    encode_hash(index.hasher, queries.data(), nq, ws.margin_codes.data(), ws.encode, ws.margins.data());
+    margins = ws.margins;
+  }
+  return {1 + options.lut_flips, options.lut_flips, margins.data()};
 }
 
 // The probes of the features in search order, computed two features ahead so
@@ -273,8 +326,8 @@ void probe_ranges(const CascadeLookup& lookup, const HashCode& code, int probes,
 // the comment before CascadeMatcher::match_hashed.
 class ProbePipeline {
  public:
-  ProbePipeline(const CascadeLookup& lookup, const HashCode* codes, std::span<const uint64_t> order, int probes)
-      : lookup_(lookup), codes_(codes), order_(order), probes_(probes) {
+  ProbePipeline(const CascadeLookup& lookup, const HashCode* codes, std::span<const uint64_t> order, ProbePlan plan)
+      : lookup_(lookup), codes_(codes), order_(order), plan_(plan) {
     for (int k = 0; k < kHashTables; ++k) {
       ids16_[k] = lookup.uses_16bit_ids() ? lookup.ids16(k) : nullptr;
       ids32_[k] = lookup.uses_16bit_ids() ? nullptr : lookup.ids32(k);
@@ -300,12 +353,14 @@ class ProbePipeline {
  private:
   ProbeRanges& slot(size_t i) { return stages_[i % 3]; }
   void ranks(size_t i) {
-    probe_ranks<true>(lookup_, codes_[static_cast<uint32_t>(order_[i] & 0xffffffffu)], probes_, slot(i));
+    const uint32_t f = static_cast<uint32_t>(order_[i] & 0xffffffffu);
+    probe_ranks<true>(lookup_, codes_[f], plan_.probes, slot(i), plan_.flip_bits(f, flips_));
   }
   const CascadeLookup& lookup_;
   const HashCode* codes_;
   std::span<const uint64_t> order_;
-  int probes_;
+  ProbePlan plan_;
+  uint8_t flips_[kHashTables * kHashTableBits];
   const uint16_t* ids16_[kHashTables];
   const uint32_t* ids32_[kHashTables];
   ProbeRanges stages_[3];
@@ -439,6 +494,48 @@ inline void emit_matches(uint32_t f, const float* best_d, const uint32_t* best_i
 
 }  // namespace
 
+// Eight lanes, one per table: GCC's vector extension, so that every
+// compare-exchange is one min and one max of 8 int32 (AVX2, or two halves
+// with SSE4.1 / NEON; the keys are below 2^31, so signed order is theirs).
+#if defined(__GNUC__)
+#define VISLOC_DIRECTED_FLIPS_VECTOR 1
+typedef int32_t FlipKeys __attribute__((vector_size(32)));
+static_assert(kHashTables == 8);
+#endif
+
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+__attribute__((target_clones("avx2", "sse4.1", "default")))
+#endif
+void directed_flips(const int32_t* margins, int flips, uint8_t* out) {
+  // key[b][k] = (margin, bit) of table k's bit b, margins saturated at
+  // 2^27 − 1 (far beyond any bit worth flipping; ties by bit index).
+#ifdef VISLOC_DIRECTED_FLIPS_VECTOR
+  FlipKeys key[kHashTableBits];
+  for (int b = 0; b < kHashTableBits; ++b)
+    for (int k = 0; k < kHashTables; ++k)
+      key[b][k] = (std::clamp(margins[k * kHashTableBits + b], 0, (1 << 27) - 1) << 4) | b;
+  for (const auto& e : kSortNetwork16) {
+    const FlipKeys a = key[e[0]], b = key[e[1]];
+    const auto less = a < b;
+    key[e[0]] = less ? a : b;
+    key[e[1]] = less ? b : a;
+  }
+#else
+  int32_t key[kHashTableBits][kHashTables];
+  for (int b = 0; b < kHashTableBits; ++b)
+    for (int k = 0; k < kHashTables; ++k)
+      key[b][k] = (std::clamp(margins[k * kHashTableBits + b], 0, (1 << 27) - 1) << 4) | b;
+  for (const auto& e : kSortNetwork16)
+    for (int k = 0; k < kHashTables; ++k) {
+      const int32_t a = key[e[0]][k], b = key[e[1]][k];
+      key[e[0]][k] = std::min(a, b);
+      key[e[1]][k] = std::max(a, b);
+    }
+#endif
+  for (int k = 0; k < kHashTables; ++k)
+    for (int j = 0; j < flips; ++j) out[k * flips + j] = static_cast<uint8_t>(key[j][k] & 15);
+}
+
 void sort_by_size(const uint32_t* sizes, size_t n, uint32_t min_size, std::vector<uint32_t>& counts,
                   std::vector<uint64_t>& order) {
   order.clear();
@@ -481,12 +578,15 @@ void CascadeMatcher::match(const DescriptorMatrix& queries, const CascadeSearchO
   Timer t;
   CascadeWorkspace& ws = *ws_;
   ws.query_codes.resize(queries.rows());
+  const bool directed = options.lut_radius == 1 && options.lut_flips < kHashTableBits;
+  ws.margins.resize(directed ? queries.rows() * kHashBits : 0);
   if (index_.num_points > 0)
-    encode_hash(index_.hasher, queries.data(), queries.rows(), ws.query_codes.data(), ws.encode);
+    encode_hash(index_.hasher, queries.data(), queries.rows(), ws.query_codes.data(), ws.encode,
+                directed ? ws.margins.data() : nullptr);
   const double ms_hash = t.elapsed_ms();
-  // match_hashed reads the codes from the workspace it also uses: copy-free
-  // because it only reads ws.query_codes.
-  match_hashed(queries, ws.query_codes, options, out);
+  // match_hashed reads the codes and margins from the workspace it also
+  // uses: copy-free because it only reads them.
+  match_hashed(queries, ws.query_codes, options, out, ws.margins);
   out.stats.ms_hash = ms_hash;
   out.stats.ms_total += ms_hash;
 }
@@ -521,7 +621,8 @@ void CascadeMatcher::match(const DescriptorMatrix& queries, const CascadeSearchO
 // the next feature's loads of the deduplication bytes then wait on this
 // feature's stores to the same bytes).
 void CascadeMatcher::match_hashed(const DescriptorMatrix& queries, std::span<const HashCode> codes,
-                                  const CascadeSearchOptions& options, CascadeMatches& out) {
+                                  const CascadeSearchOptions& options, CascadeMatches& out,
+                                  std::span<const int32_t> margins) {
   options.validate();
   out.clear();
   Timer total;
@@ -560,10 +661,11 @@ void CascadeMatcher::match_hashed(const DescriptorMatrix& queries, std::span<con
   const float r11 = options.ratio_one_to_one * options.ratio_one_to_one;
   const float r1m = options.ratio_one_to_many * options.ratio_one_to_many;
   const size_t early = options.prioritize && options.early_stop > 0 ? size_t(options.early_stop) : SIZE_MAX;
-  const int probes = options.lut_radius == 1 ? kHashTableBits + 1 : 1;
+  const ProbePlan plan = probe_plan(index_, queries, options, margins, ws);
   float qf[kDescriptorDim];
+  uint8_t plain_flips[kHashTables * kHashTableBits];
   ProbeRanges plain_ranges;
-  ProbePipeline pipeline(lookup, codes.data(), ws.order, probes);
+  ProbePipeline pipeline(lookup, codes.data(), ws.order, plan);
   const HashCode* prefetched_codes = options.prefetch ? index_.codes : nullptr;
   const size_t pq_bytes = size_t(index_.pq_subvectors);
   std::span<const uint32_t> ranked;
@@ -575,7 +677,7 @@ void CascadeMatcher::match_hashed(const DescriptorMatrix& queries, std::span<con
     }
     const uint32_t f = static_cast<uint32_t>(ws.order[position] & 0xffffffffu);
     const HashCode code = codes[f];
-    if (!options.prefetch) probe_ranges(lookup, code, probes, plain_ranges);
+    if (!options.prefetch) probe_ranges(lookup, code, plan.probes, plain_ranges, plan.flip_bits(f, plain_flips));
     const ProbeRanges& ranges = options.prefetch ? pipeline.ranges(position) : plain_ranges;
     if (ranges.listed < 2) continue;  // not searched: no ratio test possible
     if (ws.candidates.size() < size_t(ranges.listed) + 1) ws.candidates.resize(size_t(ranges.listed) + 1);

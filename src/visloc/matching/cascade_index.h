@@ -6,8 +6,12 @@
 //            sub-codes of b = 16 bits; each names a bucket of one of 8 lookup
 //            tables (pigeonhole principle, Norouzi et al. CVPR 2012). Radius 0
 //            probes the exact bucket (the paper); radius 1 also probes the 16
-//            buckets one bit away (multi-index hashing). The union of the
-//            buckets' point ids, deduplicated, is the list L_C.
+//            buckets one bit away (multi-index hashing), or only the
+//            `lut_flips` of them whose flipped bits' projections lie nearest
+//            their hyperplanes (query-directed probing, Lv et al. VLDB 2007:
+//            a near neighbour more likely differs in a bit the query barely
+//            set). The union of the buckets' point ids, deduplicated, is the
+//            list L_C.
 //   refined  Hamming distance (XOR + popcount) on the full 128-bit code;
 //            the L_R = 40 nearest by a counting sort over distances 0..128.
 //   precise  PQ asymmetric distance (M × 256 table per query feature) to the
@@ -161,6 +165,12 @@ enum class OneToManyRule {
 
 struct CascadeSearchOptions {
   int lut_radius = 1;               // 0: exact buckets (paper); 1: also the 16 one-bit-away buckets
+  // At radius 1, how many of a table's 16 one-bit-away buckets are probed:
+  // all 16 (in bit order), or the k whose bits' projections lie nearest
+  // their hyperplanes, nearest first (0 probes the exact buckets alone, as
+  // radius 0, but is searched as radius 1). The prioritized order keeps the
+  // radius-1 neighbourhood's size as its key whatever k.
+  int lut_flips = kHashTableBits;
   bool refined = true;              // the Hamming step; off: PQ ranks the whole coarse list
   int refined_list = 40;            // L_R
   float ratio_one_to_one = 0.8f;    // ν_h
@@ -217,6 +227,8 @@ struct CascadeWorkspace {
   std::vector<uint64_t> order;
   std::vector<uint32_t> counts;  // the counting sort of the search order
   std::vector<uint32_t> candidates;
+  std::vector<int32_t> margins;        // query-directed probing: 128 per feature
+  std::vector<HashCode> margin_codes;  // their codes, when the caller's codes came without margins
   std::vector<uint8_t> hamming;
   std::vector<uint32_t> shortlist;
   std::vector<float> ranked_distances;
@@ -232,6 +244,12 @@ struct CascadeWorkspace {
 void sort_by_size(const uint32_t* sizes, size_t n, uint32_t min_size, std::vector<uint32_t>& counts,
                   std::vector<uint64_t>& order);
 
+// Query-directed probing's order: per table k, the `flips` bits of its 16
+// (16k .. 16k + 15) with the smallest margins (128 of one feature), by
+// increasing (margin, bit), as bit indices 0..15 into out[k * flips ..].
+// A sorting network over the 8 tables at once. Exposed for tests.
+void directed_flips(const int32_t* margins, int flips, uint8_t* out);
+
 // Searches one segment. Not thread-safe: one matcher (or workspace) per thread.
 class CascadeMatcher {
  public:
@@ -244,9 +262,11 @@ class CascadeMatcher {
   void match(const DescriptorMatrix& queries, const CascadeSearchOptions& options, CascadeMatches& out);
   CascadeMatches match(const DescriptorMatrix& queries, const CascadeSearchOptions& options = {});
   // Searches with codes already computed by the same hasher (a map with one
-  // hash rotation hashes a query once for all its segments).
+  // hash rotation hashes a query once for all its segments). Query-directed
+  // probing (lut_flips < 16) reads the codes' margins (encode_hash, 128 per
+  // feature, from the same hasher); without them, they are computed here.
   void match_hashed(const DescriptorMatrix& queries, std::span<const HashCode> codes,
-                    const CascadeSearchOptions& options, CascadeMatches& out);
+                    const CascadeSearchOptions& options, CascadeMatches& out, std::span<const int32_t> margins = {});
   // Coarse list sizes (Σ bucket sizes) of already-encoded codes; exposed for tests.
   void coarse_sizes(std::span<const HashCode> codes, int lut_radius, std::vector<uint32_t>& sizes) const;
 

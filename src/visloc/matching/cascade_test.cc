@@ -141,7 +141,7 @@ TEST(Itq, EncodeMatchesTheProjectionsSign) {
       for (int j = 0; j < 128; ++j)
         ASSERT_EQ(q.weights_transposed[j * 128 + i], q.weight_pairs[(j / 2) * 256 + 2 * i + (j & 1)]) << i << " " << j;
     std::vector<HashCode> scalar_codes(d.rows());
-    search_kernels(SimdLevel::kScalar).hash_codes_u8(q, d.data(), d.rows(), scalar_codes.data());
+    search_kernels(SimdLevel::kScalar).hash_codes_u8(q, d.data(), d.rows(), scalar_codes.data(), nullptr);
     for (size_t i = 0; i < d.rows(); ++i) {
       ASSERT_EQ(scalar_codes[i].w[0], codes[i].w[0]) << i;
       ASSERT_EQ(scalar_codes[i].w[1], codes[i].w[1]) << i;
@@ -201,7 +201,13 @@ TEST(Itq, QuantizedProjectionOfDegenerateHashers) {
   for (int i = 0; i < 128; ++i) w[i * 128 + i] = 0.5f;
   mean[0] = std::numeric_limits<float>::quiet_NaN();
   quantize_hash_projection({mean.data(), w.data()}, q);
-  for (int32_t t : q.thresholds) ASSERT_EQ(t, INT32_MAX);  // never set
+  for (int32_t t : q.thresholds) ASSERT_EQ(t, 1 << 30);  // above every sum: never set
+  mean[0] = 1e30f;                                       // finite, but the sums are far out of range
+  quantize_hash_projection({mean.data(), w.data()}, q);
+  EXPECT_EQ(q.thresholds[0], 1 << 30);
+  mean[0] = -1e30f;
+  quantize_hash_projection({mean.data(), w.data()}, q);
+  EXPECT_EQ(q.thresholds[0], -(1 << 30));  // below every sum: always set
 }
 
 TEST(Hamming, PopcountAndSubcodesMatchScalarReference) {
@@ -928,16 +934,31 @@ namespace {
 // the table path: floats must agree to the bit, and the two paths round
 // differently. `keyed[k]` holds (subcode << 32 | point) of every point for
 // table k, sorted.
+// The bits one table flips, nearest its hyperplane first: query-directed
+// probing (`lut_flips` of them; margins saturated at 2^27 − 1, ties by bit)
+// or every bit in order.
+std::vector<int> reference_flips(const CascadeSearchOptions& o, const int32_t* margins, int table) {
+  std::vector<int> bits(kHashTableBits);
+  for (int b = 0; b < kHashTableBits; ++b) bits[b] = b;
+  if (o.lut_flips == kHashTableBits) return bits;
+  auto margin = [&](int b) { return std::min(margins[table * kHashTableBits + b], (1 << 27) - 1); };
+  std::stable_sort(bits.begin(), bits.end(), [&](int a, int b) { return margin(a) < margin(b); });
+  bits.resize(size_t(o.lut_flips));
+  return bits;
+}
+
+// `margins`: the feature's 128 (query-directed probing only).
 void reference_search(const TestIndex& t, const std::vector<std::vector<uint64_t>>& keyed, const DescriptorMatrix& q,
                       uint32_t f, const HashCode& code, const CascadeSearchOptions& o, CascadeMatches& out,
-                      size_t& most_ranked) {
+                      size_t& most_ranked, const int32_t* margins) {
   std::vector<uint32_t> candidates;
   std::vector<bool> seen(t.codes.size());
   size_t listed = 0;
   for (int k = 0; k < kHashTables; ++k) {
     const uint32_t key = hash_subcode(code, k);
-    for (int b = 0; b <= (o.lut_radius == 1 ? kHashTableBits : 0); ++b) {
-      const uint64_t bucket = b == 0 ? key : key ^ (1u << (b - 1));
+    const std::vector<int> flips = reference_flips(o, margins, k);
+    for (int b = 0; b <= (o.lut_radius == 1 ? int(flips.size()) : 0); ++b) {
+      const uint64_t bucket = b == 0 ? key : key ^ (1u << flips[b - 1]);
       auto it = std::lower_bound(keyed[k].begin(), keyed[k].end(), bucket << 32);
       for (; it != keyed[k].end() && (*it >> 32) == bucket; ++it) {
         const uint32_t p = static_cast<uint32_t>(*it & 0xffffffffu);
@@ -1002,8 +1023,10 @@ void reference_search(const TestIndex& t, const std::vector<std::vector<uint64_t
 // order, early stop and group rule are tested above): the guard for any later
 // change of the search loop that is meant to be lossless. Segments with
 // crowded buckets (clustered descriptors, LSH codes) and with 32-bit ids, and
-// one with 32-byte PQ codes, at both radii, with and without the refined step
-// (so both ADC paths), at every kernel level.
+// one with 32-byte PQ codes, at both radii (and query-directed probing of 5
+// and of no one-bit neighbours, with the margins given and computed by the
+// matcher), with and without the refined step (so both ADC paths), at every
+// kernel level.
 TEST(CascadeSearch, SameMatchesAsThePlainDefinition) {
   struct Case {
     size_t points;
@@ -1022,33 +1045,43 @@ TEST(CascadeSearch, SameMatchesAsThePlainDefinition) {
     std::vector<size_t> rows;
     for (size_t i = 0; i < 150; ++i) rows.push_back(i * 11 % db.rows());
     const DescriptorMatrix q = perturbed(db, rows, 12, 32);
-    std::vector<HashCode> codes(q.rows());
+    std::vector<HashCode> codes(q.rows()), scalar_codes(q.rows());
+    std::vector<int32_t> margins(q.rows() * kHashBits);
     HashWorkspace hws;
     encode_hash(t.hasher.view(), q.data(), q.rows(), codes.data(), hws);
-    for (int radius : {0, 1})
+    search_kernels(SimdLevel::kScalar)
+        .hash_codes_u8(hws.quantized, q.data(), q.rows(), scalar_codes.data(), margins.data());
+    for (size_t f = 0; f < codes.size(); ++f) ASSERT_EQ(hamming_distance(codes[f], scalar_codes[f]), 0u);
+    for (auto [radius, flips] : {std::pair{0, 16}, std::pair{1, 16}, std::pair{1, 5}, std::pair{1, 0}})
       for (bool refined : {true, false}) {
-        SCOPED_TRACE(::testing::Message() << points << " points, lsh " << lsh << ", " << pq_subvectors
-                                          << "-byte PQ, radius " << radius << ", refined " << refined);
+        SCOPED_TRACE(::testing::Message()
+                     << points << " points, lsh " << lsh << ", " << pq_subvectors << "-byte PQ, radius " << radius
+                     << ", flips " << flips << ", refined " << refined);
         CascadeSearchOptions o;
         o.lut_radius = radius;
+        o.lut_flips = flips;
         o.refined = refined;
         o.prioritize = false;
         CascadeMatches expected;
         expected.clear();
         size_t most_ranked = 0;
-        for (uint32_t f = 0; f < q.rows(); ++f) reference_search(t, keyed, q, f, codes[f], o, expected, most_ranked);
+        for (uint32_t f = 0; f < q.rows(); ++f)
+          reference_search(t, keyed, q, f, codes[f], o, expected, most_ranked, margins.data() + f * kHashBits);
         ASSERT_GT(expected.query.size(), 20u);
         // Not vacuous: the refined step trims lists, and without it some
         // feature ranks more than 160 candidates (the ADC table path).
-        if (refined) EXPECT_LT(expected.stats.ranked_candidates, expected.stats.coarse_candidates);
-        if (!refined && radius == 1) EXPECT_GT(most_ranked, 160u);
+        if (refined && flips > 0) EXPECT_LT(expected.stats.ranked_candidates, expected.stats.coarse_candidates);
+        if (!refined && radius == 1 && flips == 16) EXPECT_GT(most_ranked, 160u);
         for (SimdLevel level : supported_simd_levels())
           for (bool prefetch : {true, false}) {
             SCOPED_TRACE(::testing::Message() << to_string(level) << ", prefetch " << prefetch);
             o.simd = level;
             o.prefetch = prefetch;
             CascadeMatches m;
-            CascadeMatcher(t.view(), t.codebook).match_hashed(q, codes, o, m);
+            // The margins given (prefetching) or computed by the matcher.
+            CascadeMatcher(t.view(), t.codebook)
+                .match_hashed(q, codes, o, m,
+                              prefetch ? std::span<const int32_t>(margins) : std::span<const int32_t>());
             EXPECT_EQ(m.query, expected.query);
             EXPECT_EQ(m.point, expected.point);
             EXPECT_EQ(m.distance, expected.distance);
@@ -1155,6 +1188,48 @@ TEST(FaissBaselines, IvfAdcAndImiFindPlantedMatches) {
 // Both paths of the prioritized order (counting sort below 65,536, std::sort
 // from it) give the stable sort by size of the features kept, ties in index
 // order, and reuse their scratch across calls.
+// The sorting network's order: per table, the bits by increasing (margin
+// saturated at 2^27 − 1, bit), for margins with ties, zeros and huge values.
+TEST(CascadeSearch, DirectedFlipsAreTheBitsNearestTheirHyperplanes) {
+  std::mt19937 rng(5);
+  std::vector<int32_t> margins(kHashBits);
+  std::vector<uint8_t> out(kHashTables * kHashTableBits);
+  for (int trial = 0; trial < 2000; ++trial) {
+    for (auto& m : margins) {
+      switch (rng() % 4) {
+        case 0:
+          m = int32_t(rng() % 8);
+          break;  // ties
+        case 1:
+          m = int32_t(rng() % 1000000);
+          break;
+        case 2:
+          m = int32_t((1 << 27) + rng() % 1000);
+          break;  // saturated: ties by bit
+        default:
+          m = int32_t(rng() & 0x7fffffff);
+          break;
+      }
+    }
+    const int flips = trial % (kHashTableBits + 1);
+    directed_flips(margins.data(), flips, out.data());
+    CascadeSearchOptions o;
+    o.lut_flips = flips;
+    for (int k = 0; k < kHashTables; ++k) {
+      const std::vector<int> expected = flips == kHashTableBits ? [&] {
+        CascadeSearchOptions all_sorted = o;
+        all_sorted.lut_flips = kHashTableBits - 1;  // the sorted order, then the last bit
+        std::vector<int> v = reference_flips(all_sorted, margins.data(), k);
+        for (int b = 0; b < kHashTableBits; ++b)
+          if (std::find(v.begin(), v.end(), b) == v.end()) v.push_back(b);
+        return v;
+      }() : reference_flips(o, margins.data(), k);
+      for (int j = 0; j < flips; ++j)
+        ASSERT_EQ(out[k * flips + j], expected[j]) << "trial " << trial << " table " << k << " rank " << j;
+    }
+  }
+}
+
 TEST(CascadeSortBySize, BothPathsEqualAStableSortOfTheKeptFeatures) {
   std::mt19937 rng(5);
   std::vector<uint32_t> counts;

@@ -1,6 +1,8 @@
 #include "visloc/matching/search_kernels.h"
 
+#include <algorithm>
 #include <bit>
+#include <cstdlib>
 #include <cstring>
 
 #include "visloc/features/feature_set.h"
@@ -147,7 +149,8 @@ void hash_codes_scalar(const float* wt, const float* x, size_t n, HashCode* code
 // 1.07e9 < 2^31, so the order of the additions does not matter. Wq is read
 // transposed: per dimension j, a contiguous row of 128 int16 times one x_j,
 // which compilers turn into widening multiply-adds (SSE2, NEON).
-void hash_codes_u8_scalar(const QuantizedHashProjection& q, const uint8_t* x, size_t n, HashCode* codes) {
+void hash_codes_u8_scalar(const QuantizedHashProjection& q, const uint8_t* x, size_t n, HashCode* codes,
+                          int32_t* margins) {
   const int16_t* wt = q.weights_transposed.data();
   const int32_t* t = q.thresholds.data();
   int32_t p[kHashBits];
@@ -162,6 +165,10 @@ void hash_codes_u8_scalar(const QuantizedHashProjection& q, const uint8_t* x, si
     HashCode c{{0, 0}};
     for (int i = 0; i < kHashBits; ++i) c.w[i >> 6] |= static_cast<uint64_t>(p[i] > t[i]) << (i & 63);
     codes[r] = c;
+    if (margins)
+      for (int i = 0; i < kHashBits; ++i)  // in int64: no overflow whatever the thresholds
+        margins[r * kHashBits + i] =
+            static_cast<int32_t>(std::min<int64_t>(std::llabs(int64_t(p[i]) - t[i]), INT32_MAX));
   }
 }
 
@@ -403,7 +410,7 @@ __attribute__((target("avx2"))) void additive_direct_avx2(const float* c, const 
 // accumulator. The rows are widened to int16 once, so that a pair (x_2p,
 // x_2p+1) is one 32-bit broadcast. Exact, so equal to the reference.
 __attribute__((target("avx2"))) void hash_codes_u8_avx2(const QuantizedHashProjection& q, const uint8_t* x, size_t n,
-                                                        HashCode* codes) {
+                                                        HashCode* codes, int32_t* margins) {
   const int16_t* wp = q.weight_pairs.data();
   const int32_t* t = q.thresholds.data();
   constexpr int kRows = 4;
@@ -439,11 +446,16 @@ __attribute__((target("avx2"))) void hash_codes_u8_avx2(const QuantizedHashProje
         const uint64_t hi =
             static_cast<uint32_t>(_mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpgt_epi32(acc[r][1], t1))));
         c[r].w[ib >> 2] |= (lo | (hi << 8)) << (16 * (ib & 3));
+        if (margins) {
+          int32_t* m = margins + (r0 + r) * kHashBits + 16 * ib;
+          _mm256_storeu_si256(reinterpret_cast<__m256i*>(m), _mm256_abs_epi32(_mm256_sub_epi32(acc[r][0], t0)));
+          _mm256_storeu_si256(reinterpret_cast<__m256i*>(m + 8), _mm256_abs_epi32(_mm256_sub_epi32(acc[r][1], t1)));
+        }
       }
     }
     for (int r = 0; r < kRows; ++r) codes[r0 + r] = c[r];
   }
-  hash_codes_u8_scalar(q, x + r0 * kDescriptorDim, n - r0, codes + r0);
+  hash_codes_u8_scalar(q, x + r0 * kDescriptorDim, n - r0, codes + r0, margins ? margins + r0 * kHashBits : nullptr);
 }
 
 // ---- x86-64: AVX-512F ------------------------------------------------------------
@@ -543,7 +555,8 @@ __attribute__((target("avx512f"))) void hash_codes_avx512(const float* wt, const
 // Blocks of 8 rows × 32 outputs (16 accumulators of 16 int32), as
 // hash_codes_u8_avx2 with twice the lanes; exact, so equal to the reference.
 __attribute__((target("avx512f,avx512bw"))) void hash_codes_u8_avx512(const QuantizedHashProjection& q,
-                                                                      const uint8_t* x, size_t n, HashCode* codes) {
+                                                                      const uint8_t* x, size_t n, HashCode* codes,
+                                                                      int32_t* margins) {
   const int16_t* wp = q.weight_pairs.data();
   const int32_t* t = q.thresholds.data();
   constexpr int kRows = 8;
@@ -576,11 +589,16 @@ __attribute__((target("avx512f,avx512bw"))) void hash_codes_u8_avx512(const Quan
         const uint64_t lo = _mm512_cmpgt_epi32_mask(acc[r][0], t0);
         const uint64_t hi = _mm512_cmpgt_epi32_mask(acc[r][1], t1);
         c[r].w[ib >> 1] |= (lo | (hi << 16)) << (32 * (ib & 1));
+        if (margins) {
+          int32_t* m = margins + (r0 + r) * kHashBits + 32 * ib;
+          _mm512_storeu_si512(m, _mm512_abs_epi32(_mm512_sub_epi32(acc[r][0], t0)));
+          _mm512_storeu_si512(m + 16, _mm512_abs_epi32(_mm512_sub_epi32(acc[r][1], t1)));
+        }
       }
     }
     for (int r = 0; r < kRows; ++r) codes[r0 + r] = c[r];
   }
-  hash_codes_u8_avx2(q, x + r0 * kDescriptorDim, n - r0, codes + r0);
+  hash_codes_u8_avx2(q, x + r0 * kDescriptorDim, n - r0, codes + r0, margins ? margins + r0 * kHashBits : nullptr);
 }
 
 #endif  // VISLOC_X86_KERNELS

@@ -46,6 +46,10 @@
 //                      No rounding in the sums, so every level agrees by
 //                      construction, and a multiply-add of int16 pairs does
 //                      twice the work of a float multiply and add per lane.
+//                      With `margins`, also each bit's |Σ_j Wq[i][j] · x_rj − t_i|
+//                      (its projection's distance from the hyperplane, in the
+//                      integer scale; exact in int32 since |t_i| ≤ 2^30), for
+//                      query-directed probing (cascade_index.h).
 #pragma once
 
 #include <cstddef>
@@ -101,7 +105,7 @@ struct SearchKernels {
   void (*hash_codes)(const float* projection_transposed /* [j][i], 128 × 128 */, const float* centred /* n × 128 */,
                      size_t n, HashCode* codes) = nullptr;
   void (*hash_codes_u8)(const QuantizedHashProjection& projection, const uint8_t* descriptors /* n × 128 */, size_t n,
-                        HashCode* codes) = nullptr;
+                        HashCode* codes, int32_t* margins /* n × 128, or null */) = nullptr;
   // adc16 or adc32 by the codes' sub-vector count; else Error(kInvalidArgument).
   const AdcKernels& adc(int subvectors) const;
 };

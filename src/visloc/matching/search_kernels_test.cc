@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
 #include <random>
 #include <vector>
@@ -192,7 +193,7 @@ TEST(SearchKernels, HashCodesMatchTheReference) {
 // The integer hash: the reference is checked against an independent int64
 // sum, with weights and descriptors at their extremes (±32,767, 255: the
 // largest sums) and thresholds at both ends of int32; every level equals it.
-TEST(SearchKernels, HashCodesU8MatchTheReference) {
+TEST(SearchKernels, HashCodesU8AndTheirMarginsMatchTheReference) {
   std::mt19937 rng(9);
   constexpr size_t kRows = 41;  // blocks of 8 and 4 rows, and a tail
   // Wq[i][j] in both layouts of QuantizedHashProjection.
@@ -210,22 +211,28 @@ TEST(SearchKernels, HashCodesU8MatchTheReference) {
   std::vector<int32_t>& t = q.thresholds;
   t.resize(128);
   for (auto& v : t) v = static_cast<int32_t>(int(rng() % 2000001) - 1000000);
-  t[5] = INT32_MIN, t[6] = INT32_MAX, t[7] = 0;
+  t[5] = -(1 << 30), t[6] = 1 << 30, t[7] = 0;  // quantize_hash_projection's extremes: always, never
   std::vector<uint8_t> x(kRows * 128);
   for (auto& v : x) v = static_cast<uint8_t>(rng());
   for (int j = 0; j < 128; ++j) x[2 * 128 + j] = 255, x[4 * 128 + j] = 0;
   const SearchKernels& ref = search_kernels(SimdLevel::kScalar);
-  std::vector<HashCode> a(kRows), b(kRows + 1);
-  ref.hash_codes_u8(q, x.data(), kRows, a.data());
+  std::vector<HashCode> a(kRows), b(kRows + 1), c(kRows);
+  std::vector<int32_t> margins(kRows * 128), other_margins((kRows + 1) * 128);
+  ref.hash_codes_u8(q, x.data(), kRows, a.data(), margins.data());
+  ref.hash_codes_u8(q, x.data(), kRows, c.data(), nullptr);
   int set = 0;
-  for (size_t r = 0; r < kRows; ++r)
+  for (size_t r = 0; r < kRows; ++r) {
+    ASSERT_EQ(a[r].w[0], c[r].w[0]);  // the margins change no bit
+    ASSERT_EQ(a[r].w[1], c[r].w[1]);
     for (int i = 0; i < 128; ++i) {
       int64_t p = 0;
       for (int j = 0; j < 128; ++j) p += int64_t(wq[i * 128 + j]) * x[r * 128 + j];
       const bool bit = (a[r].w[i / 64] >> (i % 64)) & 1;
       ASSERT_EQ(bit, p > t[i]) << "row " << r << " bit " << i;
+      ASSERT_EQ(int64_t(margins[r * 128 + i]), std::llabs(p - t[i])) << "row " << r << " bit " << i;
       set += bit;
     }
+  }
   EXPECT_GT(set, 1000);  // both values occur
   EXPECT_LT(set, int(kRows * 128) - 1000);
   EXPECT_EQ((a[2].w[0] >> 3) & 1, 1u);  // 128 × 32,767 × 255: no overflow
@@ -234,12 +241,22 @@ TEST(SearchKernels, HashCodesU8MatchTheReference) {
     for (size_t n : kLengths) {
       n = std::min(n, kRows);
       std::fill(b.begin(), b.end(), HashCode{{7, 7}});
-      search_kernels(level).hash_codes_u8(q, x.data(), n, b.data());
+      std::fill(other_margins.begin(), other_margins.end(), -7);
+      search_kernels(level).hash_codes_u8(q, x.data(), n, b.data(), nullptr);
       for (size_t r = 0; r < n; ++r) {
         ASSERT_EQ(a[r].w[0], b[r].w[0]) << to_string(level) << " n=" << n << " row " << r;
         ASSERT_EQ(a[r].w[1], b[r].w[1]) << to_string(level) << " n=" << n << " row " << r;
       }
       EXPECT_EQ(b[n].w[0], 7u) << "wrote past the end";
+      std::fill(b.begin(), b.end(), HashCode{{7, 7}});
+      search_kernels(level).hash_codes_u8(q, x.data(), n, b.data(), other_margins.data());
+      for (size_t r = 0; r < n; ++r) {
+        ASSERT_EQ(a[r].w[0], b[r].w[0]) << to_string(level) << " n=" << n << " row " << r;
+        for (int i = 0; i < 128; ++i)
+          ASSERT_EQ(margins[r * 128 + i], other_margins[r * 128 + i])
+              << to_string(level) << " n=" << n << " row " << r << " bit " << i;
+      }
+      EXPECT_EQ(other_margins[n * 128], -7) << "wrote margins past the end";
     }
 }
 

@@ -133,6 +133,7 @@ PoseUncertainty pose_uncertainty(const PoseCovariance& cov, const CameraPose& ca
 struct QueryWorkspace {
   CascadeWorkspace cascade;
   std::vector<HashCode> map_codes;  // the query hashed once with the map's rotation
+  std::vector<int32_t> map_margins;  // and its bits' margins (query-directed probing)
   HashWorkspace encode;
   std::vector<float> vote_scratch;  // point votes per segment
   SegmentPointVoteResult point_votes;
@@ -233,6 +234,7 @@ class Localizer::Impl::Search {
   QueryWorkspace& ws_;
   LocalizationResult& res_;
   bool map_codes_ready_;
+  bool map_margins_ready_ = false;
   // The best pose so far.
   size_t best_inliers_ = 0;
   bool best_has_enough_inliers_ = false;
@@ -545,13 +547,19 @@ void Localizer::Impl::Search::match_segment(const Segment& seg, const CascadeSea
   CascadeMatcher matcher(seg.index(), impl_.map.codebook(), ws_.cascade);
   if (seg.uses_map_hasher()) {
     // One hash of the query for every segment that shares the map's rotation.
-    if (!map_codes_ready_) {
+    // Query-directed probing also reads the bits' margins: the same codes
+    // hashed once more with them, if retrieval hashed the query without.
+    const bool directed = search.lut_radius == 1 && search.lut_flips < kHashTableBits;
+    if (!map_codes_ready_ || (directed && !map_margins_ready_)) {
       ws_.map_codes.resize(f_.descriptors.rows());
+      ws_.map_margins.resize(directed ? f_.descriptors.rows() * kHashBits : 0);
       encode_hash(impl_.map.hasher()->view(), f_.descriptors.data(), f_.descriptors.rows(), ws_.map_codes.data(),
-                  ws_.encode);
+                  ws_.encode, directed ? ws_.map_margins.data() : nullptr);
       map_codes_ready_ = true;
+      map_margins_ready_ = directed;
     }
-    matcher.match_hashed(f_.descriptors, ws_.map_codes, search, ws_.matches);
+    matcher.match_hashed(f_.descriptors, ws_.map_codes, search, ws_.matches,
+                         directed ? std::span<const int32_t>(ws_.map_margins) : std::span<const int32_t>());
   } else {
     matcher.match(f_.descriptors, search, ws_.matches);
   }

@@ -46,6 +46,11 @@ void add_options(OptionTable& t, LocalizerOptions& o) {
          "Point votes: divide each segment's votes by its rate of chance votes from unrelated segments' points");
   t.add("--accept-inliers", o.accept_inliers,
         "Stop searching further candidate segments once a pose has this many inliers (0: search all)");
+  t.add("--lut-flips", o.search.lut_flips,
+        "Cascade search: of a lookup table's 16 buckets one bit off the query's, probe all (16) or the N whose "
+        "bits' projections lie nearest their hyperplanes (query-directed probing: fewer candidates, a faster "
+        "full search)")
+      .range(0, 16);
   t.add("--early-stop", o.search.early_stop,
         "Settings 3, 3+: the prioritized search stops at this many 1-1 matches (N_early)");
   t.flag("!--no-fallback", o.full_search_fallback,

@@ -213,6 +213,33 @@ void expect_other_pq_bytes_refused(const fs::path& map_dir, const MapBuildOption
   EXPECT_TRUE(build_map(map_dir, built).segments[0].reused);
 }
 
+// Another segment plan in the same directory: segments whose images differ
+// are built again, never reused from the earlier plan; and back.
+void expect_other_plan_rebuilt(const fs::path& map_dir, const MapBuildOptions& mb, size_t segments) {
+  MapBuildOptions other = mb;
+  other.plan.min_placemarks = other.plan.max_placemarks = 3;
+  other.plan.overlap = 1;
+  const MapBuildResult changed = build_map(map_dir, other);
+  ASSERT_GT(changed.segments.size(), segments);
+  EXPECT_FALSE(changed.segments[0].reused);
+  const MapBuildResult back = build_map(map_dir, mb);
+  ASSERT_EQ(back.segments.size(), segments);
+  EXPECT_FALSE(back.segments[0].reused);
+  EXPECT_EQ(back.failed(), 0u);
+}
+
+// Queries registered within 0.5 m of their true centre.
+int accurate_queries(const Localizer& localizer, const fs::path& images, const std::map<std::string, CameraPose>& truth,
+                     const std::map<std::string, PinholeCamera>& cams) {
+  int accurate = 0;
+  for (const auto& [name, pose] : truth) {
+    const LocalizationResult r = localizer.localize_file(images / name, cams.at(name));
+    EXPECT_TRUE(r.error.empty()) << r.error;
+    accurate += r.registered && position_error(r.cam_from_segment, pose) < 0.5;
+  }
+  return accurate;
+}
+
 TEST(Localizer, EndToEndOnSyntheticStreet) {
   if (!program_exists("colmap")) GTEST_SKIP() << "colmap is not installed";
   const fs::path dir = unique_temp_path("visloc_pipeline_test_city");
@@ -258,18 +285,7 @@ TEST(Localizer, EndToEndOnSyntheticStreet) {
   // A second run reuses the finished segments.
   MapBuildResult again = build_map(dir / "map", mb);
   EXPECT_TRUE(again.segments[0].reused);
-  // Another segment plan in the same directory: segments whose images differ
-  // are built again, never reused from the earlier plan; and back.
-  MapBuildOptions other = mb;
-  other.plan.min_placemarks = other.plan.max_placemarks = 3;
-  other.plan.overlap = 1;
-  const MapBuildResult changed = build_map(dir / "map", other);
-  ASSERT_GT(changed.segments.size(), built.segments.size());
-  EXPECT_FALSE(changed.segments[0].reused);
-  const MapBuildResult back = build_map(dir / "map", mb);
-  ASSERT_EQ(back.segments.size(), built.segments.size());
-  EXPECT_FALSE(back.segments[0].reused);
-  EXPECT_EQ(back.failed(), 0u);
+  expect_other_plan_rebuilt(dir / "map", mb, built.segments.size());
   // One hash rotation for the map: segments made with their own are built
   // again (never searched with another rotation), then reused; an update with
   // the other scope is refused rather than dropping segments. The queries
@@ -328,6 +344,14 @@ TEST(Localizer, EndToEndOnSyntheticStreet) {
     EXPECT_EQ(s.registered, s.confidence >= 1.0) << s.confidence;
   }
   EXPECT_GE(accurate, 2) << "of " << truth.size() << " queries";
+  // Query-directed probing (4 of a table's 16 one-bit neighbours) in the full
+  // search (setting 1): the query hashed once with the map's rotation and its
+  // bits' margins.
+  LocalizerOptions directed;
+  directed.setting = PaperSetting::k1;
+  directed.search.lut_flips = 4;
+  EXPECT_GE(accurate_queries(Localizer(dir / "map", directed), dir / "city" / "queries" / "images", truth, cams), 2)
+      << "of " << truth.size() << " queries";
 
   expect_point_votes_choose_the_segment(dir, shared, truth, cams);
 }

@@ -76,6 +76,7 @@ def test_not_a_map_raises_format_error(tmp_path):
         ({"max_drop_below_map": -1.0}, ValueError, "max_drop"),
         ({"under_street_check": 1}, TypeError, "under_street_check"),
         ({"vote_radius": 2}, ValueError, "vote_radius"),
+        ({"lut_flips": 17}, ValueError, "lut_flips"),
         ({"vote_ratio": 1.5}, ValueError, "vote_ratio"),
         ({"vote_ratio": 0.0}, ValueError, "vote_ratio"),
         ({"top_images": "20"}, TypeError, "top_images"),
