@@ -362,6 +362,13 @@ std::vector<CascadeConfig> cascade_configs(float ratio) {
     directed.options.lut_flips = flips;
     configs.push_back(directed);
   }
+  // ... only for features whose radius-1 coarse list exceeds N.
+  for (int min_list : {100, 200, 400}) {
+    CascadeConfig directed{"ccs-full-r1-flips4-above" + std::to_string(min_list), false, opts(1, true, false, best)};
+    directed.options.lut_flips = 4;
+    directed.options.lut_flips_min_list = min_list;
+    configs.push_back(directed);
+  }
   configs.push_back({"ccs-prioritized-r0", false, opts(0, true, true, best)});
   configs.push_back({"ccs-prioritized-r1", false, opts(1, true, true, best)});
   {

@@ -26,6 +26,7 @@ check --vote-max-points localize --map /nonexistent --vote-max-points -1 q.jpg
 for v in nan inf -1; do check --max-drop-below-map localize --map /nonexistent --max-drop-below-map "$v" q.jpg; done
 check --vote-radius localize --map /nonexistent --vote-radius 2 q.jpg
 for v in -1 17; do check --lut-flips localize --map /nonexistent --lut-flips "$v" q.jpg; done
+check --lut-flips-min-list localize --map /nonexistent --lut-flips-min-list -1 q.jpg
 check --vote-ratio localize --map /nonexistent --vote-ratio 1.5 q.jpg
 check --vote-ratio localize --map /nonexistent --vote-ratio nan q.jpg
 check --segment-votes localize --map /nonexistent --segment-votes pixels q.jpg

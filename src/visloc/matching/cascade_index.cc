@@ -114,6 +114,9 @@ void CascadeSearchOptions::validate() const {
   if (max_one_to_many < 1 || max_one_to_many > 64)
     throw_error(ErrorCode::kInvalidArgument, "CascadeSearchOptions.max_one_to_many must be in [1, 64], got ",
                 max_one_to_many);
+  if (lut_flips_min_list < 0)
+    throw_error(ErrorCode::kInvalidArgument, "CascadeSearchOptions.lut_flips_min_list must be >= 0, got ",
+                lut_flips_min_list);
   if (lut_flips < 0 || lut_flips > kHashTableBits)
     throw_error(ErrorCode::kInvalidArgument, "CascadeSearchOptions.lut_flips must be in [0, ", kHashTableBits,
                 "], got ", lut_flips);
@@ -292,11 +295,30 @@ struct ProbePlan {
   int probes = 1;
   int flips = 0;                     // directed: bits probed per table
   const int32_t* margins = nullptr;  // directed: 128 per feature
-  // The feature's flip bits into `scratch` (kHashTables × flips), or null.
-  const uint8_t* flip_bits(uint32_t feature, uint8_t* scratch) const {
+  uint32_t min_list = 0;             // directed only above this radius-1 coarse size
+  const CascadeLookup* lookup = nullptr;
+  // The feature's probes per table (`probes`) and its flip bits into
+  // `scratch` (kHashTables × flips), or null: every bit in order.
+  const uint8_t* flip_bits(uint32_t feature, const HashCode& code, uint8_t* scratch, int& feature_probes) const {
+    feature_probes = probes;
     if (!margins) return nullptr;
+    if (min_list > 0) {
+      uint32_t size = 0;
+      for (int k = 0; k < kHashTables; ++k) size += lookup->neighbourhood_size(k, hash_subcode(code, k));
+      if (size <= min_list) {
+        feature_probes = kHashTableBits + 1;
+        return nullptr;
+      }
+    }
     directed_flips(margins + size_t(feature) * kHashBits, flips, scratch);
     return scratch;
+  }
+  // The feature's probes without prefetching.
+  void probe(const CascadeLookup& lookup, uint32_t feature, const HashCode& code, ProbeRanges& r) const {
+    uint8_t scratch[kHashTables * kHashTableBits];
+    int feature_probes;
+    const uint8_t* bits = flip_bits(feature, code, scratch, feature_probes);
+    probe_ranges(lookup, code, feature_probes, r, bits);
   }
 };
 
@@ -313,7 +335,7 @@ ProbePlan probe_plan(const CascadeIndexView& index, const DescriptorMatrix& quer
     encode_hash(index.hasher, queries.data(), nq, ws.margin_codes.data(), ws.encode, ws.margins.data());
     margins = ws.margins;
   }
-  return {1 + options.lut_flips, options.lut_flips, margins.data()};
+  return {1 + options.lut_flips, options.lut_flips, margins.data(), uint32_t(options.lut_flips_min_list), index.lookup};
 }
 
 // The probes of the features in search order, computed two features ahead so
@@ -354,7 +376,9 @@ class ProbePipeline {
   ProbeRanges& slot(size_t i) { return stages_[i % 3]; }
   void ranks(size_t i) {
     const uint32_t f = static_cast<uint32_t>(order_[i] & 0xffffffffu);
-    probe_ranks<true>(lookup_, codes_[f], plan_.probes, slot(i), plan_.flip_bits(f, flips_));
+    int probes;
+    const uint8_t* flips = plan_.flip_bits(f, codes_[f], flips_, probes);
+    probe_ranks<true>(lookup_, codes_[f], probes, slot(i), flips);
   }
   const CascadeLookup& lookup_;
   const HashCode* codes_;
@@ -663,7 +687,6 @@ void CascadeMatcher::match_hashed(const DescriptorMatrix& queries, std::span<con
   const size_t early = options.prioritize && options.early_stop > 0 ? size_t(options.early_stop) : SIZE_MAX;
   const ProbePlan plan = probe_plan(index_, queries, options, margins, ws);
   float qf[kDescriptorDim];
-  uint8_t plain_flips[kHashTables * kHashTableBits];
   ProbeRanges plain_ranges;
   ProbePipeline pipeline(lookup, codes.data(), ws.order, plan);
   const HashCode* prefetched_codes = options.prefetch ? index_.codes : nullptr;
@@ -677,7 +700,7 @@ void CascadeMatcher::match_hashed(const DescriptorMatrix& queries, std::span<con
     }
     const uint32_t f = static_cast<uint32_t>(ws.order[position] & 0xffffffffu);
     const HashCode code = codes[f];
-    if (!options.prefetch) probe_ranges(lookup, code, plan.probes, plain_ranges, plan.flip_bits(f, plain_flips));
+    if (!options.prefetch) plan.probe(lookup, f, code, plain_ranges);
     const ProbeRanges& ranges = options.prefetch ? pipeline.ranges(position) : plain_ranges;
     if (ranges.listed < 2) continue;  // not searched: no ratio test possible
     if (ws.candidates.size() < size_t(ranges.listed) + 1) ws.candidates.resize(size_t(ranges.listed) + 1);

@@ -171,6 +171,11 @@ struct CascadeSearchOptions {
   // radius 0, but is searched as radius 1). The prioritized order keeps the
   // radius-1 neighbourhood's size as its key whatever k.
   int lut_flips = kHashTableBits;
+  // Query-directed probing only for the features whose radius-1 coarse size
+  // (Σ of their 136 buckets' sizes, the prioritized order's key) exceeds
+  // this; the others probe every one-bit neighbour (0: every feature
+  // directed).
+  int lut_flips_min_list = 0;
   bool refined = true;              // the Hamming step; off: PQ ranks the whole coarse list
   int refined_list = 40;            // L_R
   float ratio_one_to_one = 0.8f;    // ν_h

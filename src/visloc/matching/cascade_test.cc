@@ -8,6 +8,7 @@
 #include <filesystem>
 #include <optional>
 #include <random>
+#include <tuple>
 
 #include <faiss/impl/ProductAdditiveQuantizer.h>
 #include <faiss/impl/ResidualQuantizer.h>
@@ -954,9 +955,17 @@ void reference_search(const TestIndex& t, const std::vector<std::vector<uint64_t
   std::vector<uint32_t> candidates;
   std::vector<bool> seen(t.codes.size());
   size_t listed = 0;
+  // Directed only above lut_flips_min_list points in the 136 radius-1 buckets.
+  size_t radius1_size = 0;
+  for (int k = 0; k < kHashTables; ++k)
+    for (const uint64_t entry : keyed[k])
+      radius1_size += std::popcount(uint32_t(entry >> 32) ^ hash_subcode(code, k)) <= 1;
+  CascadeSearchOptions every_bit = o;
+  every_bit.lut_flips = kHashTableBits;
+  const bool directed = radius1_size > size_t(o.lut_flips_min_list);
   for (int k = 0; k < kHashTables; ++k) {
     const uint32_t key = hash_subcode(code, k);
-    const std::vector<int> flips = reference_flips(o, margins, k);
+    const std::vector<int> flips = reference_flips(directed ? o : every_bit, margins, k);
     for (int b = 0; b <= (o.lut_radius == 1 ? int(flips.size()) : 0); ++b) {
       const uint64_t bucket = b == 0 ? key : key ^ (1u << flips[b - 1]);
       auto it = std::lower_bound(keyed[k].begin(), keyed[k].end(), bucket << 32);
@@ -1024,9 +1033,9 @@ void reference_search(const TestIndex& t, const std::vector<std::vector<uint64_t
 // change of the search loop that is meant to be lossless. Segments with
 // crowded buckets (clustered descriptors, LSH codes) and with 32-bit ids, and
 // one with 32-byte PQ codes, at both radii (and query-directed probing of 5
-// and of no one-bit neighbours, with the margins given and computed by the
-// matcher), with and without the refined step (so both ADC paths), at every
-// kernel level.
+// and of no one-bit neighbours, and of 3 for the features above the median
+// coarse size, with the margins given and computed by the matcher), with and without the refined step (so both ADC
+// paths), at every kernel level.
 TEST(CascadeSearch, SameMatchesAsThePlainDefinition) {
   struct Case {
     size_t points;
@@ -1052,14 +1061,21 @@ TEST(CascadeSearch, SameMatchesAsThePlainDefinition) {
     search_kernels(SimdLevel::kScalar)
         .hash_codes_u8(hws.quantized, q.data(), q.rows(), scalar_codes.data(), margins.data());
     for (size_t f = 0; f < codes.size(); ++f) ASSERT_EQ(hamming_distance(codes[f], scalar_codes[f]), 0u);
-    for (auto [radius, flips] : {std::pair{0, 16}, std::pair{1, 16}, std::pair{1, 5}, std::pair{1, 0}})
+    // The median radius-1 coarse size: directed probing above it only.
+    std::vector<uint32_t> sizes;
+    CascadeMatcher(t.view(), t.codebook).coarse_sizes(codes, 1, sizes);
+    std::nth_element(sizes.begin(), sizes.begin() + sizes.size() / 2, sizes.end());
+    const int median_size = int(sizes[sizes.size() / 2]);
+    for (auto [radius, flips, min_list] : {std::tuple{0, 16, 0}, std::tuple{1, 16, 0}, std::tuple{1, 5, 0},
+                                           std::tuple{1, 0, 0}, std::tuple{1, 3, median_size}})
       for (bool refined : {true, false}) {
         SCOPED_TRACE(::testing::Message()
                      << points << " points, lsh " << lsh << ", " << pq_subvectors << "-byte PQ, radius " << radius
-                     << ", flips " << flips << ", refined " << refined);
+                     << ", flips " << flips << " above " << min_list << ", refined " << refined);
         CascadeSearchOptions o;
         o.lut_radius = radius;
         o.lut_flips = flips;
+        o.lut_flips_min_list = min_list;
         o.refined = refined;
         o.prioritize = false;
         CascadeMatches expected;

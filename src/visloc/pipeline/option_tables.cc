@@ -51,6 +51,11 @@ void add_options(OptionTable& t, LocalizerOptions& o) {
         "bits' projections lie nearest their hyperplanes (query-directed probing: fewer candidates, a faster "
         "full search)")
       .range(0, 16);
+  t.add("--lut-flips-min-list", o.search.lut_flips_min_list,
+        "Cascade search: probe --lut-flips neighbours only for the features whose radius-1 coarse list (the sum "
+        "of their 136 buckets' sizes) holds more than this many points; the others probe all 16 (0: every "
+        "feature)")
+      .range(0, 1 << 30);
   t.add("--early-stop", o.search.early_stop,
         "Settings 3, 3+: the prioritized search stops at this many 1-1 matches (N_early)");
   t.flag("!--no-fallback", o.full_search_fallback,

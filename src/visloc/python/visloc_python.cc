@@ -244,6 +244,7 @@ void take_localizer_options(Kwargs& k, LocalizerOptions& o) {
   k.take("accept_inliers", o.accept_inliers);
   k.take("early_stop", o.search.early_stop);
   k.take("lut_flips", o.search.lut_flips);
+  k.take("lut_flips_min_list", o.search.lut_flips_min_list);
   k.take("full_search_fallback", o.full_search_fallback);
   k.take("threshold_px", o.ransac.threshold_px);
   k.take("min_inliers", o.ransac.min_inliers);
@@ -730,7 +731,7 @@ void bind_localizer(py::module_& m) {
 Localizer(map_dir, **options): options are LocalizerOptions fields, named as
 the `visloc localize` flags: setting ('1', '2', '3', '3+'), top_images,
 max_segments, fallback_segments, segment_votes ('auto', 'points', 'images',
-'both'), vote_points, vote_max_points, vote_radius, vote_ratio, vote_chance_normalization, accept_inliers, early_stop, lut_flips,
+'both'), vote_points, vote_max_points, vote_radius, vote_ratio, vote_chance_normalization, accept_inliers, early_stop, lut_flips, lut_flips_min_list,
 full_search_fallback, threshold_px, min_inliers, min_confidence, under_street_check (False: --allow-under-street),
 max_drop_below_map, use_exif_focal, seed, cache_mib, max_image_side,
 max_features, contrast_threshold, root_sift, max_pixels. OpenCV's thread count,

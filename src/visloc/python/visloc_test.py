@@ -77,6 +77,7 @@ def test_not_a_map_raises_format_error(tmp_path):
         ({"under_street_check": 1}, TypeError, "under_street_check"),
         ({"vote_radius": 2}, ValueError, "vote_radius"),
         ({"lut_flips": 17}, ValueError, "lut_flips"),
+        ({"lut_flips_min_list": -1}, ValueError, "lut_flips_min_list"),
         ({"vote_ratio": 1.5}, ValueError, "vote_ratio"),
         ({"vote_ratio": 0.0}, ValueError, "vote_ratio"),
         ({"top_images": "20"}, TypeError, "top_images"),
