@@ -354,17 +354,18 @@ std::vector<CascadeConfig> cascade_configs(float ratio) {
     configs.push_back(plain);
   }
   configs.push_back({"ccs-full-r1-group1M", false, opts(1, true, false, group)});
-  // Query-directed probing: per table the exact bucket and the k one-bit-away
-  // buckets whose bits lie nearest their hyperplanes (lut_flips; 16 is
-  // ccs-full-r1).
+  // Query-directed probing (radius 1): per table the exact bucket and the k
+  // one-bit-away buckets whose bits lie nearest their hyperplanes (lut_flips;
+  // 16 is ccs-full-r1). Named apart from ccs-full-r1, so that a --method
+  // prefix of the plain search does not select them.
   for (int flips : {8, 6, 4, 2}) {
-    CascadeConfig directed{"ccs-full-r1-flips" + std::to_string(flips), false, opts(1, true, false, best)};
+    CascadeConfig directed{"ccs-directed-full-f" + std::to_string(flips), false, opts(1, true, false, best)};
     directed.options.lut_flips = flips;
     configs.push_back(directed);
   }
   // ... only for features whose radius-1 coarse list exceeds N.
   for (int min_list : {100, 200, 400}) {
-    CascadeConfig directed{"ccs-full-r1-flips4-above" + std::to_string(min_list), false, opts(1, true, false, best)};
+    CascadeConfig directed{"ccs-directed-full-f4-above" + std::to_string(min_list), false, opts(1, true, false, best)};
     directed.options.lut_flips = 4;
     directed.options.lut_flips_min_list = min_list;
     configs.push_back(directed);
@@ -372,7 +373,7 @@ std::vector<CascadeConfig> cascade_configs(float ratio) {
   configs.push_back({"ccs-prioritized-r0", false, opts(0, true, true, best)});
   configs.push_back({"ccs-prioritized-r1", false, opts(1, true, true, best)});
   {
-    CascadeConfig directed{"ccs-prioritized-r1-flips4", false, opts(1, true, true, best)};
+    CascadeConfig directed{"ccs-directed-prioritized-f4", false, opts(1, true, true, best)};
     directed.options.lut_flips = 4;
     configs.push_back(directed);
   }

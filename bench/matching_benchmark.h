@@ -7,7 +7,10 @@
 //   imi-w16/w64   FAISS inverted multi-index 2 × 8 bits, PQ 16 × 8 bits
 //   lsh-cascade   CasHash-style: 8 random 16-bit tables, Hamming top L_R, PQ
 //   ccs-*         the cascade search: without the refined step, full search,
-//                 prioritized; LUT radius 0 (paper) and 1 (multi-index probing)
+//                 prioritized; LUT radius 0 (paper) and 1 (multi-index probing);
+//                 ccs-directed-*: radius 1 probing 8, 6, 4 or 2 of 16 one-bit
+//                 neighbours per table (query-directed, lut_flips), for every
+//                 feature or those above 100, 200, 400 coarse candidates
 //   rerank-*      only when a --method asks for it: the full search's short
 //                 lists at radius 1 ranked by its own PQ, exact L2, FAISS PQ
 //                 16 or 32 × 8 bits, OPQ + PQ 16 × 8 bits, at L_R 40 and 64:

@@ -76,7 +76,7 @@ struct QuantizedHashProjection {
   float scale = 1;
   std::vector<int16_t> weight_pairs;        // [p][i][e] = Wq[i][2p + e]: 64 × 128 × 2 (the SIMD kernels)
   std::vector<int16_t> weights_transposed;  // [j][i] = Wq[i][j]: 128 × 128 (the scalar reference)
-  std::vector<int32_t> thresholds;    // 128
+  std::vector<int32_t> thresholds;          // 128, within ±2^30 (the kernels' margins need it)
 };
 void quantize_hash_projection(BinaryHasherView hasher, QuantizedHashProjection& out);
 

@@ -290,26 +290,34 @@ void probe_ranges(const CascadeLookup& lookup, const HashCode& code, int probes,
 }
 
 // The probes of a feature: radius 0 or 1, every one-bit neighbour, or
-// query-directed (margins non-null: the feature's 128).
+// query-directed (`directed`: the bits of `margins`, the feature's 128, or
+// none at 0 flips), for every feature or those above `min_list`.
 struct ProbePlan {
   int probes = 1;
-  int flips = 0;                     // directed: bits probed per table
-  const int32_t* margins = nullptr;  // directed: 128 per feature
-  uint32_t min_list = 0;             // directed only above this radius-1 coarse size
-  const CascadeLookup* lookup = nullptr;
-  // The feature's probes per table (`probes`) and its flip bits into
-  // `scratch` (kHashTables × flips), or null: every bit in order.
+  bool directed = false;
+  int flips = 0;                          // directed: bits probed per table
+  const int32_t* margins = nullptr;       // directed with flips > 0: 128 per feature
+  uint32_t min_list = 0;                  // directed only above this radius-1 coarse size
+  const CascadeLookup* lookup = nullptr;  // the sizes, or
+  const uint32_t* sizes = nullptr;        // the prioritized order's (radius 1), by feature
+  // The feature's probes per table (`feature_probes`) and its flip bits into
+  // `scratch` (kHashTables × flips), or null: every bit in order (or none).
   const uint8_t* flip_bits(uint32_t feature, const HashCode& code, uint8_t* scratch, int& feature_probes) const {
     feature_probes = probes;
-    if (!margins) return nullptr;
+    if (!directed) return nullptr;
     if (min_list > 0) {
       uint32_t size = 0;
-      for (int k = 0; k < kHashTables; ++k) size += lookup->neighbourhood_size(k, hash_subcode(code, k));
+      if (sizes) {
+        size = sizes[feature];
+      } else {
+        for (int k = 0; k < kHashTables; ++k) size += lookup->neighbourhood_size(k, hash_subcode(code, k));
+      }
       if (size <= min_list) {
         feature_probes = kHashTableBits + 1;
         return nullptr;
       }
     }
+    if (flips == 0) return nullptr;  // the exact buckets alone
     directed_flips(margins + size_t(feature) * kHashBits, flips, scratch);
     return scratch;
   }
@@ -323,19 +331,31 @@ struct ProbePlan {
 };
 
 // The search's probes; query-directed probing without the caller's margins
-// computes them into the workspace.
+// computes them into the workspace (a hash of every query feature).
 ProbePlan probe_plan(const CascadeIndexView& index, const DescriptorMatrix& queries,
                      const CascadeSearchOptions& options, std::span<const int32_t> margins, CascadeWorkspace& ws) {
-  if (options.lut_radius == 0) return {};
-  if (options.lut_flips == kHashTableBits) return {kHashTableBits + 1, 0, nullptr};
+  ProbePlan plan;
+  if (options.lut_radius == 0) return plan;
+  if (options.lut_flips == kHashTableBits) {
+    plan.probes = kHashTableBits + 1;
+    return plan;
+  }
+  plan.directed = true;
+  plan.probes = 1 + options.lut_flips;
+  plan.flips = options.lut_flips;
+  plan.min_list = uint32_t(options.lut_flips_min_list);
+  plan.lookup = index.lookup;
+  if (!options.needs_margins()) return plan;
   const size_t nq = queries.rows();
-  if (margins.size() != nq * kHashBits) {
+  VISLOC_CHECK(margins.empty() || margins.size() == nq * kHashBits, "128 hash margins per query feature");
+  if (margins.empty()) {
     ws.margins.resize(nq * kHashBits);
     ws.margin_codes.resize(nq);
     encode_hash(index.hasher, queries.data(), nq, ws.margin_codes.data(), ws.encode, ws.margins.data());
     margins = ws.margins;
   }
-  return {1 + options.lut_flips, options.lut_flips, margins.data(), uint32_t(options.lut_flips_min_list), index.lookup};
+  plan.margins = margins.data();
+  return plan;
 }
 
 // The probes of the features in search order, computed two features ahead so
@@ -531,6 +551,7 @@ static_assert(kHashTables == 8);
 __attribute__((target_clones("avx2", "sse4.1", "default")))
 #endif
 void directed_flips(const int32_t* margins, int flips, uint8_t* out) {
+  VISLOC_CHECK(flips >= 0 && flips <= kHashTableBits, "directed_flips: 0 to 16 bits per table");
   // key[b][k] = (margin, bit) of table k's bit b, margins saturated at
   // 2^27 − 1 (far beyond any bit worth flipping; ties by bit index).
 #ifdef VISLOC_DIRECTED_FLIPS_VECTOR
@@ -602,11 +623,11 @@ void CascadeMatcher::match(const DescriptorMatrix& queries, const CascadeSearchO
   Timer t;
   CascadeWorkspace& ws = *ws_;
   ws.query_codes.resize(queries.rows());
-  const bool directed = options.lut_radius == 1 && options.lut_flips < kHashTableBits;
-  ws.margins.resize(directed ? queries.rows() * kHashBits : 0);
+  const bool margins = options.needs_margins();
+  ws.margins.resize(margins ? queries.rows() * kHashBits : 0);
   if (index_.num_points > 0)
     encode_hash(index_.hasher, queries.data(), queries.rows(), ws.query_codes.data(), ws.encode,
-                directed ? ws.margins.data() : nullptr);
+                margins ? ws.margins.data() : nullptr);
   const double ms_hash = t.elapsed_ms();
   // match_hashed reads the codes and margins from the workspace it also
   // uses: copy-free because it only reads them.
@@ -685,7 +706,8 @@ void CascadeMatcher::match_hashed(const DescriptorMatrix& queries, std::span<con
   const float r11 = options.ratio_one_to_one * options.ratio_one_to_one;
   const float r1m = options.ratio_one_to_many * options.ratio_one_to_many;
   const size_t early = options.prioritize && options.early_stop > 0 ? size_t(options.early_stop) : SIZE_MAX;
-  const ProbePlan plan = probe_plan(index_, queries, options, margins, ws);
+  ProbePlan plan = probe_plan(index_, queries, options, margins, ws);
+  if (options.prioritize && options.lut_radius == 1) plan.sizes = ws.sizes.data();
   float qf[kDescriptorDim];
   ProbeRanges plain_ranges;
   ProbePipeline pipeline(lookup, codes.data(), ws.order, plan);

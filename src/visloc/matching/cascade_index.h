@@ -165,17 +165,22 @@ enum class OneToManyRule {
 
 struct CascadeSearchOptions {
   int lut_radius = 1;               // 0: exact buckets (paper); 1: also the 16 one-bit-away buckets
-  // At radius 1, how many of a table's 16 one-bit-away buckets are probed:
-  // all 16 (in bit order), or the k whose bits' projections lie nearest
-  // their hyperplanes, nearest first (0 probes the exact buckets alone, as
-  // radius 0, but is searched as radius 1). The prioritized order keeps the
-  // radius-1 neighbourhood's size as its key whatever k.
+  // At radius 1 (no effect at 0), how many of a table's 16 one-bit-away
+  // buckets are probed: all 16 (in bit order), or the k whose bits'
+  // projections lie nearest their hyperplanes, nearest first (0: the exact
+  // buckets alone). Applies to the prioritized and the full search alike;
+  // the prioritized order keeps the radius-1 neighbourhood's size as its
+  // key whatever k. The margins compare across bits because ITQ's (and a
+  // random rotation's) projection rows are orthonormal; with LSH's Gaussian
+  // rows they are only roughly comparable.
   int lut_flips = kHashTableBits;
-  // Query-directed probing only for the features whose radius-1 coarse size
-  // (Σ of their 136 buckets' sizes, the prioritized order's key) exceeds
-  // this; the others probe every one-bit neighbour (0: every feature
-  // directed).
+  // With lut_flips < 16: query-directed probing only for the features whose
+  // radius-1 coarse size (Σ of their 136 buckets' sizes, the prioritized
+  // order's key) exceeds this; the others probe every one-bit neighbour
+  // (0: every feature directed).
   int lut_flips_min_list = 0;
+  // Whether the search reads the query bits' margins (encode_hash).
+  bool needs_margins() const { return lut_radius == 1 && lut_flips > 0 && lut_flips < kHashTableBits; }
   bool refined = true;              // the Hamming step; off: PQ ranks the whole coarse list
   int refined_list = 40;            // L_R
   float ratio_one_to_one = 0.8f;    // ν_h
@@ -249,7 +254,7 @@ struct CascadeWorkspace {
 void sort_by_size(const uint32_t* sizes, size_t n, uint32_t min_size, std::vector<uint32_t>& counts,
                   std::vector<uint64_t>& order);
 
-// Query-directed probing's order: per table k, the `flips` bits of its 16
+// Query-directed probing's order (flips in [0, 16]): per table k, the `flips` bits of its 16
 // (16k .. 16k + 15) with the smallest margins (128 of one feature), by
 // increasing (margin, bit), as bit indices 0..15 into out[k * flips ..].
 // A sorting network over the 8 tables at once. Exposed for tests.
@@ -268,8 +273,10 @@ class CascadeMatcher {
   CascadeMatches match(const DescriptorMatrix& queries, const CascadeSearchOptions& options = {});
   // Searches with codes already computed by the same hasher (a map with one
   // hash rotation hashes a query once for all its segments). Query-directed
-  // probing (lut_flips < 16) reads the codes' margins (encode_hash, 128 per
-  // feature, from the same hasher); without them, they are computed here.
+  // probing (options.needs_margins()) reads the codes' margins (encode_hash,
+  // 128 per feature, from the same hasher); without them (an empty span),
+  // each call hashes the queries once more to compute them, so a caller
+  // that searches several segments should pass them.
   void match_hashed(const DescriptorMatrix& queries, std::span<const HashCode> codes,
                     const CascadeSearchOptions& options, CascadeMatches& out, std::span<const int32_t> margins = {});
   // Coarse list sizes (Σ bucket sizes) of already-encoded codes; exposed for tests.

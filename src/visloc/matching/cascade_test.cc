@@ -8,6 +8,7 @@
 #include <filesystem>
 #include <optional>
 #include <random>
+#include <set>
 #include <tuple>
 
 #include <faiss/impl/ProductAdditiveQuantizer.h>
@@ -923,18 +924,6 @@ TEST(CascadeSearch, EveryKernelLevelAndAReusedWorkspaceGiveTheSameMatches) {
 
 namespace {
 
-// The cascade search of one feature written plainly, from its definition:
-// the probed buckets' points (table 0..7; the exact bucket, then the one-bit
-// neighbours by increasing bit; increasing id within a bucket) without
-// repeats; when there are more than L_R, the candidates below the L_R-th
-// Hamming distance and the first ones at it, in candidate order; the scalar
-// ADC distances (direct up to 160 ranked, by the table above); a stable sort;
-// the best-ratio rule. Appends to `out` as the search does, with its
-// statistics; `most_ranked` is the longest ranked list. The ADC distances come
-// from the library's scalar kernels, and the 160 is the search's switch to
-// the table path: floats must agree to the bit, and the two paths round
-// differently. `keyed[k]` holds (subcode << 32 | point) of every point for
-// table k, sorted.
 // The bits one table flips, nearest its hyperplane first: query-directed
 // probing (`lut_flips` of them; margins saturated at 2^27 − 1, ties by bit)
 // or every bit in order.
@@ -948,6 +937,19 @@ std::vector<int> reference_flips(const CascadeSearchOptions& o, const int32_t* m
   return bits;
 }
 
+// The cascade search of one feature written plainly, from its definition:
+// the probed buckets' points (table 0..7; the exact bucket, then the one-bit
+// neighbours by increasing bit, or query-directed by reference_flips;
+// increasing id within a bucket) without
+// repeats; when there are more than L_R, the candidates below the L_R-th
+// Hamming distance and the first ones at it, in candidate order; the scalar
+// ADC distances (direct up to 160 ranked, by the table above); a stable sort;
+// the best-ratio rule. Appends to `out` as the search does, with its
+// statistics; `most_ranked` is the longest ranked list. The ADC distances come
+// from the library's scalar kernels, and the 160 is the search's switch to
+// the table path: floats must agree to the bit, and the two paths round
+// differently. `keyed[k]` holds (subcode << 32 | point) of every point for
+// table k, sorted.
 // `margins`: the feature's 128 (query-directed probing only).
 void reference_search(const TestIndex& t, const std::vector<std::vector<uint64_t>>& keyed, const DescriptorMatrix& q,
                       uint32_t f, const HashCode& code, const CascadeSearchOptions& o, CascadeMatches& out,
@@ -1201,9 +1203,62 @@ TEST(FaissBaselines, IvfAdcAndImiFindPlantedMatches) {
   }
 }
 
-// Both paths of the prioritized order (counting sort below 65,536, std::sort
-// from it) give the stable sort by size of the features kept, ties in index
-// order, and reuse their scratch across calls.
+// Query-directed probing gives each feature the same matches in every path:
+// match() (margins hashed there) and match_hashed with the margins given or
+// computed by the matcher; and the prioritized search without early stop
+// (another order, the sizes from the order's key) the same (feature, point)
+// pairs as the full search, at every flip count and bound.
+TEST(CascadeSearch, DirectedProbingIsTheSameInEveryPath) {
+  DescriptorMatrix db = clustered_descriptors(5000, 31, 12);
+  TestIndex t = make_index(db, false, 5000, kPqSubvectors);
+  std::vector<size_t> rows;
+  for (size_t i = 0; i < 300; ++i) rows.push_back(i * 7 % db.rows());
+  const DescriptorMatrix q = perturbed(db, rows, 12, 33);
+  std::vector<HashCode> codes(q.rows());
+  std::vector<int32_t> margins(q.rows() * kHashBits);
+  HashWorkspace hws;
+  encode_hash(t.hasher.view(), q.data(), q.rows(), codes.data(), hws, margins.data());
+  auto pairs = [](const CascadeMatches& m) {
+    std::set<std::pair<uint32_t, uint32_t>> out;
+    for (size_t i = 0; i < m.query.size(); ++i) out.insert({m.query[i], m.point[i]});
+    return out;
+  };
+  CascadeWorkspace ws;
+  CascadeMatcher matcher(t.view(), t.codebook, ws);
+  std::vector<uint32_t> sizes;  // the median radius-1 coarse size: a bound that splits the features
+  matcher.coarse_sizes(codes, 1, sizes);
+  std::nth_element(sizes.begin(), sizes.begin() + sizes.size() / 2, sizes.end());
+  const int median = int(sizes[sizes.size() / 2]);
+  for (auto [flips, min_list] : {std::pair{5, 0}, std::pair{2, median}, std::pair{0, 0}, std::pair{0, median}}) {
+    SCOPED_TRACE(::testing::Message() << flips << " flips above " << min_list);
+    CascadeSearchOptions o;
+    o.prioritize = false;
+    o.lut_flips = flips;
+    o.lut_flips_min_list = min_list;
+    CascadeMatches given, computed, hashed, prioritized;
+    matcher.match_hashed(q, codes, o, given, margins);
+    ASSERT_GT(given.query.size(), 20u);
+    matcher.match_hashed(q, codes, o, computed);
+    matcher.match(q, o, hashed);
+    for (const CascadeMatches* m : {&computed, &hashed}) {
+      EXPECT_EQ(m->query, given.query);
+      EXPECT_EQ(m->point, given.point);
+      EXPECT_EQ(m->many_points, given.many_points);
+      EXPECT_EQ(m->stats.coarse_candidates, given.stats.coarse_candidates);
+    }
+    o.prioritize = true;
+    o.early_stop = 0;
+    matcher.match_hashed(q, codes, o, prioritized, margins);
+    EXPECT_EQ(pairs(prioritized), pairs(given));
+    EXPECT_EQ(prioritized.stats.coarse_candidates, given.stats.coarse_candidates);
+  }
+  // Margins of another length are refused, not read.
+  CascadeSearchOptions o;
+  o.lut_flips = 4;
+  CascadeMatches m;
+  EXPECT_THROW(matcher.match_hashed(q, codes, o, m, std::span<const int32_t>(margins).first(kHashBits)), Error);
+}
+
 // The sorting network's order: per table, the bits by increasing (margin
 // saturated at 2^27 − 1, bit), for margins with ties, zeros and huge values.
 TEST(CascadeSearch, DirectedFlipsAreTheBitsNearestTheirHyperplanes) {
@@ -1246,6 +1301,9 @@ TEST(CascadeSearch, DirectedFlipsAreTheBitsNearestTheirHyperplanes) {
   }
 }
 
+// Both paths of the prioritized order (counting sort below 65,536, std::sort
+// from it) give the stable sort by size of the features kept, ties in index
+// order, and reuse their scratch across calls.
 TEST(CascadeSortBySize, BothPathsEqualAStableSortOfTheKeptFeatures) {
   std::mt19937 rng(5);
   std::vector<uint32_t> counts;

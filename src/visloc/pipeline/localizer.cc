@@ -204,7 +204,14 @@ class Localizer::Impl::Search {
  public:
   Search(Impl& impl, const LocalizerOptions& options, const FeatureSet& f, const PinholeCamera& camera,
          QueryWorkspace& ws, LocalizationResult& res, bool map_codes_ready)
-      : impl_(impl), options_(options), f_(f), camera_(camera), ws_(ws), res_(res), map_codes_ready_(map_codes_ready) {}
+      : impl_(impl),
+        options_(options),
+        f_(f),
+        camera_(camera),
+        ws_(ws),
+        res_(res),
+        map_codes_ready_(map_codes_ready),
+        map_margins_ready_(map_codes_ready && impl.search.needs_margins()) {}
 
   // One pass over the candidates with the given search; the best pose wins.
   void search_candidates(const std::vector<size_t>& candidates, const CascadeSearchOptions& search);
@@ -234,7 +241,7 @@ class Localizer::Impl::Search {
   QueryWorkspace& ws_;
   LocalizationResult& res_;
   bool map_codes_ready_;
-  bool map_margins_ready_ = false;
+  bool map_margins_ready_;  // ws_.map_margins are this query's
   // The best pose so far.
   size_t best_inliers_ = 0;
   bool best_has_enough_inliers_ = false;
@@ -433,8 +440,11 @@ std::vector<size_t> Localizer::Impl::candidate_segments(const FeatureSet& f, Que
   }
   // Point votes as shares of their sum, per manifest position; with both
   // sources, plus the image votes' shares.
+  // With the bits' margins too when the search will read them (one hash).
   ws.map_codes.resize(f.descriptors.rows());
-  encode_hash(map.hasher()->view(), f.descriptors.data(), f.descriptors.rows(), ws.map_codes.data(), ws.encode);
+  ws.map_margins.resize(search.needs_margins() ? f.descriptors.rows() * kHashBits : 0);
+  encode_hash(map.hasher()->view(), f.descriptors.data(), f.descriptors.rows(), ws.map_codes.data(), ws.encode,
+              search.needs_margins() ? ws.map_margins.data() : nullptr);
   map_codes_ready = true;
   point_votes->vote(ws.map_codes, ws.vote_scratch, ws.point_votes);
   std::vector<std::pair<size_t, float>> ranked;
@@ -549,7 +559,7 @@ void Localizer::Impl::Search::match_segment(const Segment& seg, const CascadeSea
     // One hash of the query for every segment that shares the map's rotation.
     // Query-directed probing also reads the bits' margins: the same codes
     // hashed once more with them, if retrieval hashed the query without.
-    const bool directed = search.lut_radius == 1 && search.lut_flips < kHashTableBits;
+    const bool directed = search.needs_margins();
     if (!map_codes_ready_ || (directed && !map_margins_ready_)) {
       ws_.map_codes.resize(f_.descriptors.rows());
       ws_.map_margins.resize(directed ? f_.descriptors.rows() * kHashBits : 0);

@@ -47,14 +47,14 @@ void add_options(OptionTable& t, LocalizerOptions& o) {
   t.add("--accept-inliers", o.accept_inliers,
         "Stop searching further candidate segments once a pose has this many inliers (0: search all)");
   t.add("--lut-flips", o.search.lut_flips,
-        "Cascade search: of a lookup table's 16 buckets one bit off the query's, probe all (16) or the N whose "
-        "bits' projections lie nearest their hyperplanes (query-directed probing: fewer candidates, a faster "
-        "full search)")
+        "Cascade search (every setting): of a lookup table's 16 buckets one bit off the query's, probe all (16) "
+        "or the N whose bits' projections lie nearest their hyperplanes (query-directed probing: fewer candidates, "
+        "a faster full search, but a weaker ratio test: slightly fewer right matches first)")
       .range(0, 16);
   t.add("--lut-flips-min-list", o.search.lut_flips_min_list,
-        "Cascade search: probe --lut-flips neighbours only for the features whose radius-1 coarse list (the sum "
-        "of their 136 buckets' sizes) holds more than this many points; the others probe all 16 (0: every "
-        "feature)")
+        "With --lut-flips below 16: probe --lut-flips neighbours only for the features whose radius-1 coarse "
+        "list (the sum of their 136 buckets' sizes) holds more than this many points; the others probe all 16 "
+        "(0: every feature)")
       .range(0, 1 << 30);
   t.add("--early-stop", o.search.early_stop,
         "Settings 3, 3+: the prioritized search stops at this many 1-1 matches (N_early)");
