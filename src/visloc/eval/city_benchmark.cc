@@ -146,6 +146,8 @@ void add_pose_evidence(const LocalizationResult& r, nlohmann::json* entry) {
     (*entry)["rotation_sigma_deg"] = r.uncertainty.rotation_sigma_deg;
     if (r.uncertainty.relative_position_sigma > 0)
       (*entry)["relative_position_sigma"] = r.uncertainty.relative_position_sigma;
+    (*entry)["sigma_scale"] = r.uncertainty.sigma_scale;
+    (*entry)["map_point_uncertainty"] = r.uncertainty.map_point_uncertainty;
   }
 }
 
@@ -590,6 +592,7 @@ nlohmann::json city_report_json(const fs::path& city_dir, const CityBenchmarkOpt
        {{"turned_away_right_poses", c.under_street_right}, {"turned_away_wrong_poses", c.under_street_wrong}}},
       {"uncertainty",
        {{"sigma_scale", ConfidenceModel::builtin().sigma_scale},
+        {"sigma_scale_with_point_uncertainty", ConfidenceModel::builtin().sigma_scale_with_point_uncertainty},
         {"registered_positives_with_sigma", c.with_sigma},
         {"within_1_sigma", c.with_sigma ? double(c.within1) / double(c.with_sigma) : 0.0},
         {"within_2_sigma", c.with_sigma ? double(c.within2) / double(c.with_sigma) : 0.0}}},

@@ -68,8 +68,13 @@ std::vector<ConfidenceSample> read_confidence_samples(const std::filesystem::pat
         // judged the pose by GPS truth (error_frame "enu").
         const auto sigma =
             q.find(q.value("error_frame", std::string("segment")) == "enu" ? "position_sigma_m" : "position_sigma");
+        const double scale = q.value("sigma_scale", report_sigma_scale);
+        if (!(scale > 0) || !std::isfinite(scale))
+          throw_error(ErrorCode::kFormat, path.string(), ": ", q.value("image", std::string("?")),
+                      ": sigma_scale must be a positive number");
         if (sigma != q.end() && sigma->is_number() && sigma->get<double>() > 0)
-          s.error_over_unscaled_sigma = pos->get<double>() / sigma->get<double>() * report_sigma_scale;
+          s.error_over_unscaled_sigma = pos->get<double>() / sigma->get<double>() * scale;
+        s.map_point_uncertainty = q.value("map_point_uncertainty", false);
       }
       samples.push_back(s);
     }
@@ -273,14 +278,26 @@ ConfidenceFit fit_confidence(const std::vector<ConfidenceSample>& samples, const
   for (const auto& p : curve)
     if (p.threshold >= fit.model.threshold) fit.at_threshold = p;
   // σ: calibrated on the poses the model registers and gets right.
-  std::vector<double> ratios;
-  for (const auto& s : samples)
-    if (s.right && s.error_over_unscaled_sigma >= 0 && s.features.inliers >= options.min_inliers &&
-        fit.model.evaluate(s.features) >= fit.model.threshold)
-      ratios.push_back(s.error_over_unscaled_sigma);
-  fit.sigma_samples = ratios.size();
-  fit.model.sigma_scale = sigma_scale_for_share(ratios);
+  fit.model.sigma_scale = fit.model.sigma_scale_with_point_uncertainty = 1;
+  std::array<size_t, 2> counts{};
+  fit.model = fit_sigma_scales(samples, fit.model, options.min_inliers, &counts);
+  fit.sigma_samples = counts[0];
+  fit.sigma_samples_with_point_uncertainty = counts[1];
   return fit;
+}
+
+ConfidenceModel fit_sigma_scales(const std::vector<ConfidenceSample>& samples, const ConfidenceModel& model,
+                                 double min_inliers, std::array<size_t, 2>* counts) {
+  std::array<std::vector<double>, 2> ratios;
+  for (const auto& s : samples)
+    if (s.right && s.error_over_unscaled_sigma >= 0 && s.features.inliers >= min_inliers &&
+        model.evaluate(s.features) >= model.threshold)
+      ratios[s.map_point_uncertainty ? 1 : 0].push_back(s.error_over_unscaled_sigma);
+  ConfidenceModel out = model;
+  if (!ratios[0].empty()) out.sigma_scale = sigma_scale_for_share(ratios[0]);
+  if (!ratios[1].empty()) out.sigma_scale_with_point_uncertainty = sigma_scale_for_share(ratios[1]);
+  if (counts) *counts = {ratios[0].size(), ratios[1].size()};
+  return out;
 }
 
 nlohmann::json ConfidenceFit::to_json() const {
@@ -294,6 +311,7 @@ nlohmann::json ConfidenceFit::to_json() const {
           {"wrong_poses", wrong},
           {"threshold_samples", threshold_samples},
           {"sigma_samples", sigma_samples},
+          {"sigma_samples_with_point_uncertainty", sigma_samples_with_point_uncertainty},
           {"dropped_inputs", dropped_inputs},
           {"at_threshold",
            {{"precision", at_threshold.precision},
@@ -331,6 +349,7 @@ nlohmann::json ConfidenceCheck::to_json() const {
           {"wrong_poses_registered", wrong_registered},
           {"threshold", threshold},
           {"sigma_scale", sigma_scale},
+          {"sigma_scale_with_point_uncertainty", sigma_scale_with_point_uncertainty},
           {"right_poses_registered_with_sigma", with_sigma},
           {"within_1_sigma", within_1_sigma},
           {"within_2_sigma", within_2_sigma}};
@@ -341,6 +360,7 @@ ConfidenceCheck check_confidence(const std::vector<ConfidenceSample>& samples, c
   ConfidenceCheck out;
   out.threshold = model.threshold;
   out.sigma_scale = model.sigma_scale;
+  out.sigma_scale_with_point_uncertainty = model.sigma_scale_with_point_uncertainty;
   std::vector<double> scores;
   std::vector<bool> right;
   for (const auto& s : samples) {
@@ -352,7 +372,7 @@ ConfidenceCheck check_confidence(const std::vector<ConfidenceSample>& samples, c
     if (s.right) (accepted ? out.right_registered : out.right_lost)++;
     else if (accepted) ++out.wrong_registered;
     if (s.right && accepted && s.error_over_unscaled_sigma >= 0) {
-      const double z = s.error_over_unscaled_sigma / model.sigma_scale;
+      const double z = s.error_over_unscaled_sigma / model.sigma_scale_for(s.map_point_uncertainty);
       ++out.with_sigma;
       out.within_1_sigma += z <= 1;
       out.within_2_sigma += z <= 2;
@@ -374,6 +394,7 @@ std::string confidence_model_code(const ConfidenceModel& model) {
     code << "    m.weights[" << k << "] = " << model.weights[k] << ";  // " << confidence_input_names()[k] << "\n";
   code << "    threshold " << model.threshold << "\n";
   code << "    m.sigma_scale = " << model.sigma_scale << ";\n";
+  code << "    m.sigma_scale_with_point_uncertainty = " << model.sigma_scale_with_point_uncertainty << ";\n";
   return code.str();
 }
 
@@ -383,6 +404,8 @@ void ConfidenceBenchmarkOptions::validate() const {
     throw_error(ErrorCode::kInvalidArgument, "bench confidence: --wrong-position and --wrong-rotation must be > 0");
   if (fit && !model_file.empty())
     throw_error(ErrorCode::kInvalidArgument, "bench confidence: --fit and --model exclude each other");
+  if (fit && fit_sigma)
+    throw_error(ErrorCode::kInvalidArgument, "bench confidence: --fit and --fit-sigma exclude each other");
 }
 
 void run_confidence_benchmark(const ConfidenceBenchmarkOptions& o, std::ostream& out, std::ostream& log) {
@@ -411,6 +434,19 @@ void run_confidence_benchmark(const ConfidenceBenchmarkOptions& o, std::ostream&
       throw_error(ErrorCode::kFormat, o.model_file.string(), ": ", e.what());
     }
   }
+  if (o.fit_sigma) {
+    std::array<size_t, 2> counts{};
+    model = fit_sigma_scales(samples, model, o.fit_options.min_inliers, &counts);
+    summary["sigma_fit"] = {{"right_poses_without_point_uncertainty", counts[0]},
+                            {"right_poses_with_point_uncertainty", counts[1]},
+                            {"sigma_scale", model.sigma_scale},
+                            {"sigma_scale_with_point_uncertainty", model.sigma_scale_with_point_uncertainty}};
+    write_file_atomic(o.out_dir / "model.json", model.to_json().dump(2));
+    out << "Fitted sigma scales (" << counts[0] << " and " << counts[1]
+        << " right poses at the threshold without and with the map points' uncertainty; a group without one "
+           "keeps the model's):\n"
+        << confidence_model_code(model);
+  }
   // Precision and recall of the model on these poses (registered: ≥ min_inliers).
   const ConfidenceCheck check = check_confidence(samples, model, o.fit_options.min_inliers);
   plot_precision_recall(o.out_dir / "precision_recall", o.fit ? "Confidence (fit)" : "Confidence (check)", check.curve,
@@ -420,7 +456,8 @@ void run_confidence_benchmark(const ConfidenceBenchmarkOptions& o, std::ostream&
   out << "Poses with >= " << o.fit_options.min_inliers << " inliers: " << check.poses_with_min_inliers
       << "; at confidence >= " << model.threshold << ": " << check.right_registered << " right registered, "
       << check.right_lost << " right lost, " << check.wrong_registered << " wrong registered. σ (scale "
-      << model.sigma_scale << "): of " << check.with_sigma << " right poses registered with one, "
+      << model.sigma_scale << ", " << model.sigma_scale_with_point_uncertainty
+      << " with the map points' uncertainty): of " << check.with_sigma << " right poses registered with one, "
       << check.within_1_sigma << " within 1σ, " << check.within_2_sigma << " within 2σ.\n";
 }
 

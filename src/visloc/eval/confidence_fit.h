@@ -14,6 +14,7 @@
 //   * the precision-recall curve of a confidence over a query set.
 #pragma once
 
+#include <array>
 #include <filesystem>
 #include <iosfwd>
 #include <string>
@@ -29,10 +30,11 @@ namespace visloc {
 struct ConfidenceSample {
   ConfidenceFeatures features;
   bool right = false;  // the pose is within the wrong-pose thresholds of the truth
-  // The pose's position error over its σ before any sigma_scale (the
-  // report's σ times its uncertainty.sigma_scale, 1 when absent); -1 without
-  // a σ or a truth.
+  // The pose's position error over its σ before any sigma_scale (the σ
+  // times the query's sigma_scale, else the report's uncertainty.sigma_scale,
+  // 1 when absent); -1 without a σ or a truth.
   double error_over_unscaled_sigma = -1;
+  bool map_point_uncertainty = false;  // the σ included the map points' uncertainty
 };
 
 // The samples of a report.json written by `visloc bench city` (per_query
@@ -79,10 +81,19 @@ struct ConfidenceFit {
   std::vector<std::pair<double, double>> cross_validation;  // (l2, weighted log loss per sample)
   PrecisionRecallPoint at_threshold;         // on the fit's own data
   size_t sigma_samples = 0;                  // right poses at the threshold with a σ (model.sigma_scale)
+  size_t sigma_samples_with_point_uncertainty = 0;  // (model.sigma_scale_with_point_uncertainty)
   nlohmann::json to_json() const;
 };
 
 ConfidenceFit fit_confidence(const std::vector<ConfidenceSample>& samples, const ConfidenceFitOptions& options);
+
+// The σ scales alone, for `model`'s weights and threshold: sigma_scale over
+// the right poses at the threshold (≥ min_inliers, with a σ) whose σ left out
+// the map points' uncertainty, sigma_scale_with_point_uncertainty over those
+// whose σ included it (sigma_scale_for_share, 68%). A group without a pose
+// keeps the model's scale. `counts` gets the two groups' sizes.
+ConfidenceModel fit_sigma_scales(const std::vector<ConfidenceSample>& samples, const ConfidenceModel& model,
+                                 double min_inliers, std::array<size_t, 2>* counts = nullptr);
 
 // Writes a precision-recall plot (stem.svg, stem.png) with `threshold` marked.
 void plot_precision_recall(const std::filesystem::path& stem, const std::string& title,
@@ -95,7 +106,7 @@ void plot_precision_recall(const std::filesystem::path& stem, const std::string&
 struct ConfidenceCheck {
   size_t poses_with_min_inliers = 0;
   size_t right_registered = 0, right_lost = 0, wrong_registered = 0;
-  double threshold = 0, sigma_scale = 1;  // the model's
+  double threshold = 0, sigma_scale = 1, sigma_scale_with_point_uncertainty = 1;  // the model's
   // Of the right poses registered that have a σ: how many, and the fractions
   // of their errors within 1 and 2 of the model's σ (its sigma_scale).
   size_t with_sigma = 0;
@@ -117,6 +128,7 @@ struct ConfidenceBenchmarkOptions {
   std::vector<std::string> reports;  // report.json of `visloc bench city` or `visloc eval`
   std::filesystem::path out_dir;
   bool fit = false;
+  bool fit_sigma = false;            // fit the σ scales only (fit_sigma_scales), the model's weights kept
   std::filesystem::path model_file;  // a model.json written by a fit
   ConfidenceFitOptions fit_options;
   WrongPoseRule rule;

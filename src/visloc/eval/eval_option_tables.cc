@@ -94,6 +94,9 @@ void add_options(OptionTable& t, ConfidenceBenchmarkOptions& o) {
   t.add("--reports", o.reports, "report.json files (bench city or eval)").require();
   t.add("--out", o.out_dir, "Output directory").require();
   t.flag("--fit", o.fit, "Fit a model on the reports (else check one)");
+  t.flag("--fit-sigma", o.fit_sigma,
+         "Fit only the sigma scales (without and with the map points' uncertainty) of the checked model on the "
+         "reports' right poses at its threshold, keeping its weights");
   t.add("--model", o.model_file, "Check this model.json (written by --fit) instead of the builtin model");
   add_options(t, o.fit_options);
   t.add("--wrong-position", o.rule.position_m, "A pose farther than this (m) from the truth is wrong");

@@ -232,6 +232,7 @@ nlohmann::json EvaluationReport::to_json(const std::vector<LocalizationResult>& 
     }
     j["uncertainty"] = {
         {"sigma_scale", ConfidenceModel::builtin().sigma_scale},
+        {"sigma_scale_with_point_uncertainty", ConfidenceModel::builtin().sigma_scale_with_point_uncertainty},
         {"registered_with_sigma", n},
         {"within_1_sigma", n ? double(in1) / n : 0.0},
         {"within_2_sigma", n ? double(in2) / n : 0.0},
@@ -266,6 +267,8 @@ nlohmann::json EvaluationReport::to_json(const std::vector<LocalizationResult>& 
       if (q.uncertainty.position_sigma_m) e["position_sigma_m"] = *q.uncertainty.position_sigma_m;
       if (q.uncertainty.relative_position_sigma > 0)
         e["relative_position_sigma"] = q.uncertainty.relative_position_sigma;
+      e["sigma_scale"] = q.uncertainty.sigma_scale;
+      e["map_point_uncertainty"] = q.uncertainty.map_point_uncertainty;
     }
     per.push_back(e);
   }

@@ -21,6 +21,9 @@ void CorrespondenceSet::add_feature(const Eigen::Vector2d& pixel,
   if (!ids.empty() && ids.size() != feature_candidates.size())
     throw_error(ErrorCode::kInvalidArgument, "correspondence set: ", ids.size(), " ids for ",
                 feature_candidates.size(), " candidates");
+  if (!candidate_uncertainty.empty())
+    throw_error(ErrorCode::kInvalidArgument,
+                "correspondence set: add features before filling candidate_uncertainty (one per candidate)");
   if (!ids.empty() && candidate_point_ids.size() != candidates.size())
     throw_error(ErrorCode::kInvalidArgument,
                 "correspondence set: candidate ids given for some features but not others");
@@ -38,6 +41,7 @@ void CorrespondenceSet::clear() {
   in_hypothesis_set.clear();
   candidate_point_ids.clear();
   query_feature.clear();
+  candidate_uncertainty.clear();
 }
 
 void CorrespondenceSet::validate() const {
@@ -63,6 +67,9 @@ void CorrespondenceSet::validate() const {
   if (!candidate_point_ids.empty() && candidate_point_ids.size() != candidates.size())
     throw_error(ErrorCode::kInvalidArgument, "correspondence set: candidate_point_ids has ",
                 candidate_point_ids.size(), " entries, expected 0 or ", candidates.size());
+  if (!candidate_uncertainty.empty() && candidate_uncertainty.size() != candidates.size())
+    throw_error(ErrorCode::kInvalidArgument, "correspondence set: candidate_uncertainty has ",
+                candidate_uncertainty.size(), " entries, expected 0 or ", candidates.size());
   if (!query_feature.empty() && query_feature.size() != n)
     throw_error(ErrorCode::kInvalidArgument, "correspondence set: query_feature has ", query_feature.size(),
                 " entries, expected 0 or ", n);

@@ -14,6 +14,9 @@
 //                                             may be sampled for hypotheses
 //   candidate_point_ids   optional, empty or one id per candidate (map point ids)
 //   query_feature         optional, empty or one query feature index per feature
+//   candidate_uncertainty optional, empty or one code per candidate: the map
+//                         point's triangulation covariance (point_uncertainty.h),
+//                         which the pose's covariance then includes
 //
 // The hypothesis set of the paper is {(q_i, p_i1) : in_hypothesis_set[i] = 1};
 // the verification set is every (q_i, p_ij).
@@ -22,6 +25,8 @@
 #include <Eigen/Core>
 #include <cstdint>
 #include <vector>
+
+#include "visloc/geometry/point_uncertainty.h"
 
 namespace visloc {
 
@@ -32,6 +37,7 @@ struct CorrespondenceSet {
   std::vector<uint8_t> in_hypothesis_set;    // 1 = first candidate is a reliable 1-1 match
   std::vector<uint32_t> candidate_point_ids; // optional: ids of the 3D points, same length as candidates
   std::vector<uint32_t> query_feature;       // optional: query feature index of each feature, same length as points2d
+  std::vector<PointUncertaintyCode> candidate_uncertainty;  // optional: same length as candidates
 
   size_t num_features() const { return points2d.size(); }
   size_t num_candidates(size_t feature) const {

@@ -176,6 +176,7 @@ MapInfo map_info(const fs::path& dir) {
     auto s = map.open_segment(i);
     MapSegmentInfo si{s->id(),    s->num_points(),       s->images().size(), s->format_version(),
                       s->bytes(), s->xyz_quantization(), std::nullopt};
+    si.point_uncertainty = !s->point_uncertainty().empty();
     if (s->enu_from_segment()) si.metres_per_unit = s->enu_from_segment()->scale;
     info.total_points += si.points;
     info.total_per_point_bytes += si.bytes.per_point;
@@ -202,6 +203,7 @@ nlohmann::json MapInfo::to_json() const {
                     {"xyz_rounding_error", s.xyz_rounding_error()},  // segment units, per axis
                     {"xyz_rounding_error_m", error_m},               // null without a metric scale
                     {"xyz_decoded_memory_bytes", s.bytes.xyz_memory},
+                    {"point_uncertainty", s.point_uncertainty},
                     {"hasher_bytes", s.bytes.hasher},
                     {"other_bytes", s.bytes.other},
                     {"bytes_per_point", s.bytes.per_point_bytes_per_point(s.points)},

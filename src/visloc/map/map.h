@@ -94,6 +94,7 @@ struct MapSegmentInfo {
   SegmentBytes bytes;
   std::optional<XyzQuantization> xyz_quantization;  // version 3: coordinates in uint16
   std::optional<double> metres_per_unit;            // enu_from_segment's scale, when georegistered
+  bool point_uncertainty = false;                   // section PTUNC (map build --point-uncertainty)
   // The worst per-axis rounding error of the coordinates (0 for float32), in
   // segment units and, with a known scale, in metres.
   double xyz_rounding_error() const { return xyz_quantization ? xyz_quantization->max_rounding_error() : 0.0; }

@@ -168,6 +168,7 @@ void write_segment_file(const std::filesystem::path& path, const SegmentData& s,
     throw_error(ErrorCode::kInvalidArgument, "segment ", s.segment_id, ": PQ codes of ", s.pq_subvectors,
                 " bytes (16 or 32)");
   VISLOC_CHECK(s.pq_codes.size() == n * size_t(s.pq_subvectors), "pq codes");
+  VISLOC_CHECK(s.point_uncertainty.empty() || s.point_uncertainty.size() == n, "one point uncertainty per point");
   const bool own_hasher = !s.hasher.mean.empty();
   if (own_hasher)
     VISLOC_CHECK(s.hasher.mean.size() == kDescriptorDim && s.hasher.projection.size() == kHashBits * kDescriptorDim);
@@ -178,6 +179,9 @@ void write_segment_file(const std::filesystem::path& path, const SegmentData& s,
   meta["hash"] = {{"bits", kHashBits}, {"tables", kHashTables}, {"table_bits", kHashTableBits}, {"method", "itq"}};
   meta["hash_rotation"] = own_hasher ? "segment" : "map";
   meta["pq"] = {{"subvectors", s.pq_subvectors}, {"bits", 8}};
+  meta.erase("point_uncertainty");
+  const bool with_uncertainty = options.point_uncertainty && !s.point_uncertainty.empty();
+  if (with_uncertainty) meta["point_uncertainty"] = {{"keypoint_noise_px", s.keypoint_noise_px}};
   const std::optional<XyzQuantization> quantization = choose_xyz_quantization(s, options);
   meta.erase("xyz_quantization");
   if (quantization) meta["xyz_quantization"] = quantization->to_json();
@@ -194,6 +198,7 @@ void write_segment_file(const std::filesystem::path& path, const SegmentData& s,
     w.add_array<float>("XYZ", s.xyz);
   w.add_array<HashCode>("CODE", s.codes);
   w.add_array<uint8_t>("PQ", s.pq_codes);
+  if (with_uncertainty) w.add_array<PointUncertaintyCode>("PTUNC", s.point_uncertainty);
   if (own_hasher) {
     w.add_array<float>("ITQMEAN", s.hasher.mean);
     w.add_array<float>("ITQW", s.hasher.projection);
@@ -265,6 +270,7 @@ std::unique_ptr<Segment> Segment::open(const std::filesystem::path& path,
   v.codes = codes.data();
   v.pq_codes = r.array<uint8_t>("PQ", n * v.pq_subvectors).data();
   SegmentBytes& b = s->bytes_;
+  if (r.has("PTUNC")) s->point_uncertainty_ = r.array<PointUncertaintyCode>("PTUNC", n);
   const bool own_rotation = r.has("ITQMEAN") || r.has("ITQW");
   if (own_rotation != (scope == "segment"))
     throw_error(ErrorCode::kFormat, name, ": META says hash_rotation '", scope, "' but the file ",
@@ -290,7 +296,8 @@ std::unique_ptr<Segment> Segment::open(const std::filesystem::path& path,
   v.lookup = &s->lookup_;
   v.validate(name);
   b.file = r.file_size();
-  b.per_point = r.bytes(xyz_tag).size() + r.bytes("CODE").size() + r.bytes("PQ").size();
+  b.per_point = r.bytes(xyz_tag).size() + r.bytes("CODE").size() + r.bytes("PQ").size() +
+                (r.has("PTUNC") ? r.bytes("PTUNC").size() : 0);
   b.xyz_memory = s->decoded_xyz_.capacity() * sizeof(float);
   for (const char* t : {"LUTOFF", "LUTIDS"})
     if (r.has(t)) b.lookup_tables += r.bytes(t).size();

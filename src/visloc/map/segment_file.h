@@ -25,9 +25,12 @@
 //   ITQW    128 × 128 float32 projection, row-major       } segment rotation
 //   IMAGES  JSON array of the segment's images: name, camera {model, width,
 //           height, params}, cam_from_world {q_wxyz, t}
+//   PTUNC   optional, any version: N × 4 bytes, each point's triangulation
+//           covariance (geometry/point_uncertainty.h); META "point_uncertainty":
+//           {"keypoint_noise_px": σ_m}. Readers before it ignore the section.
 //
 // Bytes per point on disk: XYZ 12 (XYZ16 6) + CODE 16 + PQ 16 = 44 (38), or
-// 60 (54) with 32-byte PQ codes, plus META and
+// 60 (54) with 32-byte PQ codes, + 4 with PTUNC, plus META and
 // IMAGES (and 64.5 KiB of ITQ with a segment rotation). The lookup tables of
 // the cascade are a function of the codes: Segment::open builds them in
 // memory (CascadeLookup: ~8 × (2 B id + bucket) per point + 96 KiB, and 1 MiB of
@@ -50,6 +53,7 @@
 #include <vector>
 
 #include "visloc/geo/similarity_transform.h"
+#include "visloc/geometry/point_uncertainty.h"
 #include "visloc/matching/binary_hasher.h"
 #include "visloc/matching/cascade_index.h"
 #include "visloc/util/json_fields.h"
@@ -89,6 +93,10 @@ struct SegmentData {
   std::vector<uint8_t> pq_codes;      // N × pq_subvectors
   int pq_subvectors = kPqSubvectors;  // bytes per PQ code: 16 or 32 (version 4 file)
   std::vector<SegmentImage> images;
+  // Empty, or one code per point (section PTUNC) with the keypoint noise it
+  // assumed (META point_uncertainty.keypoint_noise_px).
+  std::vector<PointUncertaintyCode> point_uncertainty;
+  double keypoint_noise_px = 0;
   nlohmann::json extra_meta = nlohmann::json::object();  // merged into META (e.g. enu_from_segment)
   size_t num_points() const { return xyz.size() / 3; }
 };
@@ -131,6 +139,11 @@ struct SegmentWriteOptions {
   // localizer's ~1 cm median error. Points triangulated from real photos
   // are rarely known better than a few millimetres anyway.
   double max_quantization_error_m = 0.002;
+  // Write the points' uncertainty (section PTUNC, 4 bytes per point) when the
+  // segment has it: the reported pose σ then includes the map's own error.
+  // Opt-in (map build / import --point-uncertainty): see point_uncertainty.h
+  // for what it changes and why it is not the default.
+  bool point_uncertainty = false;
   void validate() const;
 };
 
@@ -145,7 +158,7 @@ void write_segment_file(const std::filesystem::path& path, const SegmentData& se
 // Measured sizes of one segment file.
 struct SegmentBytes {
   uint64_t file = 0;        // whole file
-  uint64_t per_point = 0;   // XYZ + CODE + PQ sections
+  uint64_t per_point = 0;   // XYZ + CODE + PQ (+ PTUNC) sections
   uint64_t lookup_tables = 0; // version 1 only: LUTOFF + LUTIDS sections (ignored, rebuilt)
   uint64_t hasher = 0;      // ITQMEAN + ITQW (0 with the map's rotation)
   uint64_t other = 0;       // META, IMAGES, header, table, padding
@@ -176,6 +189,8 @@ class Segment {
   const std::optional<XyzQuantization>& xyz_quantization() const { return xyz_quantization_; }
   const CascadeIndexView& index() const { return index_; }
   const std::vector<SegmentImage>& images() const { return images_; }
+  // One code per point (section PTUNC), empty when the file has none.
+  std::span<const PointUncertaintyCode> point_uncertainty() const { return point_uncertainty_; }
   const nlohmann::json& meta() const { return meta_; }
   // META's enu_from_segment (checked at open), absent when not georegistered.
   const std::optional<Similarity3d>& enu_from_segment() const { return enu_from_segment_; }
@@ -194,6 +209,7 @@ class Segment {
   CascadeLookup lookup_;
   std::shared_ptr<const BinaryHasher> map_hasher_;
   std::vector<SegmentImage> images_;
+  std::span<const PointUncertaintyCode> point_uncertainty_;
   nlohmann::json meta_;
   std::optional<Similarity3d> enu_from_segment_;
   SegmentBytes bytes_;

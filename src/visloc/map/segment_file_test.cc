@@ -351,3 +351,45 @@ TEST(SegmentPqCodes, RejectsCodeSizesThatDisagree) {
   EXPECT_EQ(info.to_json().at("total").at("pq_code_bytes"), 32);
   EXPECT_TRUE(mentions(info.summary("map"), "+ PQ 32)")) << info.summary("map");
 }
+
+TEST(SegmentPointUncertainty, WrittenReadAndDroppedOnRequest) {
+  const auto dir = temp_dir("ptunc");
+  const size_t n = 500;
+  SegmentData s = segment(n, 20, 1.0);
+  RandomGenerator rng(3);
+  for (size_t i = 0; i < n; ++i)
+    s.point_uncertainty.push_back({uint8_t(rng.next()), uint8_t(rng.next()), uint8_t(rng.next()), uint8_t(rng.next())});
+  s.keypoint_noise_px = 0.61;
+  for (const auto& [point_coordinates, version] :
+       {std::pair{PointCoordinates::kFloat32, 2u}, std::pair{PointCoordinates::kInt16, 3u}}) {
+    write_segment_file(dir / "u.vlseg", s,
+                       SegmentWriteOptions{.coordinates = point_coordinates, .point_uncertainty = true});
+    auto seg = Segment::open(dir / "u.vlseg");
+    EXPECT_EQ(seg->format_version(), version);  // readers before it ignore the section
+    ASSERT_EQ(seg->point_uncertainty().size(), n);
+    EXPECT_EQ(0, std::memcmp(seg->point_uncertainty().data(), s.point_uncertainty.data(), 4 * n));
+    EXPECT_DOUBLE_EQ(seg->meta().at("point_uncertainty").at("keypoint_noise_px").get<double>(), 0.61);
+    EXPECT_EQ(seg->bytes().per_point, (point_coordinates == PointCoordinates::kInt16 ? 42u : 48u) * n);
+  }
+  // Not written unless the options say so (opt-in), nor when the segment has none.
+  write_segment_file(dir / "off.vlseg", s, coordinates(PointCoordinates::kFloat32));
+  EXPECT_TRUE(Segment::open(dir / "off.vlseg")->point_uncertainty().empty());
+  EXPECT_FALSE(Segment::open(dir / "off.vlseg")->meta().contains("point_uncertainty"));
+  EXPECT_EQ(Segment::open(dir / "off.vlseg")->bytes().per_point, 44u * n);
+  SegmentData none = segment(n, 20, 1.0);
+  SegmentWriteOptions with = coordinates(PointCoordinates::kFloat32);
+  with.point_uncertainty = true;
+  write_segment_file(dir / "none.vlseg", none, with);
+  EXPECT_TRUE(Segment::open(dir / "none.vlseg")->point_uncertainty().empty());
+  // One code per point, or the writer refuses; a section of another size is rejected by name.
+  SegmentData short_list = s;
+  short_list.point_uncertainty.pop_back();
+  EXPECT_THROW(write_segment_file(dir / "short.vlseg", short_list, with), Error);
+  write_segment_file(dir / "ok.vlseg", s, with);
+  rewrite(dir / "ok.vlseg", dir / "cut.vlseg", 2, [](nlohmann::json&, Sections& sections) {
+    for (auto& [tag, bytes] : sections)
+      if (tag == "PTUNC") bytes.resize(bytes.size() - 4);
+  });
+  const std::string message = open_error(dir / "cut.vlseg");
+  EXPECT_TRUE(mentions(message, "'PTUNC'") && mentions(message, "cut.vlseg")) << message;
+}

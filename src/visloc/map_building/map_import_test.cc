@@ -178,6 +178,7 @@ TEST(MapImport, FountainWithHoldout) {
   EXPECT_EQ(info.segments[0].points, r.points);
   EXPECT_EQ(info.segments[0].images, 8u);
   EXPECT_DOUBLE_EQ(info.segments[0].bytes.per_point_bytes_per_point(r.points), 44.0);
+  EXPECT_TRUE(Map::open(out).open_segment(0)->point_uncertainty().empty());  // opt-in
   EXPECT_EQ(info.manifest.holdout_images, o.holdout_images);
   EXPECT_TRUE(fs::exists(out / "holdout.txt"));
   DescriptorMatrix d = read_point_descriptor_file(out / info.manifest.segments[0].descriptors_file);
@@ -189,6 +190,44 @@ TEST(MapImport, FountainWithHoldout) {
   m.segments[0].file_bytes += 1;
   write_manifest(out, m);
   EXPECT_THROW(map_info(out), Error);
+}
+
+// --point-uncertainty: each point's triangulation covariance from its COLMAP
+// track, 4 more bytes per point.
+TEST(MapImport, PointUncertaintyFromTheTracks) {
+  const fs::path scene = fs::path(VISLOC_SHARED_DATA_DIR) / "strecha" / "fountain-P11";
+  if (!fs::exists(scene / "colmap" / "sparse" / "points3D.bin")) GTEST_SKIP() << "shared data absent: " << scene;
+  auto out = temp_dir("fountain_uncertainty");
+  ColmapImportOptions o;
+  o.itq.iterations = 3;
+  o.pq.iterations = 3;
+  o.segment_file.point_uncertainty = true;
+  auto r = import_colmap_map(scene / "colmap" / "sparse", scene / "colmap" / "database.db", out, o);
+  const MapInfo info = map_info(out);
+  EXPECT_DOUBLE_EQ(info.segments[0].bytes.per_point_bytes_per_point(r.points), 48.0);
+  EXPECT_TRUE(info.segments[0].point_uncertainty);
+  EXPECT_EQ(info.to_json()["segments"][0]["point_uncertainty"], true);
+  const auto segment = Map::open(out).open_segment(0);
+  ASSERT_EQ(segment->point_uncertainty().size(), r.points);
+  // COLMAP's mean reprojection errors on the Strecha photos: about a pixel.
+  const double noise = segment->meta().at("point_uncertainty").at("keypoint_noise_px").get<double>();
+  EXPECT_GT(noise, 0.1);
+  EXPECT_LT(noise, 3.0);
+  // Every point seen from 2+ of 11 photos around the fountain: known to
+  // centimetres across its rays, worse along them, never "unknown".
+  size_t unknown = 0;
+  std::vector<double> majors;
+  for (const PointUncertaintyCode& c : segment->point_uncertainty()) {
+    unknown += c[2] == 255;
+    majors.push_back(point_sigma_from_code(c[2]));
+    EXPECT_LE(c[3], c[2]);
+    EXPECT_GT(c[3], 0);
+  }
+  EXPECT_LT(unknown, r.points / 100);
+  std::nth_element(majors.begin(), majors.begin() + majors.size() / 2, majors.end());
+  const double median_major = majors[majors.size() / 2];
+  EXPECT_GT(median_major, 1e-4);  // the model is in COLMAP's units (the scene spans a few)
+  EXPECT_LT(median_major, 0.5);
 }
 
 // A map whose segments share the map's hash rotation (MAP/hash_rotation.vlitq).

@@ -92,6 +92,10 @@ void add_point_coordinates(OptionTable& t, SegmentWriteOptions& o) {
       "Segment files' point coordinates: 'int16' (6 instead of 12 bytes per point, the segment's box in "
       "65,536 steps), 'float32', or 'auto' (int16 when the worst rounding error is at most 2 mm; segments "
       "without a metric scale keep float32)");
+  t.flag("--point-uncertainty", o.point_uncertainty,
+         "Store each point's triangulation uncertainty (4 bytes per point): a pose's reported sigma then includes "
+         "the map's own error (first-order, not calibrated by a fitted factor), which matters for photos taken "
+         "far from the map's cameras");
 }
 
 }  // namespace

@@ -1,9 +1,52 @@
 #include "visloc/map_building/segment_builder.h"
 
+#include <cmath>
+
 #include "visloc/util/error.h"
 #include "visloc/util/timer.h"
 
 namespace visloc {
+
+void point_uncertainty_of_model(const ColmapModel& model, std::vector<PointUncertaintyCode>* codes,
+                                double* keypoint_noise_px) {
+  codes->clear();
+  *keypoint_noise_px = 0;
+  std::vector<double> errors;
+  std::vector<uint32_t> lengths;
+  errors.reserve(model.points.size());
+  lengths.reserve(model.points.size());
+  for (const auto& p : model.points) {
+    errors.push_back(p.error);
+    lengths.push_back(static_cast<uint32_t>(p.track.size()));
+  }
+  const double noise = keypoint_noise_from_reprojection_errors(errors, lengths);
+  if (!(noise > 0)) return;  // exact points (a planted map) or no errors: nothing to store
+  std::vector<TrackCamera> cameras(model.images.size());
+  for (size_t i = 0; i < model.images.size(); ++i) {
+    const ColmapImage& im = model.images[i];
+    const ColmapCamera& cam = model.cameras[static_cast<size_t>(model.camera_index(im.camera_id))];
+    const CameraPose pose = colmap_image_pose(im);
+    cameras[i].R = pose.rotation_matrix();
+    cameras[i].t = pose.translation;
+    // fx, and fy for the models that have one (PINHOLE 1, OPENCV 4, OPENCV_FISHEYE 5, FULL_OPENCV 6).
+    const bool two_focals = cam.model_id == 1 || cam.model_id == 4 || cam.model_id == 5 || cam.model_id == 6;
+    cameras[i].fx = cam.params.at(0);
+    cameras[i].fy = two_focals ? cam.params.at(1) : cam.params.at(0);
+  }
+  codes->resize(model.points.size());
+  std::vector<TrackCamera> track;
+  for (size_t p = 0; p < model.points.size(); ++p) {
+    const ColmapPoint3D& point = model.points[p];
+    track.clear();
+    for (const auto& e : point.track) {
+      const int64_t i = model.image_index(e.image_id);
+      if (i >= 0) track.push_back(cameras[static_cast<size_t>(i)]);
+    }
+    const Eigen::Vector3d X(point.xyz[0], point.xyz[1], point.xyz[2]);
+    (*codes)[p] = encode_point_covariance(triangulation_covariance(X, track, noise));
+  }
+  *keypoint_noise_px = noise;
+}
 
 SegmentData make_segment_data(const ColmapModel& model, const PointDescriptors& desc, const PqCodebook& codebook,
                               const ItqOptions& itq_options, uint32_t segment_id, SegmentBuildStats* stats,
@@ -41,6 +84,7 @@ SegmentData make_segment_data(const ColmapModel& model, const PointDescriptors& 
     seg.images.push_back({im.name, cam.model_id, cam.width, cam.height, cam.params, im.cam_from_world_q_wxyz,
                           im.cam_from_world_t});
   }
+  point_uncertainty_of_model(model, &seg.point_uncertainty, &seg.keypoint_noise_px);
   if (stats) stats->ms_encode = t.elapsed_ms();
   return seg;
 }

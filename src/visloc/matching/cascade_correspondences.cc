@@ -4,12 +4,13 @@
 
 namespace visloc {
 
-void fill_correspondence_set(const CascadeMatches& m, std::span<const Keypoint> keypoints,
-                             std::span<const float> xyz, CorrespondenceSet& out) {
+void fill_correspondence_set(const CascadeMatches& m, std::span<const Keypoint> keypoints, std::span<const float> xyz,
+                             CorrespondenceSet& out, std::span<const PointUncertaintyCode> point_uncertainty) {
   const size_t n = m.many_query.size();
   VISLOC_CHECK(m.many_offsets.size() == n + 1 && m.many_offsets[0] == 0 && m.many_offsets[n] == m.many_points.size());
   VISLOC_CHECK(m.point.size() == m.query.size());
   const size_t num_points = xyz.size() / 3;
+  VISLOC_CHECK(point_uncertainty.empty() || point_uncertainty.size() == num_points, "one point uncertainty per point");
   out.clear();
   out.points2d.reserve(n);
   out.candidate_offsets.reserve(n + 1);
@@ -40,12 +41,18 @@ void fill_correspondence_set(const CascadeMatches& m, std::span<const Keypoint> 
     }
   }
   VISLOC_CHECK(next == m.query.size(), "a 1-1 match is missing from the 1-M set (or out of search order)");
+  if (!point_uncertainty.empty()) {
+    out.candidate_uncertainty.resize(out.candidate_point_ids.size());
+    for (size_t k = 0; k < out.candidate_point_ids.size(); ++k)
+      out.candidate_uncertainty[k] = point_uncertainty[out.candidate_point_ids[k]];
+  }
 }
 
 CorrespondenceSet make_correspondence_set(const CascadeMatches& matches, std::span<const Keypoint> keypoints,
-                                          std::span<const float> points_xyz) {
+                                          std::span<const float> points_xyz,
+                                          std::span<const PointUncertaintyCode> point_uncertainty) {
   CorrespondenceSet out;
-  fill_correspondence_set(matches, keypoints, points_xyz, out);
+  fill_correspondence_set(matches, keypoints, points_xyz, out, point_uncertainty);
   return out;
 }
 

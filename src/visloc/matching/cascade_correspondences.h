@@ -7,6 +7,8 @@
 //   candidate_point_ids their point index in the segment
 //   in_hypothesis_set   1 when the feature's first candidate passed ν_h (1-1 set)
 //   query_feature       the query feature index of the row
+//   candidate_uncertainty  with `point_uncertainty` (one code per segment
+//                       point, or empty): each candidate's code
 #pragma once
 
 #include <span>
@@ -24,8 +26,10 @@ namespace visloc {
 // not a search's result (the 1-1 set must be the first candidates of 1-M rows,
 // in the same order).
 void fill_correspondence_set(const CascadeMatches& matches, std::span<const Keypoint> keypoints,
-                             std::span<const float> points_xyz, CorrespondenceSet& out);
+                             std::span<const float> points_xyz, CorrespondenceSet& out,
+                             std::span<const PointUncertaintyCode> point_uncertainty = {});
 CorrespondenceSet make_correspondence_set(const CascadeMatches& matches, std::span<const Keypoint> keypoints,
-                                          std::span<const float> points_xyz);
+                                          std::span<const float> points_xyz,
+                                          std::span<const PointUncertaintyCode> point_uncertainty = {});
 
 }  // namespace visloc

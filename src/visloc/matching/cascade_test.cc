@@ -825,6 +825,19 @@ TEST(CascadeSearch, OneToManyRulesAndCorrespondenceSet) {
   EXPECT_EQ(reused.candidate_point_ids, c.candidate_point_ids);
   EXPECT_EQ(reused.in_hypothesis_set, c.in_hypothesis_set);
   EXPECT_EQ(reused.query_feature, c.query_feature);
+  EXPECT_TRUE(c.candidate_uncertainty.empty());
+  // With the segment's point uncertainty: each candidate's code; and cleared
+  // again when a later fill has none.
+  std::vector<PointUncertaintyCode> codes(db.rows());
+  for (size_t i = 0; i < codes.size(); ++i) codes[i] = {uint8_t(i), uint8_t(i >> 8), uint8_t(7 + i % 200), 3};
+  fill_correspondence_set(best, kp, xyz, reused, codes);
+  reused.validate();
+  ASSERT_EQ(reused.candidate_uncertainty.size(), reused.candidates.size());
+  for (size_t k = 0; k < reused.candidates.size(); ++k)
+    EXPECT_EQ(reused.candidate_uncertainty[k], codes[reused.candidate_point_ids[k]]);
+  fill_correspondence_set(best, kp, xyz, reused);
+  EXPECT_TRUE(reused.candidate_uncertainty.empty());
+  EXPECT_THROW(fill_correspondence_set(best, kp, xyz, reused, std::span(codes).first(codes.size() - 1)), Error);
   // Matches that are not a search's result are an internal error.
   ASSERT_FALSE(best.query.empty());
   CascadeMatches broken = best;

@@ -147,6 +147,14 @@ struct ConfidenceModel {
   // what the residuals do not show (the map's own errors, the inlier
   // selection), so it comes out > 1. 1 in a model written without it.
   double sigma_scale = 1;
+  // The same for a covariance that includes the map points' triangulation
+  // uncertainty (segments with section PTUNC): fitted on its own, since the
+  // covariance then already holds part of what sigma_scale makes up for.
+  // sigma_scale in a model written without it.
+  double sigma_scale_with_point_uncertainty = 1;
+  double sigma_scale_for(bool with_point_uncertainty) const {
+    return with_point_uncertainty ? sigma_scale_with_point_uncertainty : sigma_scale;
+  }
   double evaluate(const ConfidenceFeatures& f) const;  // in [0, 1]
   nlohmann::json to_json() const;
   static ConfidenceModel from_json(const nlohmann::json& j);  // throws Error(kFormat)

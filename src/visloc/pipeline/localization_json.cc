@@ -20,6 +20,8 @@ nlohmann::json to_json(const LocalizationResult& r) {
       if (u.vertical_sigma_m) a["vertical_sigma_m"] = *u.vertical_sigma_m;
       if (u.heading_sigma_deg) a["heading_sigma_deg"] = *u.heading_sigma_deg;
       if (u.relative_position_sigma > 0) a["relative_position_sigma"] = u.relative_position_sigma;
+      a["sigma_scale"] = u.sigma_scale;
+      a["map_point_uncertainty"] = u.map_point_uncertainty;
       j["uncertainty"] = a;
     }
     if (r.under_street.assessed) {

@@ -103,6 +103,8 @@ PoseUncertainty pose_uncertainty(const PoseCovariance& cov, const CameraPose& ca
   const Eigen::Matrix3d center_cov = scale2 * cov.center(cam_from_segment);
   const Eigen::Matrix3d omega_cov = scale2 * cov.omega_t.topLeftCorner<3, 3>();
   u.valid = true;
+  u.sigma_scale = sigma_scale;
+  u.map_point_uncertainty = cov.with_point_uncertainty;
   u.position_sigma = std::sqrt(std::max(0.0, center_cov.trace()));
   u.rotation_sigma_deg = std::sqrt(std::max(0.0, omega_cov.trace())) * 180.0 / M_PI;
   if (enu_from_segment) {
@@ -573,7 +575,9 @@ void Localizer::Impl::Search::match_segment(const Segment& seg, const CascadeSea
   } else {
     matcher.match(f_.descriptors, search, ws_.matches);
   }
-  fill_correspondence_set(ws_.matches, f_.keypoints, seg.xyz(), ws_.correspondences);
+  fill_correspondence_set(
+      ws_.matches, f_.keypoints, seg.xyz(), ws_.correspondences,
+      options_.map_point_uncertainty ? seg.point_uncertainty() : std::span<const PointUncertaintyCode>());
 }
 
 PoseEstimate Localizer::Impl::Search::estimate_segment_pose() const {
@@ -679,9 +683,9 @@ void Localizer::Impl::Search::assess_best(bool final_assessment) {
   res.registered = best_has_enough_inliers_ && res.confidence >= options_.min_confidence &&
                    !(options_.under_street.enabled && res.under_street.under_street);
   if (best_quality_.covariance.valid) {
-    res.uncertainty =
-        pose_uncertainty(best_quality_.covariance, res.cam_from_segment,
-                         frame.georegistered ? std::optional(frame.enu_from_segment) : std::nullopt, model.sigma_scale);
+    res.uncertainty = pose_uncertainty(best_quality_.covariance, res.cam_from_segment,
+                                       frame.georegistered ? std::optional(frame.enu_from_segment) : std::nullopt,
+                                       model.sigma_scale_for(best_quality_.covariance.with_point_uncertainty));
     if (best_quality_.inlier_depth_p90 > 0)
       res.uncertainty.relative_position_sigma = res.uncertainty.position_sigma / best_quality_.inlier_depth_p90;
   }

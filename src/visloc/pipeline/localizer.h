@@ -110,6 +110,10 @@ struct LocalizerOptions {
   // ... and, on a geo-registered segment, only when its camera is not under
   // the street (confidence.h, UnderStreetOptions).
   UnderStreetOptions under_street;
+  // Include the map points' triangulation uncertainty (a segment's section
+  // PTUNC) in a pose's covariance, and so in its reported σ. Off: the σ of
+  // the photo's keypoint noise alone, as for a map without it.
+  bool map_point_uncertainty = true;
   void validate() const;
 };
 
@@ -138,11 +142,14 @@ struct PoseUncertainty {
   // compares across maps of any scale (0 when the depth is unknown).
   double relative_position_sigma = 0;
   std::optional<double> position_sigma_m, horizontal_sigma_m, vertical_sigma_m, heading_sigma_deg;
+  double sigma_scale = 1;              // the factor applied
+  bool map_point_uncertainty = false;  // the covariance includes the map points' uncertainty
 };
 
 // The uncertainty of a pose from the covariance of its refinement (valid):
 // every σ is sigma_scale × the covariance's; the metre and heading σ are set
-// when enu_from_segment is given (a geo-registered segment).
+// when enu_from_segment is given (a geo-registered segment). Records the
+// scale and whether the covariance included the map points' uncertainty.
 PoseUncertainty pose_uncertainty(const PoseCovariance& covariance, const CameraPose& cam_from_segment,
                                  const std::optional<Similarity3d>& enu_from_segment, double sigma_scale);
 

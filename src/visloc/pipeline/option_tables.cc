@@ -67,6 +67,9 @@ void add_options(OptionTable& t, LocalizerOptions& o) {
         "... and at this confidence in [0, 1] (the builtin model's probability that the pose is right; "
         "the default is chosen for a precision of 99.5%; 0: inliers only, the paper's rule)")
       .range(0.0, 1.0);
+  t.flag("!--no-map-point-uncertainty", o.map_point_uncertainty,
+         "Leave the map points' triangulation uncertainty (maps built since it is stored) out of a pose's "
+         "reported sigma: the sigma of the photo's keypoint noise alone");
   t.flag("!--allow-under-street", o.under_street.enabled,
          "Register a pose even when its camera stands under the street (geo-registered maps: more than "
          "--max-drop-below-map m, plus 0.35 m per metre of plan distance, below the nearest map camera, and "

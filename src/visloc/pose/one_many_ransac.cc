@@ -241,6 +241,7 @@ class CandidateSelection {
     std::fill(chosen_->begin(), chosen_->end(), -1);
     image.clear();
     world.clear();
+    world_uncertainty.clear();
     for (size_t i = 0; i < centered_.size(); ++i) {
       if (!one_many_ && !corr_.in_hypothesis_set[i]) continue;
       const uint32_t end = one_many_ ? off[i + 1] : off[i] + 1;
@@ -257,6 +258,8 @@ class CandidateSelection {
         (*chosen_)[i] = best_j;
         image.push_back(centered_[i]);
         world.push_back(cand[off[i] + best_j]);
+        if (!corr_.candidate_uncertainty.empty())
+          world_uncertainty.push_back(corr_.candidate_uncertainty[off[i] + best_j]);
       }
     }
     return image.size();
@@ -265,6 +268,7 @@ class CandidateSelection {
 
   std::vector<Eigen::Vector2d> image;  // the inliers' centred pixels
   std::vector<Eigen::Vector3d> world;  // their chosen points
+  std::vector<PointUncertaintyCode> world_uncertainty;  // and those points' uncertainty, when the set has it
 
  private:
   const CorrespondenceSet& corr_;
@@ -359,8 +363,15 @@ PoseQuality measure_quality(const AbsolutePoseEstimator& estimator, const Candid
     q.inlier_depth_p90 = depths[p90];
   }
   q.coverage = static_cast<double>(std::count(occupied.begin(), occupied.end(), true)) / (kGrid * kGrid);
+  std::vector<Eigen::Matrix3d> point_covariances;
+  if (!inliers.world_uncertainty.empty()) {
+    point_covariances.reserve(inliers.world_uncertainty.size());
+    for (const PointUncertaintyCode& c : inliers.world_uncertainty)
+      point_covariances.push_back(decode_point_covariance(c));
+  }
   q.covariance = pose_covariance(inliers.image.data(), inliers.world.data(), inliers.image.size(), pose, focal,
-                                 threshold_px, !camera.has_focal, pp_offset, pp_prior_px);
+                                 threshold_px, !camera.has_focal, pp_offset, pp_prior_px,
+                                 point_covariances.empty() ? nullptr : point_covariances.data());
   return q;
 }
 

@@ -172,7 +172,7 @@ RefinementResult refine_pose(const Eigen::Vector2d* x, const Eigen::Vector3d* X,
 
 PoseCovariance pose_covariance(const Eigen::Vector2d* x, const Eigen::Vector3d* X, size_t n, const CameraPose& pose,
                                double focal, double loss_scale_px, bool with_focal, const Eigen::Vector2d& pp,
-                               double pp_prior_px) {
+                               double pp_prior_px, const Eigen::Matrix3d* point_covariances) {
   PoseCovariance out;
   out.omega_t.setZero();
   const bool with_pp = with_focal && pp_prior_px > 0;
@@ -206,29 +206,46 @@ PoseCovariance pose_covariance(const Eigen::Vector2d* x, const Eigen::Vector3d* 
   const double dof_correction = static_cast<double>(2 * used) / static_cast<double>(2 * used - dof);
   const double sigma2 =
       std::max(weighted_sq / static_cast<double>(2 * used - dof), robust_sigma * robust_sigma * dof_correction);
-  Mat7 cov = Mat7::Zero();
+  // The prior enters H in units of the noise: |o|²/σ_o² against |r|²/σ².
+  const double prior = with_pp ? sigma2 / (pp_prior_px * pp_prior_px) : 0.0;
   if (with_pp) {
-    // The prior enters H in units of the noise: |o|²/σ_o² against |r|²/σ².
-    H(7, 7) += sigma2 / (pp_prior_px * pp_prior_px);
-    H(8, 8) += sigma2 / (pp_prior_px * pp_prior_px);
-    Eigen::LDLT<Mat7> ldlt(H);
-    if (ldlt.info() != Eigen::Success) return out;
-    cov = sigma2 * ldlt.solve(Mat7::Identity());
-  } else if (with_focal) {
-    const Eigen::Matrix<double, 7, 7> H7 = H.topLeftCorner<7, 7>();
-    Eigen::LDLT<Eigen::Matrix<double, 7, 7>> ldlt(H7);
-    if (ldlt.info() != Eigen::Success) return out;
-    cov.topLeftCorner<7, 7>() = sigma2 * ldlt.solve(Eigen::Matrix<double, 7, 7>::Identity());
-  } else {
-    const Eigen::Matrix<double, 6, 6> H6 = H.topLeftCorner<6, 6>();
-    Eigen::LDLT<Eigen::Matrix<double, 6, 6>> ldlt(H6);
-    if (ldlt.info() != Eigen::Success) return out;
-    cov.topLeftCorner<6, 6>() = sigma2 * ldlt.solve(Eigen::Matrix<double, 6, 6>::Identity());
+    H(7, 7) += prior;
+    H(8, 8) += prior;
   }
+  // With the points' uncertainty: the refinement still minimizes the
+  // Cauchy-weighted squared residuals (w_i the inverse of residual i's noise
+  // variance over σ²), but residual i also carries A_i e_i, the point's error
+  // e_i ~ N(0, Σ_i) through A_i = ∂r_i/∂X_i. The estimate's covariance is
+  // then the sandwich
+  //   H⁻¹ (Σ_i w_i² J_iᵀ (σ²/w_i I + A_i Σ_i A_iᵀ) J_i) H⁻¹
+  //   = σ² H⁻¹ + H⁻¹ (Σ_i w_i² J_iᵀ A_i Σ_i A_iᵀ J_i) H⁻¹,
+  // σ² H⁻¹ exactly when every Σ_i = 0.
+  Mat7 M = Mat7::Zero();
+  if (point_covariances) {
+    for (size_t i = 0; i < n; ++i) {
+      Eigen::Vector2d r;
+      Eigen::Matrix<double, 2, 9> J;
+      if (!residual_and_jacobian(R, pose.translation, focal, pp, X[i], x[i], &r, &J)) continue;
+      const double w = 1.0 / (1.0 + r.squaredNorm() / c2);
+      const Eigen::Matrix<double, 2, 3> A = J.block<2, 3>(0, 3) * R;  // ∂r/∂X
+      const Eigen::Matrix<double, 9, 3> JA = J.transpose() * A;
+      M.noalias() += (w * w) * JA * point_covariances[i] * JA.transpose();
+    }
+    if (!M.allFinite()) return out;
+  }
+  const int params = with_pp ? 9 : with_focal ? 7 : 6;
+  const Eigen::MatrixXd Hp = H.topLeftCorner(params, params);
+  Eigen::LDLT<Eigen::MatrixXd> ldlt(Hp);
+  if (ldlt.info() != Eigen::Success) return out;
+  const Eigen::MatrixXd H_inv = ldlt.solve(Eigen::MatrixXd::Identity(params, params));
+  Mat7 cov = Mat7::Zero();
+  cov.topLeftCorner(params, params) = sigma2 * H_inv;
+  if (point_covariances) cov.topLeftCorner(params, params) += H_inv * M.topLeftCorner(params, params) * H_inv;
   if (!cov.allFinite() || (cov.diagonal().array() < 0).any()) return out;
   out.omega_t = cov.topLeftCorner<6, 6>();
   out.residual_sigma_px = std::sqrt(sigma2);
   out.focal_sigma_relative = with_focal ? std::sqrt(cov(6, 6)) : 0;
+  out.with_point_uncertainty = point_covariances != nullptr;
   out.valid = true;
   return out;
 }

@@ -54,17 +54,27 @@ RefinementResult refine_pose(const Eigen::Vector2d* points2d_centered, const Eig
 // the principal point offset o with `principal_point_prior_px` > 0 (its
 // prior in H). Σ over (ω, t) is the 6×6 block of the full inverse: the
 // intrinsics' uncertainty is marginalized, not ignored.
+// With `point_covariances` (one 3×3 per correspondence, world units², e.g. a
+// map point's triangulation covariance), residual i also carries the point's
+// error through A_i = ∂r_i/∂X_i; the refinement (least squares on the
+// residuals) does not weigh it, so Σ is the sandwich
+//   σ² H⁻¹ + H⁻¹ (Σ_i w_i² J_iᵀ A_i Σ_i A_iᵀ J_i) H⁻¹.
+// A map triangulated from cameras driving towards its points knows their
+// depth poorly; a query farther along the street inherits that as a shift
+// along the street, which its residuals hardly show (it moves the points the
+// way the camera's own motion would).
 struct PoseCovariance {
   bool valid = false;                  // n large enough and H invertible
   Eigen::Matrix<double, 6, 6> omega_t = Eigen::Matrix<double, 6, 6>::Zero();  // of (ω, t): ω radians, t world units
   double residual_sigma_px = 0;        // σ
   double focal_sigma_relative = 0;     // σ of log f (0 when the focal was known)
+  bool with_point_uncertainty = false;  // point_covariances were given
   // The camera centre c = −Rᵀ t: its 3×3 covariance (world units²).
   Eigen::Matrix3d center(const CameraPose& pose) const;
 };
 PoseCovariance pose_covariance(const Eigen::Vector2d* points2d_centered, const Eigen::Vector3d* points3d, size_t n,
                                const CameraPose& pose, double focal, double loss_scale_px, bool with_focal,
                                const Eigen::Vector2d& principal_point_offset = Eigen::Vector2d::Zero(),
-                               double principal_point_prior_px = 0);
+                               double principal_point_prior_px = 0, const Eigen::Matrix3d* point_covariances = nullptr);
 
 }  // namespace visloc

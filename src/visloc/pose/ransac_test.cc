@@ -1,12 +1,14 @@
 // Estimators on synthetic correspondence sets with known truth.
 #include <gtest/gtest.h>
 
+#include <Eigen/Cholesky>
 #include <cmath>
 
+#include "visloc/baselines/synthetic_correspondences.h"
 #include "visloc/pose/one_many_ransac.h"
 #include "visloc/pose/sprt.h"
-#include "visloc/baselines/synthetic_correspondences.h"
 #include "visloc/util/error.h"
+#include "visloc/util/random.h"
 
 namespace visloc {
 namespace {
@@ -283,6 +285,89 @@ TEST(PoseCovariance, CentreSigmaMatchesTheSpreadCalibrated) {
 
 TEST(PoseCovariance, CentreSigmaMatchesTheSpreadWithTheFocalEstimated) {
   check_covariance_calibration(SyntheticFamily::kUncalibrated, 40);
+}
+
+// A street-view map: its points triangulated by cameras driving towards them
+// (depth known far worse than direction), seen by a query farther along the
+// street. The map's point errors, drawn from their triangulation covariance,
+// shift the query along the street in a way its residuals hardly show; the
+// covariance with the points' uncertainty (candidate_uncertainty) covers the
+// errors, the one without does not.
+struct StreetTrial {
+  double error = 0, sigma_with = 0, sigma_without = 0;
+};
+StreetTrial street_trial(uint64_t seed) {
+  RandomGenerator rng(seed);
+  const PinholeCamera camera = PinholeCamera::centered(1226, 370, 707.0);
+  std::vector<TrackCamera> map_cameras(6);
+  for (size_t c = 0; c < map_cameras.size(); ++c) {
+    map_cameras[c].fx = map_cameras[c].fy = 707.0;
+    map_cameras[c].t = Eigen::Vector3d(0, 0, 30.0 - 1.2 * double(c));  // centres at z = −30 … −24
+  }
+  const double noise_px = 0.7;
+  CorrespondenceSet with, without;
+  std::vector<PointUncertaintyCode> codes;
+  while (with.num_features() < 250) {
+    const Eigen::Vector3d X(rng.uniform(-12, 12), rng.uniform(-3, 1.5), rng.uniform(8, 45));
+    if (std::abs(X.x()) < 3) continue;  // the street itself
+    const Eigen::Vector2d pixel(camera.focal * X.x() / X.z() + camera.cx, camera.focal * X.y() / X.z() + camera.cy);
+    if (pixel.x() < 0 || pixel.x() >= camera.width || pixel.y() < 0 || pixel.y() >= camera.height) continue;
+    const Eigen::Matrix3d cov = triangulation_covariance(X, map_cameras, noise_px);
+    const Eigen::Matrix3d L = Eigen::LLT<Eigen::Matrix3d>(cov).matrixL();
+    const Eigen::Vector3d mapped = X + L * Eigen::Vector3d(rng.normal(), rng.normal(), rng.normal());
+    const Eigen::Vector2d seen = pixel + noise_px * Eigen::Vector2d(rng.normal(), rng.normal());
+    with.add_feature(seen, {mapped}, true);
+    without.add_feature(seen, {mapped}, true);
+    codes.push_back(encode_point_covariance(cov));
+  }
+  with.candidate_uncertainty = codes;
+  StreetTrial t;
+  const PoseEstimate a = estimate_pose(with, camera, RansacOptions{});
+  const PoseEstimate b = estimate_pose(without, camera, RansacOptions{});
+  if (!a.registered || !b.registered || !a.quality.covariance.valid || !b.quality.covariance.valid) return t;
+  t.error = a.cam_from_world.center().norm();  // the truth: the identity pose
+  t.sigma_with = std::sqrt(a.quality.covariance.center(a.cam_from_world).trace());
+  t.sigma_without = std::sqrt(b.quality.covariance.center(b.cam_from_world).trace());
+  return t;
+}
+
+TEST(PoseCovariance, MapPointUncertaintyCoversAStreetViewMapsError) {
+  const size_t trials = 40;
+  size_t with1 = 0, with2 = 0, without2 = 0;
+  for (size_t s = 0; s < trials; ++s) {
+    const StreetTrial t = street_trial(500 + s);
+    ASSERT_GT(t.sigma_with, 0) << "trial " << s << " did not register";
+    EXPECT_GT(t.sigma_with, t.sigma_without);
+    with1 += t.error <= t.sigma_with;
+    with2 += t.error <= 2 * t.sigma_with;
+    without2 += t.error <= 2 * t.sigma_without;
+  }
+  EXPECT_GE(with1, trials * 4 / 10) << with1 << " of " << trials << " within 1σ";
+  EXPECT_GE(with2, trials * 8 / 10) << with2 << " of " << trials << " within 2σ";
+  EXPECT_LE(without2, trials / 2) << without2 << " of " << trials << " within 2σ without the points' uncertainty";
+  RecordProperty("within_1_sigma", std::to_string(with1));
+  RecordProperty("within_2_sigma", std::to_string(with2));
+  RecordProperty("within_2_sigma_without", std::to_string(without2));
+}
+
+TEST(PoseCovariance, ExactPointsChangeNothing) {
+  // Zero point covariances: the same covariance as without them.
+  SyntheticOptions o;
+  o.family = SyntheticFamily::kCalibrated;
+  o.num_features = 200;
+  o.inlier_ratio = 1.0;
+  o.noise_px = 1.0;
+  o.seed = 7;
+  SyntheticProblem p = make_synthetic_problem(o);
+  const PoseEstimate plain = estimate_pose(p.correspondences, p.camera, RansacOptions{});
+  p.correspondences.candidate_uncertainty.assign(p.correspondences.candidates.size(),
+                                                 encode_point_covariance(Eigen::Matrix3d::Zero()));
+  const PoseEstimate exact = estimate_pose(p.correspondences, p.camera, RansacOptions{});
+  ASSERT_TRUE(plain.quality.covariance.valid && exact.quality.covariance.valid);
+  EXPECT_TRUE(exact.quality.covariance.omega_t.isApprox(plain.quality.covariance.omega_t, 1e-9));
+  // A wrong count is refused.
+  p.correspondences.candidate_uncertainty.pop_back();
+  EXPECT_THROW(p.correspondences.validate(), Error);
 }
 
 TEST(PoseCovariance, TooFewPointsGiveNoCovariance) {

@@ -237,6 +237,7 @@ void take_localizer_options(Kwargs& k, LocalizerOptions& o) {
   k.take("vote_points", o.point_votes.points_per_segment);
   k.take("vote_max_points", o.point_votes.max_points);
   k.take("under_street_check", o.under_street.enabled);
+  k.take("map_point_uncertainty", o.map_point_uncertainty);
   k.take("max_drop_below_map", o.under_street.max_drop_m);
   k.take("vote_chance_normalization", o.point_votes.normalize_by_chance);
   k.take("vote_radius", o.point_votes.probe_radius);
@@ -542,6 +543,7 @@ void take_point_coordinates(Kwargs& k, SegmentWriteOptions& o) {
     o.coordinates = name == "int16"     ? PointCoordinates::kInt16
                     : name == "float32" ? PointCoordinates::kFloat32
                                         : PointCoordinates::kAuto;
+  k.take("point_uncertainty", o.point_uncertainty);
 }
 
 // The `visloc map build` arguments that give these options, recorded in
@@ -583,6 +585,7 @@ nlohmann::json build_record(const MapBuildOptions& o, const fs::path& map_dir) {
   add("--pq-training-images", std::to_string(o.pq_training_images));
   if (o.hash_rotation) add("--hash-rotation", to_string(*o.hash_rotation));
   add("--point-coordinates", point_coordinates_name(o.segment_file.coordinates));
+  if (o.segment_file.point_uncertainty) a.push_back("--point-uncertainty");
   if (o.pq_code_bytes) add("--pq-bytes", std::to_string(*o.pq_code_bytes));
   if (o.pq_quantizer) add("--pq-quantizer", to_string(*o.pq_quantizer));
   if (o.pq_residual_splits) add("--pq-residual-splits", std::to_string(*o.pq_residual_splits));
@@ -733,6 +736,7 @@ the `visloc localize` flags: setting ('1', '2', '3', '3+'), top_images,
 max_segments, fallback_segments, segment_votes ('auto', 'points', 'images',
 'both'), vote_points, vote_max_points, vote_radius, vote_ratio, vote_chance_normalization, accept_inliers, early_stop, lut_flips, lut_flips_min_list,
 full_search_fallback, threshold_px, min_inliers, min_confidence, under_street_check (False: --allow-under-street),
+map_point_uncertainty (False: --no-map-point-uncertainty),
 max_drop_below_map, use_exif_focal, seed, cache_mib, max_image_side,
 max_features, contrast_threshold, root_sift, max_pixels. OpenCV's thread count,
 which SIFT uses, is process-wide: see visloc.set_opencv_threads.
@@ -1005,7 +1009,8 @@ Keywords as the CLI's flags: gps ('exif' or a CSV), gps_subset, poses ('sfm' or
 'twoview'), sampson, pair_ransac ('classic', '1m', '1m-sprt'), pair_threshold, jobs, colmap, colmap_threads, exhaustive_max, spatial_neighbors,
 min_placemarks, max_placemarks, overlap, placemark_radius, chain_order,
 registration_threshold, retrieval, retrieval_dims, pq_training_images,
-hash_rotation, point_coordinates ('auto', 'float32', 'int16'), pq_bytes (16 or
+hash_rotation, point_coordinates ('auto', 'float32', 'int16'), point_uncertainty
+(bool, default False), pq_bytes (16 or
 32; default: an existing map's, 16 for a new one), pq_quantizer ('product' or
 'residual': 16-byte codes of 16 codebooks added, a finer ranking at a slower
 search, seconds of training; default: an existing map's, 'product' for a
@@ -1061,7 +1066,8 @@ void bind_import_colmap(py::module_& m) {
 `visloc map import --colmap`. Keywords: holdout (names or a file of names:
 removed from the model, kept as queries), pq_train_database,
 pq_train_images, hash_rotation ('segment' or 'map'), point_coordinates ('auto',
-'float32', 'int16'), pq_bytes (16 or 32), pq_quantizer ('product' or 'residual'),
+'float32', 'int16'), point_uncertainty (bool, default False), pq_bytes (16 or 32),
+pq_quantizer ('product' or 'residual'),
 pq_residual_splits (1, 2 or 4; default 2), pq_residual_beam (1 to 64; default 1),
 pq_residual_kmeans ('plain', the default, or 'progressive'),
 itq_iterations, seed, keep_descriptors, overwrite. Returns the import statistics as a dict.)doc");

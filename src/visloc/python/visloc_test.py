@@ -75,6 +75,7 @@ def test_not_a_map_raises_format_error(tmp_path):
         ({"vote_max_points": -1}, ValueError, "vote_max_points"),
         ({"max_drop_below_map": -1.0}, ValueError, "max_drop"),
         ({"under_street_check": 1}, TypeError, "under_street_check"),
+        ({"map_point_uncertainty": "no"}, TypeError, "map_point_uncertainty"),
         ({"vote_radius": 2}, ValueError, "vote_radius"),
         ({"lut_flips": 17}, ValueError, "lut_flips"),
         ({"lut_flips_min_list": -1}, ValueError, "lut_flips_min_list"),
@@ -125,6 +126,10 @@ def test_bad_build_and_import_options(tmp_path):
     # Residual codes are 16 bytes: refused before the (missing) model is read.
     with pytest.raises(ValueError, match="residual codebook has 16-byte codes, not 32"):
         visloc.import_colmap(tmp_path, tmp_path / "db", tmp_path / "map", pq_quantizer="residual", pq_bytes=32)
+    with pytest.raises(TypeError, match="point_uncertainty"):
+        visloc.import_colmap(tmp_path, tmp_path / "db", tmp_path / "map", point_uncertainty=1)
+    with pytest.raises(TypeError, match="point_uncertainty"):
+        visloc.build_map(tmp_path, tmp_path / "map", point_uncertainty="yes")
     with pytest.raises(ValueError, match="queries and truth"):
         visloc.evaluate(tmp_path, tmp_path / "out", images=tmp_path)
 
