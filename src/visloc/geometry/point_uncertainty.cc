@@ -50,6 +50,10 @@ PointUncertaintyCode encode_point_covariance(const Eigen::Matrix3d& covariance) 
   Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(sym);
   const Eigen::Vector3d values = es.eigenvalues();  // ascending
   const Eigen::Vector3d axis = es.eigenvectors().col(2).normalized();
+  if (values(2) < 0) {  // not a covariance: unknown, never "exact"
+    const Eigen::Vector2d o = octahedral(axis.allFinite() ? axis : Eigen::Vector3d::UnitZ());
+    return {unit_code(o.x()), unit_code(o.y()), 255, 255};
+  }
   const Eigen::Vector2d o = octahedral(axis.allFinite() ? axis : Eigen::Vector3d::UnitZ());
   out[0] = unit_code(o.x());
   out[1] = unit_code(o.y());

@@ -45,8 +45,9 @@ namespace visloc {
 using PointUncertaintyCode = std::array<uint8_t, 4>;
 
 // The compact form of a 3×3 point covariance (symmetric, positive
-// semi-definite; a non-finite or negative-definite input encodes as the
-// largest σ along its axis, never as "exact").
+// semi-definite; its negative eigenvalues count as 0). A non-finite input
+// encodes as the largest σ along z, one whose eigenvalues are all negative
+// as the largest σ along its least negative one's axis: never as "exact".
 PointUncertaintyCode encode_point_covariance(const Eigen::Matrix3d& covariance);
 // Its decoded covariance, segment units²: finite for every 4 bytes.
 Eigen::Matrix3d decode_point_covariance(const PointUncertaintyCode& code);

@@ -175,3 +175,14 @@ TEST(PointUncertainty, KeypointNoiseFromSimulatedTracks) {
   EXPECT_DOUBLE_EQ(keypoint_noise_from_reprojection_errors(errors, lengths), estimate);
   EXPECT_EQ(keypoint_noise_from_reprojection_errors(std::vector<double>{1.0}, std::vector<uint32_t>{1}), 0.0);
 }
+
+TEST(PointUncertainty, NegativeDefiniteIsUnknownNotExact) {
+  const PointUncertaintyCode code = encode_point_covariance(-Eigen::Matrix3d::Identity());
+  EXPECT_EQ(code[2], 255);
+  EXPECT_EQ(code[3], 255);
+  // A rounding-level negative eigenvalue of a real covariance counts as 0.
+  Eigen::Matrix3d c = Eigen::Vector3d(4e-4, 1e-4, -1e-20).asDiagonal();
+  const PointUncertaintyCode near = encode_point_covariance(c);
+  EXPECT_NEAR(point_sigma_from_code(near[2]), 0.02, 0.02 * 0.05);
+  EXPECT_NEAR(point_sigma_from_code(near[3]), 0.01, 0.01 * 0.05);
+}

@@ -1,5 +1,7 @@
 #include "visloc/map/map.h"
 
+#include <algorithm>
+
 #include <cmath>
 #include <iomanip>
 #include <limits>
@@ -230,13 +232,14 @@ nlohmann::json MapInfo::to_json() const {
 namespace {
 
 std::string xyz_summary(const MapSegmentInfo& s) {
-  if (!s.xyz_quantization) return "float32";
+  if (!s.xyz_quantization) return s.point_uncertainty ? "float32, point uncertainty" : "float32";
   std::ostringstream out;
   out << "int16 (" << std::setprecision(3);
   if (s.metres_per_unit)
     out << 1000 * *s.metres_per_unit * s.xyz_rounding_error() << " mm)";
   else
     out << s.xyz_rounding_error() << " units)";
+  if (s.point_uncertainty) out << ", point uncertainty";
   return out.str();
 }
 
@@ -255,8 +258,11 @@ std::string MapInfo::summary(const std::string& map_name) const {
         << "  " << xyz_summary(s) << "\n";
   const double n = total_points ? double(total_points) : 1.0;
   out << std::fixed << std::setprecision(1) << "total: " << double(total_per_point_bytes) / n
-      << " bytes/point in per-point sections (xyz 12, or 6 quantized, + hash 16 + PQ " << pq_code_bytes << "); "
-      << double(total_bytes) / n << " bytes/point in all files: segments (images, metadata"
+      << " bytes/point in per-point sections (xyz 12, or 6 quantized, + hash 16 + PQ " << pq_code_bytes << ")"
+      << (std::any_of(segments.begin(), segments.end(), [](const MapSegmentInfo& s) { return s.point_uncertainty; })
+              ? " (+ 4 for the points' uncertainty where stored)"
+              : "")
+      << "; " << double(total_bytes) / n << " bytes/point in all files: segments (images, metadata"
       << (hash_rotation_bytes ? "" : ", a hash rotation each") << "), the shared PQ codebook ("
       << to_string(pq_quantizer);
   if (pq_residual_splits) out << " over " << pq_residual_splits << " part(s), beam " << pq_residual_beam;

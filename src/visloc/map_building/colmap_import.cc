@@ -180,6 +180,11 @@ void import_model_map(ColmapModel model, const ModelSource& source, const fs::pa
   }
   SegmentData seg = make_segment_data(model, desc, codebook, options.itq, 0, &seg_stats,
                                       map_hasher ? &*map_hasher : nullptr);
+  // With --holdout the tracks lost the held-out views but each point's COLMAP
+  // error is still its whole track's mean: the covariance leaves those views
+  // out (conservative), the noise estimate mixes the two slightly.
+  if (options.segment_file.point_uncertainty)
+    point_uncertainty_of_model(model, &seg.point_uncertainty, &seg.keypoint_noise_px);
   res.itq_final_error = seg_stats.itq_final_error;
   res.ms_itq = seg_stats.ms_itq;
   seg.extra_meta["source"] = source.segment_source;

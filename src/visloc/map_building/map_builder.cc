@@ -839,6 +839,8 @@ void SegmentBuilder::compress_and_write() {
   SegmentBuildStats compression_stats;
   SegmentData data = make_segment_data(model_, desc, ctx_.codebook, opt_.itq, static_cast<uint32_t>(id_),
                                        &compression_stats, ctx_.map_hasher.get());
+  if (opt_.segment_file.point_uncertainty)
+    point_uncertainty_of_model(model_, &data.point_uncertainty, &data.keypoint_noise_px);
   std::vector<int> placemark_ids;
   for (int pm : ctx_.plan.segments[id_]) placemark_ids.push_back(ctx_.plan.placemarks[pm].id);
   data.extra_meta["enu_from_segment"] = similarity_json(enu_from_segment_);
@@ -893,10 +895,12 @@ SegmentBuildResult build_and_record_segment(const BuildContext& ctx, int id, con
 // A finished segment from an earlier run (or another process): its
 // result.json records success and its segment file exists.
 // A segment finished by an earlier run, reused only if its codes were made
-// with the rotation this build uses (`map_hasher`, or its own when null).
+// with the rotation this build uses (`map_hasher`, or its own when null), and,
+// with `want_point_uncertainty`, if it has the points' uncertainty (a build
+// resumed with --point-uncertainty rebuilds the segments made without it).
 std::optional<SegmentBuildResult> finished_segment(const fs::path& map_dir, int id,
                                                    const std::shared_ptr<const BinaryHasher>& map_hasher,
-                                                   int pq_code_bytes) {
+                                                   int pq_code_bytes, bool want_point_uncertainty) {
   const fs::path result_file = segment_result_file(map_dir, id);
   if (!fs::exists(result_file) || !fs::exists(segment_file(map_dir, id))) return std::nullopt;
   try {
@@ -905,6 +909,7 @@ std::optional<SegmentBuildResult> finished_segment(const fs::path& map_dir, int 
     auto seg = Segment::open(segment_file(map_dir, id), map_hasher);  // rejects another map rotation
     if (seg->uses_map_hasher() != (map_hasher != nullptr)) return std::nullopt;  // the other scope: rebuild
     if (seg->index().pq_subvectors != pq_code_bytes) return std::nullopt;        // another codebook's codes: rebuild
+    if (want_point_uncertainty && seg->point_uncertainty().empty()) return std::nullopt;
     return r;
   } catch (const std::exception&) {
   }
@@ -1275,7 +1280,11 @@ void MapBuilder::select_segments() {
   for (size_t k = 0; k < s.n_segments; ++k) {
     const int id = static_cast<int>(k);
     if (!s.only.count(id)) {
-      if (auto r = finished_segment(s.map_dir, id, s.ctx.map_hasher, s.ctx.codebook.code_bytes())) {
+      // An update (only some segments) keeps the others with or without the
+      // points' uncertainty: the localizer takes each segment as it is.
+      const bool want_point_uncertainty = s.opt.segment_file.point_uncertainty && s.only.empty();
+      if (auto r =
+              finished_segment(s.map_dir, id, s.ctx.map_hasher, s.ctx.codebook.code_bytes(), want_point_uncertainty)) {
         s.result.segments[k] = *r;
         s.result.segments[k].reused = true;
         ++s.segments_done;

@@ -95,7 +95,8 @@ void add_point_coordinates(OptionTable& t, SegmentWriteOptions& o) {
   t.flag("--point-uncertainty", o.point_uncertainty,
          "Store each point's triangulation uncertainty (4 bytes per point): a pose's reported sigma then includes "
          "the map's own error (first-order, not calibrated by a fitted factor), which matters for photos taken "
-         "far from the map's cameras");
+         "far from the map's cameras. Needs the model's reprojection errors (a segment without any gets none); "
+         "resuming a build with it rebuilds the segments made without it");
 }
 
 }  // namespace

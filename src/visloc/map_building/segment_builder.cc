@@ -28,8 +28,10 @@ void point_uncertainty_of_model(const ColmapModel& model, std::vector<PointUncer
     const CameraPose pose = colmap_image_pose(im);
     cameras[i].R = pose.rotation_matrix();
     cameras[i].t = pose.translation;
-    // fx, and fy for the models that have one (PINHOLE 1, OPENCV 4, OPENCV_FISHEYE 5, FULL_OPENCV 6).
-    const bool two_focals = cam.model_id == 1 || cam.model_id == 4 || cam.model_id == 5 || cam.model_id == 6;
+    // fx, and fy but for the one-focal models (SIMPLE_PINHOLE 0, SIMPLE_RADIAL
+    // 2, RADIAL 3, SIMPLE_RADIAL_FISHEYE 8, RADIAL_FISHEYE 9).
+    const int m = cam.model_id;
+    const bool two_focals = !(m == 0 || m == 2 || m == 3 || m == 8 || m == 9);
     cameras[i].fx = cam.params.at(0);
     cameras[i].fy = two_focals ? cam.params.at(1) : cam.params.at(0);
   }
@@ -84,7 +86,6 @@ SegmentData make_segment_data(const ColmapModel& model, const PointDescriptors& 
     seg.images.push_back({im.name, cam.model_id, cam.width, cam.height, cam.params, im.cam_from_world_q_wxyz,
                           im.cam_from_world_t});
   }
-  point_uncertainty_of_model(model, &seg.point_uncertainty, &seg.keypoint_noise_px);
   if (stats) stats->ms_encode = t.elapsed_ms();
   return seg;
 }

@@ -20,14 +20,15 @@ struct SegmentBuildStats {
   double ms_itq = 0, ms_encode = 0;
 };
 
-// Each point's triangulation covariance from its track (map/point_uncertainty.h)
+// Each point's triangulation covariance from its track (geometry/point_uncertainty.h)
 // with the keypoint noise the model's reprojection errors give; both left
 // empty (0) when the model has no errors (exact, planted points).
 void point_uncertainty_of_model(const ColmapModel& model, std::vector<PointUncertaintyCode>* codes,
                                 double* keypoint_noise_px);
 
 // `map_hasher`: the map's hash rotation; null: ITQ learned on this segment.
-// The segment's point_uncertainty comes from point_uncertainty_of_model.
+// Its point_uncertainty is left empty: a caller that stores it
+// (--point-uncertainty) fills it with point_uncertainty_of_model.
 SegmentData make_segment_data(const ColmapModel& model, const PointDescriptors& descriptors,
                               const PqCodebook& codebook, const ItqOptions& itq, uint32_t segment_id,
                               SegmentBuildStats* stats = nullptr, const BinaryHasher* map_hasher = nullptr);

@@ -111,7 +111,7 @@ ConfidenceModel ConfidenceModel::from_json(const nlohmann::json& j) {
     if (!(m.sigma_scale > 0) || !std::isfinite(m.sigma_scale))
       throw_error(ErrorCode::kFormat, "confidence model: sigma_scale must be a positive number, got ", m.sigma_scale);
   }
-  m.sigma_scale_with_point_uncertainty = m.sigma_scale;  // a model written before it
+  m.sigma_scale_with_point_uncertainty = 1;  // a model written before it: unscaled, as the builtin one
   if (j.contains("sigma_scale_with_point_uncertainty")) {
     m.sigma_scale_with_point_uncertainty = number(j, "sigma_scale_with_point_uncertainty");
     if (!(m.sigma_scale_with_point_uncertainty > 0))

@@ -148,9 +148,9 @@ struct ConfidenceModel {
   // selection), so it comes out > 1. 1 in a model written without it.
   double sigma_scale = 1;
   // The same for a covariance that includes the map points' triangulation
-  // uncertainty (segments with section PTUNC): fitted on its own, since the
-  // covariance then already holds part of what sigma_scale makes up for.
-  // sigma_scale in a model written without it.
+  // uncertainty (segments with section PTUNC): its own, since the covariance
+  // then already holds part of what sigma_scale makes up for. 1 (unscaled)
+  // in the builtin model (see confidence.cc) and in a model written without it.
   double sigma_scale_with_point_uncertainty = 1;
   double sigma_scale_for(bool with_point_uncertainty) const {
     return with_point_uncertainty ? sigma_scale_with_point_uncertainty : sigma_scale;
