@@ -781,23 +781,24 @@ void skip_absent_shared_data(CityBenchmarkOptions& o, std::ostream& log) {
 void record_slurm_city_build(const fs::path& out_dir, MapBuildOptions& map) {
   if (map.executor != BuildExecutor::kSlurm) return;
   const fs::path out = fs::absolute(out_dir);
-  const std::vector<std::string> args = {"--images",
-                                         (out / "city" / "images").string(),
-                                         "--gps",
-                                         (out / "map_gps.csv").string(),
-                                         "--gps-subset",
-                                         "--poses",
-                                         "known",
-                                         "--known-poses",
-                                         (out / "city" / "sparse").string(),
-                                         "--out",
-                                         (out / "map").string(),
-                                         "--min-placemarks",
-                                         std::to_string(map.plan.min_placemarks),
-                                         "--max-placemarks",
-                                         std::to_string(map.plan.max_placemarks),
-                                         "--overlap",
-                                         std::to_string(map.plan.overlap)};
+  std::vector<std::string> args = {"--images",
+                                   (out / "city" / "images").string(),
+                                   "--gps",
+                                   (out / "map_gps.csv").string(),
+                                   "--gps-subset",
+                                   "--poses",
+                                   "known",
+                                   "--known-poses",
+                                   (out / "city" / "sparse").string(),
+                                   "--out",
+                                   (out / "map").string(),
+                                   "--min-placemarks",
+                                   std::to_string(map.plan.min_placemarks),
+                                   "--max-placemarks",
+                                   std::to_string(map.plan.max_placemarks),
+                                   "--overlap",
+                                   std::to_string(map.plan.overlap)};
+  if (map.segment_file.point_uncertainty) args.push_back("--point-uncertainty");
   record_build_for_tasks(map, out / "map", args);
 }
 

@@ -59,6 +59,9 @@ void add_run_options(OptionTable& t, CityBenchmarkOptions& o) {
   t.choice("--executor", o.map.executor, {{"local", BuildExecutor::kLocal}, {"slurm", BuildExecutor::kSlurm}},
            "Map build: local or slurm (see 'map build --help')");
   t.add("--seed", o.city.layout.seed, "Seed of the city");
+  t.flag("--point-uncertainty", o.map.segment_file.point_uncertainty,
+         "Map: store each point's triangulation uncertainty, so that the poses' sigma includes the map's error "
+         "(see 'map build --help')");
 }
 
 }  // namespace
