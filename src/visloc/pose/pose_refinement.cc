@@ -182,6 +182,7 @@ PoseCovariance pose_covariance(const Eigen::Vector2d* x, const Eigen::Vector3d* 
   const Eigen::Matrix3d R = pose.rotation_matrix();
   using Mat7 = Eigen::Matrix<double, 9, 9>;
   Mat7 H = Mat7::Zero();
+  Mat7 M = Mat7::Zero();  // the points' uncertainty term (below), in the same pass
   double weighted_sq = 0;
   size_t used = 0;
   std::vector<double> norms;
@@ -192,10 +193,15 @@ PoseCovariance pose_covariance(const Eigen::Vector2d* x, const Eigen::Vector3d* 
     if (!residual_and_jacobian(R, pose.translation, focal, pp, X[i], x[i], &r, &J)) continue;
     const double w = 1.0 / (1.0 + r.squaredNorm() / c2);
     H.noalias() += w * J.transpose() * J;
+    if (point_covariances) {
+      const Eigen::Matrix<double, 9, 3> JA = J.transpose() * (J.block<2, 3>(0, 3) * R);  // A = ∂r/∂X
+      M.noalias() += (w * w) * JA * point_covariances[i] * JA.transpose();
+    }
     weighted_sq += w * r.squaredNorm();
     norms.push_back(r.norm());
     ++used;
   }
+  if (!M.allFinite()) return out;
   if (used * 2 <= static_cast<size_t>(dof)) return out;
   // The noise: the larger of the weighted residual variance and a robust one
   // from the median residual (|r| of a 2-D Gaussian is Rayleigh: median
@@ -228,19 +234,7 @@ PoseCovariance pose_covariance(const Eigen::Vector2d* x, const Eigen::Vector3d* 
   // within 2σ instead of 37. σ² comes from the residuals, which already show
   // the part of the points' error the pose cannot absorb: that part is
   // counted twice, so the σ errs large.
-  Mat7 M = Mat7::Zero();
-  if (point_covariances) {
-    for (size_t i = 0; i < n; ++i) {
-      Eigen::Vector2d r;
-      Eigen::Matrix<double, 2, 9> J;
-      if (!residual_and_jacobian(R, pose.translation, focal, pp, X[i], x[i], &r, &J)) continue;
-      const double w = 1.0 / (1.0 + r.squaredNorm() / c2);
-      const Eigen::Matrix<double, 2, 3> A = J.block<2, 3>(0, 3) * R;  // ∂r/∂X
-      const Eigen::Matrix<double, 9, 3> JA = J.transpose() * A;
-      M.noalias() += (w * w) * JA * point_covariances[i] * JA.transpose();
-    }
-    if (!M.allFinite()) return out;
-  }
+  // (M is accumulated with H above: it does not depend on σ².)
   const int params = with_pp ? 9 : with_focal ? 7 : 6;
   const Eigen::MatrixXd Hp = H.topLeftCorner(params, params);
   Eigen::LDLT<Eigen::MatrixXd> ldlt(Hp);
