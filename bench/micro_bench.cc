@@ -8,7 +8,9 @@
 //   the full and prioritized cascade search of 10K query features on a
 //   synthetic 100K-point segment (the paper's segment size);
 //   that segment written as a segment file with float32 and with int16 point
-//   coordinates (counters: bytes per point of the whole file).
+//   coordinates (counters: bytes per point of the whole file);
+//   the guided confirmation of a pose on a 100K-point segment with 10K query
+//   keypoints, beside the explained fraction's pass over the same points.
 #include <benchmark/benchmark.h>
 #include <unistd.h>
 
@@ -26,6 +28,8 @@
 #include "visloc/matching/cascade_index.h"
 #include "visloc/matching/pq_codebook.h"
 #include "visloc/matching/search_kernels.h"
+#include "visloc/pipeline/confidence.h"
+#include "visloc/pipeline/guided_confirmation.h"
 #include "visloc/util/crc32c.h"
 
 namespace {
@@ -570,5 +574,62 @@ void BM_SegmentFile100KPoints(benchmark::State& state) {
   std::filesystem::remove(path);
 }
 BENCHMARK(BM_SegmentFile100KPoints)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond)->Iterations(3);
+
+// A pose's guided confirmation (argument 1) against the explained fraction's
+// pass over the same points (argument 0), the baseline: 100K points in front
+// of a 1226 × 370 camera at 5-60 m, half of them within the inliers' depth,
+// 10K keypoints spread over the image, a random PQ codebook.
+void BM_GuidedConfirmation100KPoints(benchmark::State& state) {
+  constexpr size_t kSegmentPoints = 100000, kKeypoints = 10000;
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<float> unit(-1.0f, 1.0f), depth(5.0f, 60.0f), uniform(0.0f, 1.0f);
+  visloc::PinholeCamera camera = visloc::PinholeCamera::centered(1226, 370, 707.0);
+  std::vector<float> xyz;
+  xyz.reserve(3 * kSegmentPoints);
+  for (size_t i = 0; i < kSegmentPoints; ++i) {
+    const float z = depth(rng);
+    xyz.push_back(unit(rng) * z * 0.9f);
+    xyz.push_back(unit(rng) * z * 0.27f);
+    xyz.push_back(z);
+  }
+  const std::vector<uint8_t> codes = random_bytes(kSegmentPoints * visloc::kPqSubvectors, 12);
+  std::vector<float> centroids(size_t(visloc::kPqSubvectors) * visloc::kPqCentroids *
+                               (visloc::kDescriptorDim / visloc::kPqSubvectors));
+  for (float& c : centroids) c = 60.0f * uniform(rng);
+  const visloc::PqCodebook codebook(centroids);
+  std::vector<visloc::Keypoint> keypoints(kKeypoints);
+  for (auto& k : keypoints) k = {1226.0f * uniform(rng), 370.0f * uniform(rng), 2.0f, 0.0f};
+  const std::vector<uint8_t> desc = random_bytes(kKeypoints * visloc::kDescriptorDim, 13);
+  const visloc::DescriptorMatrix descriptors(desc.data(), kKeypoints);
+  visloc::GuidedConfirmationInput in;
+  in.xyz = xyz;
+  in.codes = codes.data();
+  in.codebook = &codebook;
+  in.camera = &camera;
+  in.focal = 707.0;
+  in.max_depth = 32.5;
+  in.keypoints = keypoints;
+  in.descriptors = &descriptors;
+  in.inlier_cells = 0x00ff00ff00ff00ffull;
+  in.radius_px = 8;
+  in.max_distance = 250;
+  visloc::GuidedConfirmer confirmer;
+  visloc::GuidedConfirmation g;
+  double explained = 0;
+  for (auto _ : state) {
+    if (state.range(0) == 1) {
+      g = confirmer.measure(in);
+      benchmark::DoNotOptimize(g);
+    } else {
+      explained = visloc::explained_fraction(xyz, {}, camera, 707.0, Eigen::Vector2d::Zero(), 32.5, 100);
+      benchmark::DoNotOptimize(explained);
+    }
+  }
+  if (state.range(0) == 1) {
+    state.counters["predicted"] = double(g.predicted);
+    state.counters["examined"] = double(g.examined);
+  }
+}
+BENCHMARK(BM_GuidedConfirmation100KPoints)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond);
 
 }  // namespace

@@ -29,18 +29,20 @@ double number(const nlohmann::json& j, const char* key) {
 }  // namespace
 
 nlohmann::json ConfidenceFeatures::to_json() const {
-  return {{"inliers", inliers},
-          {"inlier_ratio", inlier_ratio},
-          {"coverage", coverage},
-          {"residual", residual},
-          {"margin", margin},
-          {"vote_share", vote_share},
-          {"camera_distance", camera_distance},
-          {"height_excess", height_excess},
-          {"tilt_excess_deg", tilt_excess_deg},
-          {"explained", explained},
-          {"ambiguous", ambiguous},
-          {"elsewhere", elsewhere}};
+  nlohmann::json j = {{"inliers", inliers},
+                      {"inlier_ratio", inlier_ratio},
+                      {"coverage", coverage},
+                      {"residual", residual},
+                      {"margin", margin},
+                      {"vote_share", vote_share},
+                      {"camera_distance", camera_distance},
+                      {"height_excess", height_excess},
+                      {"tilt_excess_deg", tilt_excess_deg},
+                      {"explained", explained},
+                      {"ambiguous", ambiguous},
+                      {"elsewhere", elsewhere}};
+  if (guided) j["guided"] = guided->to_json();
+  return j;
 }
 
 ConfidenceFeatures ConfidenceFeatures::from_json(const nlohmann::json& j) {
@@ -60,6 +62,7 @@ ConfidenceFeatures ConfidenceFeatures::from_json(const nlohmann::json& j) {
   f.explained = j.contains("explained") ? number(j, "explained") : kExplainedWhenUnknown;
   f.ambiguous = j.contains("ambiguous") ? number(j, "ambiguous") : kAmbiguousWhenUnknown;
   f.elsewhere = j.contains("elsewhere") ? number(j, "elsewhere") : kElsewhereWhenUnknown;
+  if (j.contains("guided")) f.guided = GuidedConfirmation::from_json(j["guided"]);
   return f;
 }
 

@@ -142,6 +142,8 @@ struct QueryWorkspace {
   CascadeMatches matches;             // of the segment being searched
   CorrespondenceSet correspondences;  // the same matches, as RANSAC takes them
   std::vector<float> point_heights;   // the under-street check's scratch
+  GuidedConfirmer guided;             // the guided confirmation's buffers
+  std::vector<float> inlier_distances;  // the best pose's inliers' descriptor distances (scratch)
 };
 
 class WorkspacePool {
@@ -250,6 +252,7 @@ class Localizer::Impl::Search {
   PoseQuality best_quality_;
   double best_ambiguous_share_ = 0;  // ConfidenceFeatures::ambiguous of the best pose
   double best_elsewhere_share_ = 0;  // ConfidenceFeatures::elsewhere of the best pose
+  float best_inlier_distance_p90_ = 0;  // the best pose's inliers' descriptor distances, 90th percentile
   std::shared_ptr<const Segment> best_segment_;
   std::map<int, size_t> inliers_per_segment_;  // best inliers of each segment searched (the margin)
 };
@@ -609,6 +612,19 @@ void Localizer::Impl::Search::keep_if_best(size_t index, const std::shared_ptr<c
     best_ambiguous_share_ =
         ambiguous_inlier_share(set.candidate_offsets, set.candidates, ws_.matches.many_distances, pose.chosen_candidate,
                                0.1 * pose.quality.inlier_depth_median, impl_.search.ratio_one_to_one);
+  // The guided confirmation's descriptor bound: as close as the pose's own
+  // inliers are to their points (their 90th percentile, nearest rank).
+  std::vector<float>& d = ws_.inlier_distances;
+  d.clear();
+  for (size_t i = 0; i < pose.chosen_candidate.size(); ++i)
+    if (pose.chosen_candidate[i] >= 0)
+      d.push_back(ws_.matches.many_distances[set.candidate_offsets[i] + uint32_t(pose.chosen_candidate[i])]);
+  best_inlier_distance_p90_ = 0;
+  if (!d.empty()) {
+    const size_t p90 = (9 * d.size() + 9) / 10 - 1;
+    std::nth_element(d.begin(), d.begin() + static_cast<std::ptrdiff_t>(p90), d.end());
+    best_inlier_distance_p90_ = d[p90];
+  }
   best_elsewhere_share_ = kElsewhereWhenUnknown;
   if (impl_.point_votes && !ws_.point_votes.feature_offsets.empty()) {
     const auto position = static_cast<uint32_t>(index);
@@ -674,6 +690,23 @@ void Localizer::Impl::Search::assess_best(bool final_assessment) {
   if (final_assessment || model.weights[kExplainedInput] != 0)
     cf.explained = explained_fraction(best_segment_->xyz(), res.cam_from_segment, camera_, res.focal_px,
                                       res.principal_point_offset, best_quality_.inlier_depth_p90, res.inliers);
+  if (final_assessment) {
+    GuidedConfirmationInput in;
+    in.xyz = best_segment_->xyz();
+    in.codes = best_segment_->index().pq_codes;
+    in.codebook = &impl_.map.codebook();
+    in.cam_from_segment = res.cam_from_segment;
+    in.camera = &camera_;
+    in.focal = res.focal_px;
+    in.principal_point_offset = res.principal_point_offset;
+    in.max_depth = best_quality_.inlier_depth_p90;
+    in.keypoints = f_.keypoints;
+    in.descriptors = &f_.descriptors;
+    in.inlier_cells = best_quality_.inlier_cells;
+    in.radius_px = 2 * impl_.ransac.threshold_px;
+    in.max_distance = best_inlier_distance_p90_;
+    cf.guided = ws_.guided.measure(in);
+  }
   res.confidence = model.evaluate(cf);
   res.under_street = {};
   if (frame.georegistered)

@@ -352,6 +352,7 @@ PoseQuality measure_quality(const AbsolutePoseEstimator& estimator, const Candid
     const int gx = std::clamp(static_cast<int>(u / w * kGrid), 0, kGrid - 1);
     const int gy = std::clamp(static_cast<int>(v / h * kGrid), 0, kGrid - 1);
     occupied[gy * kGrid + gx] = true;
+    q.inlier_cells |= uint64_t(1) << (gy * kGrid + gx);
   }
   if (!residuals.empty()) {
     std::nth_element(residuals.begin(), residuals.begin() + residuals.size() / 2, residuals.end());

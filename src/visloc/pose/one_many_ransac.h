@@ -109,6 +109,7 @@ struct PoseQuality {
   size_t hypothesis_inliers = 0;   // of them, those whose 1-1 match fits the final pose
   double median_residual_px = 0;   // reprojection error of the inliers, median
   double coverage = 0;             // fraction of the cells of an 8×8 image grid holding an inlier
+  uint64_t inlier_cells = 0;       // those cells: bit 8·row + column
   double inlier_depth_median = 0;  // |median| of the inliers' depths (world units)
   double inlier_depth_p90 = 0;     // 90th percentile (nearest rank) of the inliers' depths (world units)
   // RANSAC scores: of the best model, and of the best verified model that is
