@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 #include "visloc/util/error.h"
 
@@ -10,10 +11,11 @@ namespace visloc {
 namespace {
 size_t count(const nlohmann::json& j, const char* key) {
   const auto it = j.find(key);
-  if (it == j.end() || !it->is_number_unsigned())
-    throw_error(ErrorCode::kFormat, "guided confirmation: '", key, "' must be a count");
+  if (it == j.end() || !it->is_number_integer() || it->get<int64_t>() < 0)
+    throw_error(ErrorCode::kFormat, "guided confirmation: '", key, "' must be a count (an integer >= 0)");
   return it->get<size_t>();
 }
+
 // Squared L2 between a query descriptor and a decoded code, in eight partial
 // sums (so that the compiler may vectorize it).
 float squared_distance(const uint8_t* d, const float* c) {
@@ -43,9 +45,13 @@ GuidedConfirmation GuidedConfirmation::from_json(const nlohmann::json& j) {
   g.confirmed = count(j, "confirmed");
   g.examined_off_inliers = count(j, "examined_off_inliers");
   g.confirmed_off_inliers = count(j, "confirmed_off_inliers");
-  if (g.examined > g.predicted || g.confirmed > g.examined || g.examined_off_inliers > g.examined ||
-      g.confirmed_off_inliers > g.examined_off_inliers || g.confirmed_off_inliers > g.confirmed)
-    throw_error(ErrorCode::kFormat, "guided confirmation: the counts do not nest (confirmed ≤ examined ≤ predicted)");
+  if (g.examined > g.predicted || g.confirmed > g.examined)
+    throw_error(ErrorCode::kFormat, "guided confirmation: the counts do not nest (confirmed <= examined <= predicted)");
+  if (g.examined_off_inliers > g.examined || g.confirmed_off_inliers > g.examined_off_inliers ||
+      g.confirmed_off_inliers > g.confirmed ||
+      g.confirmed - g.confirmed_off_inliers > g.examined - g.examined_off_inliers)
+    throw_error(ErrorCode::kFormat,
+                "guided confirmation: the off-inlier counts do not nest in the examined and confirmed ones");
   return g;
 }
 
@@ -53,21 +59,24 @@ GuidedConfirmation GuidedConfirmer::measure(const GuidedConfirmationInput& in) {
   GuidedConfirmation out;
   VISLOC_CHECK(in.camera && in.descriptors && in.codebook, "guided confirmation: camera, descriptors and codebook");
   VISLOC_CHECK(in.descriptors->rows() == in.keypoints.size(), "one descriptor per keypoint");
+  VISLOC_CHECK(in.max_examined > 0, "guided confirmation: max_examined must be positive");
   const PinholeCamera& camera = *in.camera;
-  if (!(in.max_depth > 0) || !(in.focal > 0) || !(in.radius_px > 0) || in.keypoints.empty() || in.xyz.size() < 3 ||
-      camera.width <= 0 || camera.height <= 0 || in.max_examined == 0)
+  if (!(in.max_depth > 0) || !(in.focal > 0) || !std::isfinite(in.focal) || !(in.radius_px > 0) || in.xyz.size() < 3 ||
+      camera.width <= 0 || camera.height <= 0 || !in.cam_from_segment.translation.allFinite() ||
+      !in.cam_from_segment.rotation.coeffs().allFinite())
     return out;
   VISLOC_CHECK(in.codes != nullptr && !in.codebook->empty(), "guided confirmation: the points' codes");
 
-  // The query's keypoints in a grid of cells radius_px wide (compressed rows).
-  const double cell = in.radius_px;
+  // The query's keypoints in a grid of cells at least radius_px wide
+  // (compressed rows; at most ~1024 cells a side whatever the radius).
+  const double cell = std::max(in.radius_px, std::max(camera.width, camera.height) / 1024.0);
   const int cols = static_cast<int>(std::ceil(camera.width / cell)) + 1;
   const int rows = static_cast<int>(std::ceil(camera.height / cell)) + 1;
   const size_t cells = size_t(cols) * size_t(rows);
   auto cell_of = [&](double x, double y) -> int64_t {
-    const int gx = static_cast<int>(std::floor(x / cell)), gy = static_cast<int>(std::floor(y / cell));
-    if (gx < 0 || gy < 0 || gx >= cols || gy >= rows) return -1;
-    return int64_t(gy) * cols + gx;
+    const double gx = std::floor(x / cell), gy = std::floor(y / cell);
+    if (!(gx >= 0 && gy >= 0 && gx < cols && gy < rows)) return -1;  // also NaN
+    return int64_t(gy) * cols + int64_t(gx);
   };
   cell_start_.assign(cells + 1, 0);
   for (const Keypoint& k : in.keypoints) {
@@ -76,27 +85,32 @@ GuidedConfirmation GuidedConfirmer::measure(const GuidedConfirmationInput& in) {
   }
   for (size_t c = 0; c < cells; ++c) cell_start_[c + 1] += cell_start_[c];
   cell_keypoints_.resize(cell_start_[cells]);
-  {
-    // Filled back to front so that each cell's keypoints stay in index order.
-    std::vector<uint32_t>& fill = fill_;
-    fill.assign(cell_start_.begin() + 1, cell_start_.end());
-    for (size_t i = in.keypoints.size(); i-- > 0;) {
-      const int64_t c = cell_of(in.keypoints[i].x, in.keypoints[i].y);
-      if (c >= 0) cell_keypoints_[--fill[size_t(c)]] = {in.keypoints[i].x, in.keypoints[i].y, static_cast<uint32_t>(i)};
-    }
+  // Filled back to front so that each cell's keypoints stay in index order.
+  fill_.assign(cell_start_.begin() + 1, cell_start_.end());
+  for (size_t i = in.keypoints.size(); i-- > 0;) {
+    const int64_t c = cell_of(in.keypoints[i].x, in.keypoints[i].y);
+    if (c >= 0) cell_keypoints_[--fill_[size_t(c)]] = {in.keypoints[i].x, in.keypoints[i].y, static_cast<uint32_t>(i)};
   }
-
   const Eigen::Matrix3d R = in.cam_from_segment.rotation_matrix();
   const Eigen::Vector3d& t = in.cam_from_segment.translation;
-  const double fx = in.focal, fy = in.focal * camera.aspect;
+  // As the pose's solver sees the camera: calibrated, with fy = aspect · fx
+  // and the radial distortion; with an estimated focal, square pixels and
+  // no distortion (the keypoints are only centred).
+  const double fx = in.focal, fy = in.focal * (camera.has_focal ? camera.aspect : 1.0);
+  const double k1 = camera.has_focal ? camera.k1 : 0.0;
+  // k1 < 0 folds the image back beyond r² = 1 / (3 |k1|): points past the
+  // fold are not in view, whatever pixel the formula gives them.
+  const double r2_fold = k1 < 0 ? 1.0 / (3.0 * -k1) : std::numeric_limits<double>::infinity();
   const double px = camera.cx + in.principal_point_offset.x(), py = camera.cy + in.principal_point_offset.y();
   // A point's pixel, if the pose predicts it in view.
   auto project = [&](size_t p, double& u, double& v) {
     const Eigen::Vector3d X = R * Eigen::Vector3d(in.xyz[3 * p], in.xyz[3 * p + 1], in.xyz[3 * p + 2]) + t;
     if (!(X.z() > 0) || X.z() > in.max_depth) return false;
     double x = X.x() / X.z(), y = X.y() / X.z();
-    if (camera.k1 != 0) {
-      const double d = 1 + camera.k1 * (x * x + y * y);
+    if (k1 != 0) {
+      const double r2 = x * x + y * y;
+      if (!(r2 < r2_fold)) return false;
+      const double d = 1 + k1 * r2;
       x *= d;
       y *= d;
     }

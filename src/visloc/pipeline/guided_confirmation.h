@@ -1,7 +1,8 @@
 // Guided confirmation of a pose: does the photo show the map where the pose
 // says it should? The segment's points that the pose predicts in view (in
 // front of the camera, no deeper than the inliers' 90th percentile, inside
-// the image: the set of explained_fraction) are each looked for in the
+// the image as the pose's camera model projects them: explained_fraction's
+// set, but with the radial distortion) are each looked for in the
 // photo, at their projection: a point is confirmed when a query keypoint lies
 // within a radius of it and that keypoint's descriptor is as close to the
 // point's code as the pose's own inliers are to theirs (their 90th
@@ -14,7 +15,9 @@
 // Counted apart: the predicted points in the cells of the 8×8 image grid that
 // hold no inlier. There the global matching found nothing, so what is
 // confirmed is new evidence, and what the pose predicts and the photo does
-// not show counts against it.
+// not show counts against it. (The inliers' cells come from their undistorted
+// positions, the examined points' from their distorted projections: with a
+// strong k1 they may disagree near the image's edges.)
 #pragma once
 
 #include <cstdint>

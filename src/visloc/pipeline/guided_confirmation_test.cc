@@ -2,6 +2,8 @@
 // its projection has a descriptor near its code, and only there.
 #include "visloc/pipeline/guided_confirmation.h"
 
+#include "visloc/pipeline/confidence.h"
+
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -135,13 +137,62 @@ TEST(GuidedConfirmation, FollowsThePoseAndTheFocal) {
   EXPECT_EQ(confirmer.measure(in).confirmed, 0u);
 }
 
+TEST(GuidedConfirmation, FollowsTheCameraModel) {
+  Scene s;
+  s.camera.aspect = 1.1;           // fy = 550
+  s.add_point({0, 4, 10}, 0);      // pixel (320, 240 + 220)
+  s.add_point({25, 0, 10}, 1);     // far to the side: x = 2.5
+  s.add_keypoint(320, 460, 0, 0);  // at point 0's pixel with fy
+  s.add_keypoint(8, 240, 1, 0);    // where k1 = −0.2 would fold point 1 back to (x = −0.625)
+  GuidedConfirmer confirmer;
+  GuidedConfirmationInput in = s.input(20, 1, ~uint64_t(0));
+  GuidedConfirmation g = confirmer.measure(in);
+  EXPECT_EQ(g.predicted, 1u);  // point 1 projects at u = 1570, outside
+  EXPECT_EQ(g.confirmed, 1u);
+  // An estimated focal is solved for square pixels (the keypoints only
+  // centred): point 0 then projects 20 px higher, off its keypoint.
+  s.camera.has_focal = false;
+  EXPECT_EQ(confirmer.measure(in).confirmed, 0u);
+  s.camera.has_focal = true;
+  // Barrel distortion: point 1 lies beyond the fold (r² = 6.25 ≥ 1 / 0.6) and
+  // stays out of view; point 0 (r² = 0.16) moves 3.2% inwards, 7.0 px, still
+  // within the radius.
+  s.camera.k1 = -0.2;
+  g = confirmer.measure(in);
+  EXPECT_EQ(g.predicted, 1u);
+  EXPECT_EQ(g.confirmed, 1u);
+  s.camera.k1 = -0.5;  // 8% inwards: 17.6 px
+  EXPECT_EQ(confirmer.measure(in).confirmed, 0u);
+}
+
+TEST(GuidedConfirmation, TravelsInTheConfidenceFeatures) {
+  ConfidenceFeatures f;
+  f.inliers = 40;
+  EXPECT_FALSE(ConfidenceFeatures::from_json(f.to_json()).guided.has_value());
+  f.guided = GuidedConfirmation{100, 60, 20, 40, 5};
+  const nlohmann::json j = f.to_json();
+  ASSERT_TRUE(j.contains("guided"));
+  const ConfidenceFeatures back = ConfidenceFeatures::from_json(j);
+  ASSERT_TRUE(back.guided.has_value());
+  EXPECT_EQ(back.guided->examined, 60u);
+  EXPECT_EQ(back.guided->confirmed_off_inliers, 5u);
+  // Reported only: the confidence does not depend on it.
+  EXPECT_EQ(ConfidenceModel::builtin().evaluate(back),
+            ConfidenceModel::builtin().evaluate(ConfidenceFeatures{f.inliers}));
+}
+
 TEST(GuidedConfirmation, NothingToMeasureGivesZeros) {
   Scene s;
   s.add_point({0, 0, 10}, 0);
   GuidedConfirmer confirmer;
   const GuidedConfirmation none = confirmer.measure(s.input(20, 30, 0));  // no keypoints
-  EXPECT_EQ(none.predicted, 0u);
+  EXPECT_EQ(none.predicted, 1u);
+  EXPECT_EQ(none.examined, 1u);
+  EXPECT_EQ(none.confirmed, 0u);
   EXPECT_EQ(none.share(), 0.0);
+  GuidedConfirmationInput nan = s.input(20, 30, 0);
+  nan.cam_from_segment.translation.x() = std::nan("");
+  EXPECT_EQ(confirmer.measure(nan).predicted, 0u);
   s.add_keypoint(s.pixel(0).x(), s.pixel(0).y(), 0, 0);
   EXPECT_EQ(confirmer.measure(s.input(0, 30, 0)).predicted, 0u);  // no depth
   EXPECT_EQ(confirmer.measure(s.input(20, 30, 0)).confirmed, 1u);
@@ -155,16 +206,45 @@ TEST(GuidedConfirmation, JsonRoundTripAndRejectsNonsense) {
   EXPECT_EQ(back.confirmed, 20u);
   EXPECT_EQ(back.examined_off_inliers, 40u);
   EXPECT_EQ(back.confirmed_off_inliers, 5u);
+  // Signed integers are counts too (JSON built in C++ from ints).
+  nlohmann::json signed_counts = {
+      {"predicted", 3}, {"examined", 2}, {"confirmed", 1}, {"examined_off_inliers", 1}, {"confirmed_off_inliers", 0}};
+  EXPECT_EQ(GuidedConfirmation::from_json(signed_counts).examined, 2u);
+  auto rejects = [](const nlohmann::json& j, const std::string& why) {
+    try {
+      GuidedConfirmation::from_json(j);
+      ADD_FAILURE() << "accepted " << j.dump();
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find(why), std::string::npos) << e.what();
+    }
+  };
   nlohmann::json bad = g.to_json();
   bad["confirmed"] = 61;
-  EXPECT_THROW(GuidedConfirmation::from_json(bad), Error);
+  rejects(bad, "do not nest (confirmed <= examined");
   bad = g.to_json();
   bad["examined"] = 101;
-  EXPECT_THROW(GuidedConfirmation::from_json(bad), Error);
+  rejects(bad, "do not nest (confirmed <= examined");
   bad = g.to_json();
   bad["predicted"] = -1;
-  EXPECT_THROW(GuidedConfirmation::from_json(bad), Error);
-  EXPECT_THROW(GuidedConfirmation::from_json(nlohmann::json::array()), Error);
+  rejects(bad, "'predicted' must be a count");
+  bad = g.to_json();
+  bad["examined"] = 2.5;
+  rejects(bad, "'examined' must be a count");
+  bad = g.to_json();
+  bad["confirmed_off_inliers"] = 41;
+  rejects(bad, "off-inlier counts");
+  // Each pairwise bound holds, but 20 are confirmed on the inliers' cells,
+  // where only 5 were examined.
+  bad = {{"predicted", 100},
+         {"examined", 60},
+         {"confirmed", 20},
+         {"examined_off_inliers", 55},
+         {"confirmed_off_inliers", 0}};
+  rejects(bad, "off-inlier counts");
+  bad["confirmed_off_inliers"] = 15;  // 5 on the inliers' cells: fine
+  EXPECT_NO_THROW(GuidedConfirmation::from_json(bad));
+  rejects(nlohmann::json::array(), "expected an object");
+  rejects(nlohmann::json::object(), "'predicted' must be a count");
 }
 
 }  // namespace

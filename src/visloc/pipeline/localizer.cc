@@ -617,8 +617,12 @@ void Localizer::Impl::Search::keep_if_best(size_t index, const std::shared_ptr<c
   std::vector<float>& d = ws_.inlier_distances;
   d.clear();
   for (size_t i = 0; i < pose.chosen_candidate.size(); ++i)
-    if (pose.chosen_candidate[i] >= 0)
-      d.push_back(ws_.matches.many_distances[set.candidate_offsets[i] + uint32_t(pose.chosen_candidate[i])]);
+    if (pose.chosen_candidate[i] >= 0) {
+      const uint32_t c = set.candidate_offsets[i] + uint32_t(pose.chosen_candidate[i]);
+      VISLOC_CHECK(c < set.candidate_offsets[i + 1] && c < ws_.matches.many_distances.size(),
+                   "chosen candidate out of its feature's list");
+      d.push_back(ws_.matches.many_distances[c]);
+    }
   best_inlier_distance_p90_ = 0;
   if (!d.empty()) {
     const size_t p90 = (9 * d.size() + 9) / 10 - 1;

@@ -328,6 +328,11 @@ TEST(Localizer, EndToEndOnSyntheticStreet) {
     EXPECT_GE(r.confidence, loc.options().min_confidence);
     EXPECT_EQ(r.confidence, ConfidenceModel::builtin().evaluate(r.confidence_features));
     EXPECT_EQ(r.confidence_features.inliers, static_cast<double>(r.inliers));
+    // The guided confirmation ran on the pose: the photo shows some of the
+    // map points it predicts (at least the inliers' own, mostly).
+    ASSERT_TRUE(r.confidence_features.guided.has_value());
+    EXPECT_GT(r.confidence_features.guided->examined, 0u);
+    EXPECT_GT(r.confidence_features.guided->confirmed, 0u);
     ASSERT_TRUE(r.uncertainty.valid);
     ASSERT_TRUE(r.uncertainty.position_sigma_m && r.uncertainty.heading_sigma_deg);
     EXPECT_GT(*r.uncertainty.position_sigma_m, 0.0);
