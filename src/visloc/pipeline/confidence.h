@@ -33,15 +33,17 @@
 //   * (reported in `guided`, not an input) the pose checked against the photo
 //     by matching guided by the pose (guided_confirmation.h): the share of
 //     the map points predicted in view that the photo shows at their
-//     projection. Measured (session 40, every pose with >= 12 inliers):
-//     KITTI hard split 0.019-0.025 for the 4 wrong poses against 0.060-0.214
-//     for the 31 right ones, KITTI odd 0.110-0.34; but on the training city
-//     T5 the poses past a mapped street's end confirm as little right as
-//     wrong (5th-95th percentile 0.002-0.096 against 0.001-0.013), and on
-//     the copied-building city D7 (below) the wrong poses as much as the
-//     right (median 0.194 against 0.195; off the inliers' image cells 0.007
-//     against 0.045, widely overlapping). Where the model is fitted it tells
-//     no more than `explained`, so it is not weighed.
+//     projection. Measured (session 40, every pose with >= 12 inliers; AUC:
+//     the chance that a right pose's value exceeds a wrong one's): KITTI
+//     hard split 0.019-0.028 for the 4 wrong poses against 0.065-0.214 for
+//     the 31 right ones (AUC 1.0, as `explained`'s), KITTI odd 0.116-0.341;
+//     but on the training city T5 the poses past a mapped street's end
+//     confirm as little right as wrong (5th-95th percentile 0.003-0.096
+//     against 0.002-0.013; AUC over all its poses 0.954 against `explained`'s
+//     0.961), and on the copied-building city D7 (below) the wrong poses as
+//     much as the right (median 0.193 against 0.195; AUC 0.48; off the
+//     inliers' image cells 0.64). Where the model is fitted it tells no more
+//     than `explained`, so it is not weighed.
 // The ambiguous and elsewhere shares are reported but weigh 0 in the builtin model. Measured
 // (session 27) on two cities where 30% of the buildings copy one of 4
 // designs (`bench city --building-designs 4 --building-design-share 0.3`,
