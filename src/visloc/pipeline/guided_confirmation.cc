@@ -11,9 +11,10 @@ namespace visloc {
 namespace {
 size_t count(const nlohmann::json& j, const char* key) {
   const auto it = j.find(key);
+  if (it != j.end() && it->is_number_unsigned()) return it->get<size_t>();
   if (it == j.end() || !it->is_number_integer() || it->get<int64_t>() < 0)
     throw_error(ErrorCode::kFormat, "guided confirmation: '", key, "' must be a count (an integer >= 0)");
-  return it->get<size_t>();
+  return static_cast<size_t>(it->get<int64_t>());
 }
 
 // Squared L2 between a query descriptor and a decoded code, in eight partial

@@ -2,7 +2,8 @@
 // says it should? The segment's points that the pose predicts in view (in
 // front of the camera, no deeper than the inliers' 90th percentile, inside
 // the image as the pose's camera model projects them: explained_fraction's
-// set, but with the radial distortion) are each looked for in the
+// set, but with the radial distortion up to its fold, and square pixels for
+// an estimated focal) are each looked for in the
 // photo, at their projection: a point is confirmed when a query keypoint lies
 // within a radius of it and that keypoint's descriptor is as close to the
 // point's code as the pose's own inliers are to theirs (their 90th
@@ -54,7 +55,7 @@ struct GuidedConfirmationInput {
   const uint8_t* codes = nullptr;  // their PQ (or residual) codes, N × codebook.code_bytes()
   const PqCodebook* codebook = nullptr;
   CameraPose cam_from_segment;
-  const PinholeCamera* camera = nullptr;  // image size, principal point, aspect, k1
+  const PinholeCamera* camera = nullptr;  // image size, principal point; aspect and k1 when has_focal
   double focal = 0;                       // the pose's focal (as estimated)
   Eigen::Vector2d principal_point_offset = Eigen::Vector2d::Zero();
   double max_depth = 0;                 // the inliers' 90th percentile depth

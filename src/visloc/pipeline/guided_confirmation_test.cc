@@ -139,30 +139,44 @@ TEST(GuidedConfirmation, FollowsThePoseAndTheFocal) {
 
 TEST(GuidedConfirmation, FollowsTheCameraModel) {
   Scene s;
-  s.camera.aspect = 1.1;           // fy = 550
-  s.add_point({0, 4, 10}, 0);      // pixel (320, 240 + 220)
-  s.add_point({25, 0, 10}, 1);     // far to the side: x = 2.5
-  s.add_keypoint(320, 460, 0, 0);  // at point 0's pixel with fy
-  s.add_keypoint(8, 240, 1, 0);    // where k1 = −0.2 would fold point 1 back to (x = −0.625)
+  s.camera.aspect = 1.1;             // fy = 550
+  s.add_point({0, 4, 10}, 0);        // pixel (320, 240 + 220)
+  s.add_point({25, 0, 10}, 1);       // far to the side: x = 2.5
+  s.add_point({10, 19, 10}, 2);      // off the axes: r² = 1 + 3.61 = 4.61
+  s.add_keypoint(320, 460, 0, 0);    // at point 0's pixel with fy
+  s.add_keypoint(8, 240, 1, 0);      // where k1 = −0.2 would fold point 1 back to (x = −0.625)
+  s.add_keypoint(359, 321.5, 2, 0);  // and point 2 to (x = 0.078, y = 0.148)
   GuidedConfirmer confirmer;
   GuidedConfirmationInput in = s.input(20, 1, ~uint64_t(0));
   GuidedConfirmation g = confirmer.measure(in);
-  EXPECT_EQ(g.predicted, 1u);  // point 1 projects at u = 1570, outside
+  EXPECT_EQ(g.predicted, 1u);  // points 1 and 2 project at u = 1570 and 820, outside
   EXPECT_EQ(g.confirmed, 1u);
   // An estimated focal is solved for square pixels (the keypoints only
   // centred): point 0 then projects 20 px higher, off its keypoint.
   s.camera.has_focal = false;
   EXPECT_EQ(confirmer.measure(in).confirmed, 0u);
   s.camera.has_focal = true;
-  // Barrel distortion: point 1 lies beyond the fold (r² = 6.25 ≥ 1 / 0.6) and
-  // stays out of view; point 0 (r² = 0.16) moves 3.2% inwards, 7.0 px, still
-  // within the radius.
+  // Barrel distortion, k1 = −0.2, folds the image back beyond r² = 1 / 0.6:
+  // points 1 (r² = 6.25) and 2 (4.61) stay out of view. Point 0 (r² = 0.16)
+  // moves 3.2% inwards, to v = 452.96: confirmed by a keypoint there within
+  // 2 px (with k1 = +0.2 it would move 3.2% outwards, to 467.04).
+  in.radius_px = 2;
+  s.add_keypoint(320, 452.96, 0, 0);
+  in.keypoints = s.keypoints;
   s.camera.k1 = -0.2;
   g = confirmer.measure(in);
   EXPECT_EQ(g.predicted, 1u);
   EXPECT_EQ(g.confirmed, 1u);
-  s.camera.k1 = -0.5;  // 8% inwards: 17.6 px
+  s.camera.k1 = 0.2;
   EXPECT_EQ(confirmer.measure(in).confirmed, 0u);
+  s.camera.k1 = -0.5;  // 8% inwards: v = 442.4
+  EXPECT_EQ(confirmer.measure(in).confirmed, 0u);
+  // An estimated focal ignores k1 too: point 0 at v = 440 (433.6 were k1 −0.2 applied).
+  s.add_keypoint(320, 440, 0, 0);
+  in.keypoints = s.keypoints;
+  s.camera.k1 = -0.2;
+  s.camera.has_focal = false;
+  EXPECT_EQ(confirmer.measure(in).confirmed, 1u);
 }
 
 TEST(GuidedConfirmation, TravelsInTheConfidenceFeatures) {
