@@ -149,6 +149,39 @@ void BM_KernelHamming(benchmark::State& state) {
 }
 BENCHMARK(BM_KernelHamming)->DenseRange(0, 2);
 
+// The refined step's selection (L_R = 40) from 233 candidates, the full
+// search's mean on the synthetic 100K-point segment, with distances as a
+// query's Hamming distances spread (around 64, cut near the low tail).
+void BM_KernelShortlist(benchmark::State& state) {
+  const auto* k = kernels_or_skip(state);
+  if (!k) return;
+  constexpr size_t kCandidates = 233, kLists = 256;
+  constexpr uint32_t kList = 40;
+  std::mt19937 rng(4);
+  std::binomial_distribution<int> binomial(128, 0.5);
+  std::vector<uint8_t> d(kCandidates * kLists);
+  std::vector<uint32_t> ids(kCandidates * kLists), cut(kLists), at_cut(kLists);
+  for (auto& x : d) x = static_cast<uint8_t>(binomial(rng));
+  for (auto& i : ids) i = rng() % 100000;
+  for (size_t l = 0; l < kLists; ++l) {
+    uint32_t hist[129] = {}, c = 0, below = 0;
+    for (size_t i = 0; i < kCandidates; ++i) ++hist[d[l * kCandidates + i]];
+    while (below + hist[c] < kList) below += hist[c++];
+    cut[l] = c;
+    at_cut[l] = kList - below;
+  }
+  std::vector<uint32_t> out(kList + visloc::kShortlistSlack);
+  size_t l = 0;
+  for (auto _ : state) {
+    benchmark::DoNotOptimize(k->shortlist(d.data() + l * kCandidates, ids.data() + l * kCandidates, kCandidates, cut[l],
+                                          at_cut[l], kList, out.data()));
+    benchmark::ClobberMemory();
+    l = (l + 1) % kLists;
+  }
+  state.SetItemsProcessed(state.iterations() * kCandidates);
+}
+BENCHMARK(BM_KernelShortlist)->DenseRange(0, 2);
+
 // Centroids and a query with values in [0, 120), drawn from `rng` in that order.
 // `subvectors`: 16 or 32 (bytes per code).
 visloc::PqCodebook random_codebook_and_query(std::mt19937& rng, std::vector<float>& query,

@@ -481,7 +481,12 @@ size_t collect_all(const CascadeLookup& lookup, const ProbeRanges& r, uint8_t* s
 // Refined: the `list` nearest of the n candidates (more than `list`) by
 // Hamming distance, by a counting sort over 0..128, into the first `list`
 // entries of ws.shortlist (candidate order kept; of the candidates at the cut
-// distance, the first ones).
+// distance, the first ones). The selection is a kernel: profiled (perf) on
+// the 100K-point segment, the branch-free scalar loop, whose count of ties
+// left chains one candidate to the next, took 17% of the search's own
+// samples; with AVX-512's compress 29.5 against 338 ns per 233 candidates
+// (BM_KernelShortlist), and the whole search ~10% faster (six alternated
+// pairs of processes, BM_CascadeSearch100KPoints/1/0/1).
 inline void refined_shortlist(const SearchKernels& kernels, const HashCode& code, const HashCode* codes, size_t n,
                               uint32_t list, CascadeWorkspace& ws) {
   uint32_t hist[kHashBits + 1];
@@ -490,19 +495,8 @@ inline void refined_shortlist(const SearchKernels& kernels, const HashCode& code
   kernels.hamming_distances(code, codes, ws.candidates.data(), n, ws.hamming.data(), hist);
   uint32_t cut = 0, below = 0;  // distances < cut all fit; some of distance == cut
   while (below + hist[cut] < list) below += hist[cut++];
-  // Branch-free selection: every candidate is written, and counted when it is
-  // below the cut or among the first `at_cut` at it.
-  uint32_t at_cut = list - below;
-  if (ws.shortlist.size() < size_t(list) + 1) ws.shortlist.resize(size_t(list) + 1);
-  uint32_t* out = ws.shortlist.data();
-  size_t taken = 0;
-  for (size_t i = 0; i < n && taken < list; ++i) {
-    const uint32_t h = ws.hamming[i];
-    const uint32_t tie = static_cast<uint32_t>(h == cut) & static_cast<uint32_t>(at_cut > 0);
-    out[taken] = ws.candidates[i];
-    taken += static_cast<uint32_t>(h < cut) | tie;
-    at_cut -= tie;
-  }
+  if (ws.shortlist.size() < size_t(list) + kShortlistSlack) ws.shortlist.resize(size_t(list) + kShortlistSlack);
+  kernels.shortlist(ws.hamming.data(), ws.candidates.data(), n, cut, list - below, list, ws.shortlist.data());
 }
 
 // The ratio tests on the `filled` nearest (squared distances best_d, at least

@@ -29,6 +29,28 @@ void hamming_scalar(const HashCode& q, const HashCode* codes, const uint32_t* id
   }
 }
 
+// Branch-free: every candidate is written, and counted when it is below the
+// cut or among the first `at_cut` at it.
+size_t shortlist_scalar(const uint8_t* distances, const uint32_t* ids, size_t n, uint32_t cut, uint32_t at_cut,
+                        uint32_t list, uint32_t* out) {
+  size_t taken = 0;
+  for (size_t i = 0; i < n && taken < list; ++i) {
+    const uint32_t h = distances[i];
+    const uint32_t tie = static_cast<uint32_t>(h == cut) & static_cast<uint32_t>(at_cut > 0);
+    out[taken] = ids[i];
+    taken += static_cast<uint32_t>(h < cut) | tie;
+    at_cut -= tie;
+  }
+  return taken;
+}
+
+// The first `count` set bits of `mask` (count < popcount(mask)).
+inline uint32_t lowest_set_bits(uint32_t mask, uint32_t count) {
+  uint32_t rest = mask;
+  for (uint32_t k = 0; k < count; ++k) rest &= rest - 1;
+  return mask ^ rest;
+}
+
 // M sub-vectors of D = 128 / M dimensions (pq_codebook.h).
 template <int M>
 constexpr int kSubDim = kDescriptorDim / M;
@@ -201,6 +223,51 @@ __attribute__((target("popcnt"))) void hamming_popcnt(const HashCode& q, const H
     ++hist[d];
   }
   for (int d = 0; d <= kHashBits; ++d) hist[d] += odd_hist[d];
+}
+
+// 8 candidates per step: their distances compared with the cut in a vector,
+// the taken ids moved to the front by a permutation from a table indexed by
+// the 8-bit mask, all 8 stored. The ties of the block where `at_cut` runs
+// out are cut to the first ones; the rest of a feature's ties are dropped by
+// at_cut = 0 (each step's equality mask is taken only while some are left).
+struct CompressTable8 {
+  uint64_t index[256];  // byte j: the lane of the j-th set bit
+  constexpr CompressTable8() : index() {
+    for (uint32_t m = 0; m < 256; ++m) {
+      uint64_t v = 0;
+      int j = 0;
+      for (uint32_t lane = 0; lane < 8; ++lane)
+        if (m & (1u << lane)) v |= uint64_t(lane) << (8 * j++);
+      index[m] = v;
+    }
+  }
+};
+constexpr CompressTable8 kCompress8;
+
+__attribute__((target("popcnt,avx2"))) size_t shortlist_avx2(const uint8_t* distances, const uint32_t* ids, size_t n,
+                                                             uint32_t cut, uint32_t at_cut, uint32_t list,
+                                                             uint32_t* out) {
+  const __m256i cut_v = _mm256_set1_epi32(static_cast<int>(cut));
+  size_t taken = 0, i = 0;
+  for (; i + 8 <= n && taken < list; i += 8) {
+    uint64_t d8;
+    std::memcpy(&d8, distances + i, 8);
+    const __m256i d = _mm256_cvtepu8_epi32(_mm_cvtsi64_si128(static_cast<long long>(d8)));
+    const uint32_t below = static_cast<uint32_t>(_mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpgt_epi32(cut_v, d))));
+    uint32_t at = static_cast<uint32_t>(_mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(cut_v, d))));
+    const uint32_t ties = static_cast<uint32_t>(__builtin_popcount(at));
+    if (ties > at_cut) at = lowest_set_bits(at, at_cut);
+    at_cut -= std::min(ties, at_cut);
+    const uint32_t take = below | at;
+    const __m256i lanes = _mm256_cvtepu8_epi32(_mm_cvtsi64_si128(static_cast<long long>(kCompress8.index[take])));
+    const __m256i v = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(ids + i));
+    _mm256_storeu_si256(reinterpret_cast<__m256i*>(out + taken), _mm256_permutevar8x32_epi32(v, lanes));
+    taken += static_cast<size_t>(__builtin_popcount(take));
+  }
+  if (taken < list)
+    taken +=
+        shortlist_scalar(distances + i, ids + i, n - i, cut, at_cut, static_cast<uint32_t>(list - taken), out + taken);
+  return std::min<size_t>(taken, list);
 }
 
 // Four blocks of 8 centroids at a time: independent sums, so the adds of
@@ -474,6 +541,32 @@ __attribute__((target("avx512f,avx512vl"))) void additive_direct_avx512(const fl
   additive_direct_ymm<S>(c, q, codes, ids, n, out);
 }
 
+// 16 candidates per step, as shortlist_avx2 with AVX-512's compress (into a
+// register, then one store: the compressing store is slow on some CPUs); the
+// last step's lanes loaded under a mask, so nothing past n is read.
+__attribute__((target("popcnt,avx512f,avx512bw,avx512vl"))) size_t shortlist_avx512(const uint8_t* distances,
+                                                                                    const uint32_t* ids, size_t n,
+                                                                                    uint32_t cut, uint32_t at_cut,
+                                                                                    uint32_t list, uint32_t* out) {
+  const __m512i cut_v = _mm512_set1_epi32(static_cast<int>(cut));
+  size_t taken = 0;
+  for (size_t i = 0; i < n && taken < list; i += 16) {
+    const size_t lanes = std::min<size_t>(16, n - i);
+    const __mmask16 valid = static_cast<__mmask16>((1u << lanes) - 1);
+    const __m512i d = _mm512_cvtepu8_epi32(_mm_maskz_loadu_epi8(valid, distances + i));
+    const uint32_t below = _mm512_mask_cmplt_epu32_mask(valid, d, cut_v);
+    uint32_t at = _mm512_mask_cmpeq_epu32_mask(valid, d, cut_v);
+    const uint32_t ties = static_cast<uint32_t>(__builtin_popcount(at));
+    if (ties > at_cut) at = lowest_set_bits(at, at_cut);
+    at_cut -= std::min(ties, at_cut);
+    const __mmask16 take = static_cast<__mmask16>(below | at);
+    const __m512i v = _mm512_maskz_loadu_epi32(valid, ids + i);
+    _mm512_storeu_si512(out + taken, _mm512_maskz_compress_epi32(take, v));
+    taken += static_cast<size_t>(__builtin_popcount(take));
+  }
+  return std::min<size_t>(taken, list);
+}
+
 template <int M>
 __attribute__((target("avx512f"))) void adc_table_avx512(const float* ct, const float* q, float* table) {
   constexpr int D = kSubDim<M>;
@@ -606,6 +699,7 @@ __attribute__((target("avx512f,avx512bw"))) void hash_codes_u8_avx512(const Quan
 constexpr SearchKernels kScalarKernels{
     SimdLevel::kScalar,
     hamming_scalar,
+    shortlist_scalar,
     {adc_table_scalar<16>, adc_distances_scalar<16>, adc_direct_scalar<16>},
     {adc_table_scalar<32>, adc_distances_scalar<32>, adc_direct_scalar<32>},
     {additive_direct_scalar<1>, additive_direct_scalar<2>, additive_direct_scalar<4>},
@@ -614,6 +708,7 @@ constexpr SearchKernels kScalarKernels{
 #ifdef VISLOC_X86_KERNELS
 constexpr SearchKernels kAvx2Kernels{SimdLevel::kAvx2,
                                      hamming_popcnt,
+                                     shortlist_avx2,
                                      {adc_table_avx2<16>, adc_distances_avx2<16>, adc_direct_avx2<16>},
                                      {adc_table_avx2<32>, adc_distances_avx2<32>, adc_direct_avx2<32>},
                                      {additive_direct_avx2<1>, additive_direct_avx2<2>, additive_direct_avx2<4>},
@@ -622,6 +717,7 @@ constexpr SearchKernels kAvx2Kernels{SimdLevel::kAvx2,
 constexpr SearchKernels kAvx512Kernels{
     SimdLevel::kAvx512,
     hamming_popcnt,
+    shortlist_avx512,
     {adc_table_avx512<16>, adc_distances_avx512<16>, adc_direct_avx512<16>},
     {adc_table_avx512<32>, adc_distances_avx512<32>, adc_direct_avx512<32>},
     {additive_direct_avx512<1>, additive_direct_avx512<2>, additive_direct_avx512<4>},

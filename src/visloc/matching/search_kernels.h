@@ -13,6 +13,12 @@
 //   hamming_distances  d_i = popcount(q ⊕ codes[ids_i]) over 2 × 64-bit words,
 //                      and a histogram of d over 0..128 (the refined step's
 //                      counting sort)
+//   shortlist          the refined step's selection from those distances: in
+//                      candidate order, the ids whose distance is below `cut`
+//                      and the first `at_cut` of those at it, until `list`
+//                      are taken (the counting sort's cut: `list` of them
+//                      exist); returns how many. Writes up to
+//                      kShortlistSlack entries past them (whole vectors).
 //   adc(M)             the PQ kernels for M = 16 or 32 sub-vectors (M-byte
 //                      codes, pq_codebook.h), one set per M:
 //     .table           the query's M × 256 table of squared sub-distances,
@@ -95,10 +101,15 @@ struct AdditiveKernels {
   Direct direct(int splits) const;
 };
 
+// Entries a shortlist kernel may write past the ones it takes.
+inline constexpr size_t kShortlistSlack = 16;
+
 struct SearchKernels {
   SimdLevel level = SimdLevel::kScalar;
   void (*hamming_distances)(const HashCode& query, const HashCode* codes, const uint32_t* ids, size_t n,
                             uint8_t* distances, uint32_t* histogram /* 129 bins, added to */) = nullptr;
+  size_t (*shortlist)(const uint8_t* distances, const uint32_t* ids, size_t n, uint32_t cut, uint32_t at_cut,
+                      uint32_t list, uint32_t* out /* room for list + kShortlistSlack */) = nullptr;
   AdcKernels adc16;  // 16-byte codes
   AdcKernels adc32;  // 32-byte codes
   AdditiveKernels additive;  // 16-byte residual codes

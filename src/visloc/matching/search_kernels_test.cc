@@ -2,6 +2,7 @@
 // results for every level this CPU supports, at every tail length.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
@@ -73,6 +74,65 @@ TEST(SearchKernels, HammingMatchesTheReference) {
       }
       EXPECT_EQ(b[n], 0xAB) << "wrote past the end";
       for (size_t i = 0; i < n; ++i) ASSERT_EQ(a[i], hamming_distance(q, codes[ids[i]]));
+    }
+  }
+}
+
+// The refined step's selection: every level takes the same ids as the
+// reference and as the plain definition (the `list` nearest by distance, ties
+// by candidate order, listed in candidate order), stops at `list` and writes
+// at most kShortlistSlack entries past them.
+TEST(SearchKernels, ShortlistMatchesTheReferenceAndThePlainDefinition) {
+  std::mt19937 rng(3);
+  const SearchKernels& ref = search_kernels(SimdLevel::kScalar);
+  for (int spread : {2, 6, 40}) {  // few distinct distances (many ties) to many
+    for (size_t n : {size_t(1), size_t(2), size_t(7), size_t(8), size_t(9), size_t(16), size_t(17), size_t(41),
+                     size_t(100), size_t(233), size_t(257)}) {
+      std::vector<uint8_t> d(n);
+      std::vector<uint32_t> ids(n);
+      for (size_t i = 0; i < n; ++i) {
+        d[i] = static_cast<uint8_t>(spread == 40 ? 40 + rng() % spread : 128 - rng() % spread);
+        ids[i] = static_cast<uint32_t>(rng() % 100000);
+      }
+      for (uint32_t list : {uint32_t(1), uint32_t(5), uint32_t(40), uint32_t(n)}) {
+        if (list > n) continue;
+        uint32_t hist[kHashBits + 1] = {};
+        for (uint8_t x : d) ++hist[x];
+        uint32_t cut = 0, below = 0;
+        while (below + hist[cut] < list) below += hist[cut++];
+        std::vector<size_t> order(n);
+        for (size_t i = 0; i < n; ++i) order[i] = i;
+        std::stable_sort(order.begin(), order.end(), [&](size_t a, size_t b) { return d[a] < d[b]; });
+        order.resize(list);
+        std::sort(order.begin(), order.end());
+        std::vector<uint32_t> plain;
+        for (size_t i : order) plain.push_back(ids[i]);
+        std::vector<uint32_t> expected(list + kShortlistSlack + 4, 0xDEADBEEF);
+        ASSERT_EQ(ref.shortlist(d.data(), ids.data(), n, cut, list - below, list, expected.data()), list);
+        expected.resize(list);
+        ASSERT_EQ(expected, plain) << "n=" << n << " list=" << list;
+        for (SimdLevel level : supported_simd_levels()) {
+          std::vector<uint32_t> out(list + kShortlistSlack + 4, 0xDEADBEEF);
+          ASSERT_EQ(search_kernels(level).shortlist(d.data(), ids.data(), n, cut, list - below, list, out.data()), list)
+              << to_string(level);
+          for (size_t i = list + kShortlistSlack; i < out.size(); ++i)
+            ASSERT_EQ(out[i], 0xDEADBEEF) << to_string(level) << " wrote past the slack";
+          out.resize(list);
+          ASSERT_EQ(out, expected) << to_string(level) << " n=" << n << " list=" << list << " spread=" << spread;
+        }
+        // A cut that admits more than `list`: every level stops at the first `list`.
+        if (list < n) {
+          std::vector<uint32_t> first(list + kShortlistSlack);
+          const size_t all = ref.shortlist(d.data(), ids.data(), n, kHashBits + 1, 0, list, first.data());
+          ASSERT_EQ(all, list);
+          for (SimdLevel level : supported_simd_levels()) {
+            std::vector<uint32_t> out(list + kShortlistSlack);
+            ASSERT_EQ(search_kernels(level).shortlist(d.data(), ids.data(), n, kHashBits + 1, 0, list, out.data()),
+                      list);
+            for (size_t i = 0; i < list; ++i) ASSERT_EQ(out[i], ids[i]) << to_string(level);
+          }
+        }
+      }
     }
   }
 }
