@@ -496,7 +496,9 @@ inline void refined_shortlist(const SearchKernels& kernels, const HashCode& code
   uint32_t cut = 0, below = 0;  // distances < cut all fit; some of distance == cut
   while (below + hist[cut] < list) below += hist[cut++];
   if (ws.shortlist.size() < size_t(list) + kShortlistSlack) ws.shortlist.resize(size_t(list) + kShortlistSlack);
-  kernels.shortlist(ws.hamming.data(), ws.candidates.data(), n, cut, list - below, list, ws.shortlist.data());
+  const size_t taken =
+      kernels.shortlist(ws.hamming.data(), ws.candidates.data(), n, cut, list - below, list, ws.shortlist.data());
+  VISLOC_CHECK(taken == list, "the refined step's short list holds L_R candidates");
 }
 
 // The ratio tests on the `filled` nearest (squared distances best_d, at least

@@ -44,13 +44,6 @@ size_t shortlist_scalar(const uint8_t* distances, const uint32_t* ids, size_t n,
   return taken;
 }
 
-// The first `count` set bits of `mask` (count < popcount(mask)).
-inline uint32_t lowest_set_bits(uint32_t mask, uint32_t count) {
-  uint32_t rest = mask;
-  for (uint32_t k = 0; k < count; ++k) rest &= rest - 1;
-  return mask ^ rest;
-}
-
 // M sub-vectors of D = 128 / M dimensions (pq_codebook.h).
 template <int M>
 constexpr int kSubDim = kDescriptorDim / M;
@@ -225,11 +218,18 @@ __attribute__((target("popcnt"))) void hamming_popcnt(const HashCode& q, const H
   for (int d = 0; d <= kHashBits; ++d) hist[d] += odd_hist[d];
 }
 
+// The first `count` set bits of `mask` (count < popcount(mask)).
+inline uint32_t lowest_set_bits(uint32_t mask, uint32_t count) {
+  uint32_t rest = mask;
+  for (uint32_t k = 0; k < count; ++k) rest &= rest - 1;
+  return mask ^ rest;
+}
+
 // 8 candidates per step: their distances compared with the cut in a vector,
 // the taken ids moved to the front by a permutation from a table indexed by
-// the 8-bit mask, all 8 stored. The ties of the block where `at_cut` runs
-// out are cut to the first ones; the rest of a feature's ties are dropped by
-// at_cut = 0 (each step's equality mask is taken only while some are left).
+// the 8-bit mask, all 8 stored. Each step's ties are cut to their lowest
+// `at_cut` bits (none once at_cut is 0). The cut is compared as a signed
+// int32: clamped to 256, above every uint8 distance, it selects the same.
 struct CompressTable8 {
   uint64_t index[256];  // byte j: the lane of the j-th set bit
   constexpr CompressTable8() : index() {
@@ -247,7 +247,7 @@ constexpr CompressTable8 kCompress8;
 __attribute__((target("popcnt,avx2"))) size_t shortlist_avx2(const uint8_t* distances, const uint32_t* ids, size_t n,
                                                              uint32_t cut, uint32_t at_cut, uint32_t list,
                                                              uint32_t* out) {
-  const __m256i cut_v = _mm256_set1_epi32(static_cast<int>(cut));
+  const __m256i cut_v = _mm256_set1_epi32(static_cast<int>(std::min(cut, 256u)));
   size_t taken = 0, i = 0;
   for (; i + 8 <= n && taken < list; i += 8) {
     uint64_t d8;

@@ -17,8 +17,8 @@
 //                      candidate order, the ids whose distance is below `cut`
 //                      and the first `at_cut` of those at it, until `list`
 //                      are taken (the counting sort's cut: `list` of them
-//                      exist); returns how many. Writes up to
-//                      kShortlistSlack entries past them (whole vectors).
+//                      exist); returns how many. May overwrite
+//                      out[returned, list + kShortlistSlack) (whole vectors).
 //   adc(M)             the PQ kernels for M = 16 or 32 sub-vectors (M-byte
 //                      codes, pq_codebook.h), one set per M:
 //     .table           the query's M × 256 table of squared sub-distances,

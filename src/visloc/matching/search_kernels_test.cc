@@ -7,7 +7,13 @@
 #include <cstdlib>
 #include <cstring>
 #include <random>
+#include <utility>
 #include <vector>
+
+#if defined(__linux__)
+#include <sys/mman.h>
+#include <unistd.h>
+#endif
 
 #include "visloc/matching/pq_codebook.h"
 #include "visloc/matching/search_kernels.h"
@@ -81,17 +87,39 @@ TEST(SearchKernels, HammingMatchesTheReference) {
 // The refined step's selection: every level takes the same ids as the
 // reference and as the plain definition (the `list` nearest by distance, ties
 // by candidate order, listed in candidate order), stops at `list` and writes
-// at most kShortlistSlack entries past them.
+// nothing at or past out[list + kShortlistSlack].
+namespace {
+
+constexpr uint32_t kCanary = 0xDEADBEEF;
+
+// One level's selection into a buffer with canaries past its slack: the count
+// and the ids taken.
+std::vector<uint32_t> shortlist_checked(const SearchKernels& k, const std::vector<uint8_t>& d,
+                                        const std::vector<uint32_t>& ids, uint32_t cut, uint32_t at_cut, uint32_t list,
+                                        size_t& taken) {
+  std::vector<uint32_t> out(list + kShortlistSlack + 4, kCanary);
+  taken = k.shortlist(d.data(), ids.data(), d.size(), cut, at_cut, list, out.data());
+  for (size_t i = list + kShortlistSlack; i < out.size(); ++i)
+    EXPECT_EQ(out[i], kCanary) << to_string(k.level) << " wrote past the slack";
+  EXPECT_LE(taken, list) << to_string(k.level);
+  out.resize(std::min<size_t>(taken, list));
+  return out;
+}
+
+}  // namespace
+
 TEST(SearchKernels, ShortlistMatchesTheReferenceAndThePlainDefinition) {
   std::mt19937 rng(3);
   const SearchKernels& ref = search_kernels(SimdLevel::kScalar);
-  for (int spread : {2, 6, 40}) {  // few distinct distances (many ties) to many
-    for (size_t n : {size_t(1), size_t(2), size_t(7), size_t(8), size_t(9), size_t(16), size_t(17), size_t(41),
-                     size_t(100), size_t(233), size_t(257)}) {
+  for (int spread : {2, 3, 6, 40}) {  // few distinct distances (many ties) to many; 3: from 0
+    for (size_t n : kLengths) {
+      if (n == 0) continue;  // no list to take; the search never asks
       std::vector<uint8_t> d(n);
       std::vector<uint32_t> ids(n);
       for (size_t i = 0; i < n; ++i) {
-        d[i] = static_cast<uint8_t>(spread == 40 ? 40 + rng() % spread : 128 - rng() % spread);
+        d[i] = static_cast<uint8_t>(spread == 40  ? 40 + rng() % spread
+                                    : spread == 3 ? rng() % spread
+                                                  : 128 - rng() % spread);
         ids[i] = static_cast<uint32_t>(rng() % 100000);
       }
       for (uint32_t list : {uint32_t(1), uint32_t(5), uint32_t(40), uint32_t(n)}) {
@@ -107,35 +135,68 @@ TEST(SearchKernels, ShortlistMatchesTheReferenceAndThePlainDefinition) {
         std::sort(order.begin(), order.end());
         std::vector<uint32_t> plain;
         for (size_t i : order) plain.push_back(ids[i]);
-        std::vector<uint32_t> expected(list + kShortlistSlack + 4, 0xDEADBEEF);
-        ASSERT_EQ(ref.shortlist(d.data(), ids.data(), n, cut, list - below, list, expected.data()), list);
-        expected.resize(list);
+        size_t taken = 0;
+        const std::vector<uint32_t> expected = shortlist_checked(ref, d, ids, cut, list - below, list, taken);
+        ASSERT_EQ(taken, list);
         ASSERT_EQ(expected, plain) << "n=" << n << " list=" << list;
         for (SimdLevel level : supported_simd_levels()) {
-          std::vector<uint32_t> out(list + kShortlistSlack + 4, 0xDEADBEEF);
-          ASSERT_EQ(search_kernels(level).shortlist(d.data(), ids.data(), n, cut, list - below, list, out.data()), list)
-              << to_string(level);
-          for (size_t i = list + kShortlistSlack; i < out.size(); ++i)
-            ASSERT_EQ(out[i], 0xDEADBEEF) << to_string(level) << " wrote past the slack";
-          out.resize(list);
-          ASSERT_EQ(out, expected) << to_string(level) << " n=" << n << " list=" << list << " spread=" << spread;
+          ASSERT_EQ(shortlist_checked(search_kernels(level), d, ids, cut, list - below, list, taken), expected)
+              << to_string(level) << " n=" << n << " list=" << list << " spread=" << spread;
+          ASSERT_EQ(taken, list) << to_string(level);
         }
-        // A cut that admits more than `list`: every level stops at the first `list`.
-        if (list < n) {
-          std::vector<uint32_t> first(list + kShortlistSlack);
-          const size_t all = ref.shortlist(d.data(), ids.data(), n, kHashBits + 1, 0, list, first.data());
-          ASSERT_EQ(all, list);
+        // Inputs the counting sort never gives, where every level must still
+        // agree with the reference, count included: a cut that admits more
+        // than `list` (the first `list` are taken), more ties allowed than
+        // there are (fewer than `list` taken), a cut below every distance.
+        const uint32_t odd[][2] = {{kHashBits + 1, 0}, {cut, hist[cut] + 3}, {0, 0}, {0x80000000u, 0}};
+        for (const auto& [c, at] : odd) {
+          size_t ref_taken = 0;
+          const std::vector<uint32_t> ref_out = shortlist_checked(ref, d, ids, c, at, list, ref_taken);
           for (SimdLevel level : supported_simd_levels()) {
-            std::vector<uint32_t> out(list + kShortlistSlack);
-            ASSERT_EQ(search_kernels(level).shortlist(d.data(), ids.data(), n, kHashBits + 1, 0, list, out.data()),
-                      list);
-            for (size_t i = 0; i < list; ++i) ASSERT_EQ(out[i], ids[i]) << to_string(level);
+            size_t level_taken = 0;
+            ASSERT_EQ(shortlist_checked(search_kernels(level), d, ids, c, at, list, level_taken), ref_out)
+                << to_string(level) << " cut=" << c << " at_cut=" << at;
+            ASSERT_EQ(level_taken, ref_taken) << to_string(level) << " cut=" << c << " at_cut=" << at;
           }
         }
       }
     }
   }
 }
+
+#if defined(__linux__)
+// The kernels read nothing past n (ASan does not check masked loads): the
+// distances and ids end right before a page that may not be read.
+TEST(SearchKernels, ShortlistReadsNothingPastItsInput) {
+  const size_t page = static_cast<size_t>(sysconf(_SC_PAGESIZE));
+  auto guarded = [&](size_t bytes) {
+    void* p = mmap(nullptr, 2 * page, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
+    if (p == MAP_FAILED || mprotect(static_cast<char*>(p) + page, page, PROT_NONE) != 0)
+      return std::pair<char*, char*>(nullptr, nullptr);
+    return std::pair<char*, char*>(static_cast<char*>(p), static_cast<char*>(p) + page - bytes);
+  };
+  std::mt19937 rng(5);
+  for (size_t n = 1; n <= 40; ++n) {
+    auto [d_map, d_at] = guarded(n);
+    auto [id_map, id_at] = guarded(n * sizeof(uint32_t));
+    ASSERT_TRUE(d_map && id_map) << "mmap or mprotect failed";
+    uint8_t* d = reinterpret_cast<uint8_t*>(d_at);
+    uint32_t* ids = reinterpret_cast<uint32_t*>(id_at);
+    for (size_t i = 0; i < n; ++i) {
+      d[i] = static_cast<uint8_t>(rng() % 4);
+      ids[i] = static_cast<uint32_t>(i);
+    }
+    for (SimdLevel level : supported_simd_levels()) {
+      std::vector<uint32_t> out(n + kShortlistSlack);
+      // Every candidate below the cut: each level reads all n and no more.
+      EXPECT_EQ(search_kernels(level).shortlist(d, ids, n, 4, 0, uint32_t(n), out.data()), n) << to_string(level);
+      for (size_t i = 0; i < n; ++i) ASSERT_EQ(out[i], i) << to_string(level);
+    }
+    munmap(d_map, 2 * page);
+    munmap(id_map, 2 * page);
+  }
+}
+#endif
 
 TEST(SearchKernels, AdcTableIsBitIdenticalToTheCodebooksTable) {
   for (const int subvectors : kLayouts) {
