@@ -430,18 +430,19 @@ class ProbePipeline {
 // (duplicates cost a distance each). Prefetching the next feature's first ids
 // alone measured no faster in separate runs; with the probes two features
 // ahead and the codes prefetched (kPrefetchCodes, ProbePipeline), timed
-// alternately in one process, it is (see match_hashed). Not faster either
-// (session 42; the probes, the gather and the Hamming pass alone, on the
-// 100K-point segment of the micro bench, the two layouts timed alternately
-// in one process, medians of 20): each non-empty bucket's first 1, 2 or 3 ids
+// alternately in one process, it is (see match_hashed).
+// Two other layouts were slower or no faster (session 42, on the 100K-point
+// segment of the micro bench, the two layouts timed alternately in one
+// process, medians of 20 runs). Each non-empty bucket's first 1, 2 or 3 ids
 // stored beside its offset (an entry of 8, 12 or 16 bytes per bucket; the
 // rest in an id array of their own; the same candidates in the same order),
 // so that a bucket of up to 3 points costs one cache line, not two (of a
 // feature's 98.5 non-empty probes there, 37.1 hold one point, 24.8 two and
-// 14.7 three): 1.2-1.7× slower, e.g. 56.7 against 39.2 ms with 3 ids, the
-// entries being read in the gather rather than a feature ahead; and the
-// points renumbered in the order of their hash codes, so that the codes of a
-// bucket share cache lines: 62.0 against 63.1 ms (the whole search).
+// 14.7 three): the probes, the gather and the Hamming pass alone took
+// 1.2-1.7× as long, e.g. 56.7 against 39.2 ms with 3 ids, the entries being
+// read in the gather rather than a feature ahead. The points renumbered in
+// the order of their hash codes, so that the codes of a bucket share cache
+// lines: the whole search 62.0 against 63.1 ms, within this machine's noise.
 template <typename Id, bool kPrefetchCodes>
 size_t gather_candidates(const Id* const* ids, const ProbeRanges& r, uint8_t* seen, uint32_t* out,
                          [[maybe_unused]] const HashCode* codes) {
