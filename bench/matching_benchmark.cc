@@ -459,6 +459,7 @@ struct ShortlistRanker {
   bool opq_rotation;
   int coarse_centroids = 0;
   int residual_splits = 0;
+  double hamming_weight = 0;  // > 0: the search's PQ distance blended with the hash codes' (pq_hamming_distances)
 };
 // Per point, what a segment would hold in place of its 16-byte PQ codes: no
 // byte more with 16-byte codes (search-pq16, faiss-pq16, faiss-opq16), 16 more with
@@ -477,7 +478,11 @@ constexpr ShortlistRanker kShortlistRankers[] = {
     {"faiss-ivf256-pq16", 1, 256.0 * kDescriptorDim * sizeof(float), 16, false, 256},
     {"faiss-rq16", 0, (16.0 - 1.0) * 256 * kDescriptorDim * sizeof(float), 16, false, 0, 1},
     {"faiss-prq2x8", 0, (8.0 - 1.0) * 256 * kDescriptorDim * sizeof(float), 16, false, 0, 2},
-    {"faiss-prq4x4", 0, (4.0 - 1.0) * 256 * kDescriptorDim * sizeof(float), 16, false, 0, 4}};
+    {"faiss-prq4x4", 0, (4.0 - 1.0) * 256 * kDescriptorDim * sizeof(float), 16, false, 0, 4},
+    {"pq16-ham10", 0, 0, 0, false, 0, 0, 0.10},
+    {"pq16-ham20", 0, 0, 0, false, 0, 0, 0.20},
+    {"pq16-ham35", 0, 0, 0, false, 0, 0, 0.35},
+    {"pq16-ham50", 0, 0, 0, false, 0, 0, 0.50}};
 constexpr int kShortlistLengths[] = {40, 64};
 
 std::string reranking_method(const ShortlistRanker& r, int list) {
@@ -539,17 +544,24 @@ void run_reranking(const SceneQueries& s, const LoadedMap& m, const std::functio
     }
     if (totals.empty()) continue;
     const CascadeSearchOptions o = whole_shortlist_options(list, 1, ratio);
+    std::vector<HashCode> query_codes;
+    HashWorkspace hash_ws;
     for (size_t qi = 0; qi < s.queries.size(); ++qi) {
       const QueryImage& q = s.queries[qi];
       ccs.match(q.features.descriptors, o, whole);  // once per query and L_R, for every ranker
+      query_codes.resize(q.features.descriptors.rows());
+      encode_hash(seg.index().hasher, q.features.descriptors.data(), query_codes.size(), query_codes.data(), hash_ws);
       for (size_t t = 0; t < totals.size(); ++t) {
         MethodTotals& mt = totals[t];
         const size_t r = rankers[t];
-        const ShortlistDistances distances = faiss_rerankers[r]
-                                                 ? faiss_distances(whole, q.features.descriptors, *faiss_rerankers[r])
-                                             : std::string_view(kShortlistRankers[r].name) == "exact"
-                                                 ? exact_distances(whole, q.features.descriptors, m.descriptors)
-                                                 : search_pq_distances(whole);
+        const ShortlistDistances distances =
+            faiss_rerankers[r] ? faiss_distances(whole, q.features.descriptors, *faiss_rerankers[r])
+            : std::string_view(kShortlistRankers[r].name) == "exact"
+                ? exact_distances(whole, q.features.descriptors, m.descriptors)
+            : kShortlistRankers[r].hamming_weight > 0
+                ? pq_hamming_distances(whole, q.features.descriptors, query_codes, seg.index().codes,
+                                       kShortlistRankers[r].hamming_weight)
+                : search_pq_distances(whole);
         Timer timer;
         rank_whole_shortlists(whole, distances, ratio, f, p);
         mt.ms += timer.elapsed_ms();

@@ -8,7 +8,9 @@
 #include <faiss/impl/ResidualQuantizer.h>
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
+#include <numbers>
 
 #include "visloc/util/error.h"
 
@@ -62,6 +64,26 @@ ShortlistDistances search_pq_distances(const CascadeMatches& whole) {
     VISLOC_CHECK(ids.data() == whole.many_points.data() + whole.many_offsets[list], "not list's own ids");
     const float* d = whole.many_distances.data() + whole.many_offsets[list];
     for (size_t k = 0; k < ids.size(); ++k) out[k] = d[k] * d[k];
+  };
+}
+
+ShortlistDistances pq_hamming_distances(const CascadeMatches& whole, const DescriptorMatrix& queries,
+                                        std::span<const HashCode> query_codes, const HashCode* point_codes,
+                                        double weight) {
+  return [&whole, &queries, query_codes, point_codes, weight](size_t list, std::span<const uint32_t> ids, float* out) {
+    const uint32_t f = whole.many_query[list];
+    VISLOC_CHECK(f < query_codes.size(), "a short list's feature without a hash code");
+    const uint8_t* q = queries.row(f);
+    double norm2 = 0;
+    for (int j = 0; j < kDescriptorDim; ++j) norm2 += double(q[j]) * double(q[j]);
+    const HashCode& qc = query_codes[f];
+    const float* d = whole.many_distances.data() + whole.many_offsets[list];
+    for (size_t k = 0; k < ids.size(); ++k) {
+      const HashCode& pc = point_codes[ids[k]];
+      const int h = std::popcount(qc.w[0] ^ pc.w[0]) + std::popcount(qc.w[1] ^ pc.w[1]);
+      const double from_codes = 2 * norm2 * (1 - std::cos(std::numbers::pi * h / double(kHashBits)));
+      out[k] = float((1 - weight) * double(d[k]) * double(d[k]) + weight * from_codes);
+    }
   };
 }
 

@@ -312,6 +312,50 @@ TEST(RerankingStudy, ExactDistancesAndTheirRanking) {
   EXPECT_GT(lists_with_source, 300u);
 }
 
+// pq_hamming_distances: at weight 0 the search's own squared distances; at
+// weight 1 the distance the codes imply, 2|q|²(1 − cos(π h / 128)) with the
+// list's own feature's code and norm; between, the blend, computed here from
+// the descriptors and codes.
+TEST(RerankingStudy, PqHammingDistancesBlendTheSearchsWithTheCodes) {
+  const SearchFixture fx;
+  CascadeMatcher matcher(fx.view(), fx.codebook);
+  const CascadeMatches whole = matcher.match(fx.queries, whole_shortlist_options(40));
+  ASSERT_GT(whole.many_query.size(), 100u);
+  std::vector<HashCode> query_codes(fx.queries.rows());
+  HashWorkspace hw;
+  encode_hash(fx.hasher.view(), fx.queries.data(), fx.queries.rows(), query_codes.data(), hw);
+  const ShortlistDistances pq = search_pq_distances(whole);
+  size_t checked = 0, differing = 0;
+  for (const double w : {0.0, 0.35, 1.0}) {
+    const ShortlistDistances blend = pq_hamming_distances(whole, fx.queries, query_codes, fx.codes.data(), w);
+    for (size_t i = 0; i < whole.many_query.size(); i += 29) {
+      const uint32_t begin = whole.many_offsets[i], end = whole.many_offsets[i + 1];
+      const std::span<const uint32_t> ids(whole.many_points.data() + begin, end - begin);
+      std::vector<float> d(ids.size()), d_pq(ids.size());
+      blend(i, ids, d.data());
+      pq(i, ids, d_pq.data());
+      const uint32_t f = whole.many_query[i];
+      double norm2 = 0;
+      for (int j = 0; j < kDescriptorDim; ++j) norm2 += double(fx.queries.row(f)[j]) * fx.queries.row(f)[j];
+      for (size_t k = 0; k < ids.size(); ++k) {
+        int h = 0;
+        for (int b = 0; b < kHashBits; ++b)
+          h += ((query_codes[f].w[b / 64] >> (b % 64)) & 1) != ((fx.codes[ids[k]].w[b / 64] >> (b % 64)) & 1);
+        const double from_codes = 2 * norm2 * (1 - std::cos(3.14159265358979323846 * h / 128.0));
+        const double want = (1 - w) * d_pq[k] + w * from_codes;
+        EXPECT_NEAR(d[k], want, 1e-4 * std::max(1.0, want)) << "weight " << w << ", list " << i << ", point " << k;
+        if (w == 0) {
+          EXPECT_EQ(d[k], d_pq[k]);
+        }
+        differing += w == 1 && std::abs(d[k] - d_pq[k]) > 1e-3 * d_pq[k];
+        ++checked;
+      }
+    }
+  }
+  EXPECT_GT(checked, 1000u);
+  EXPECT_GT(differing, 100u);  // the codes' distance is not the PQ's
+}
+
 // faiss_distances gives a short list the reranker's distances of its own
 // feature's descriptor (whole.many_query, not the list's index).
 TEST(RerankingStudy, FaissDistancesOfAShortListAreItsFeatures) {
