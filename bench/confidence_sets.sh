@@ -15,7 +15,8 @@
 #     features and intrinsics (settings 3+ and 1), and with our SIFT and an
 #     estimated focal length (`--no-exif-focal`, setting 3+).
 # Resumable: a finished step is stamped (OUT/.../done), an interrupted map
-# build resumes, and an eval runs again when its options or its map changed.
+# build resumes, and an eval runs again when its options, the files it reads,
+# its map or the CLI changed.
 # Options after `--` go to every `visloc eval` (e.g. -- --min-confidence 0).
 # The tools' output goes to OUT/log.txt. VISLOC names another build's CLI.
 #   bench/confidence_sets.sh OUT [--shared-data DIR (default ../shared/data)]
@@ -66,16 +67,26 @@ run() {
   fi
 }
 
-# The stamp of an eval: its options and its map's manifest, so that a changed
-# option or a rebuilt map runs it again.
-stamp_of() { { printf '%s\n' "${EVAL_OPTS[@]}"; cksum < "$1/manifest.json"; } | cksum; }
+# The stamp of an eval: its arguments and options, the files they name (the
+# query list, the truth, the intrinsics), its map's manifest and the CLI, so
+# that any of them changed runs it again.
+stamp_of() {
+  local map="$1" a
+  shift
+  {
+    printf '%s\n' "$@" "${EVAL_OPTS[@]}"
+    for a in "$@"; do [ -f "$a" ] && cksum < "$a"; done
+    cksum < "$map/manifest.json"
+    cksum < "$V"
+  } | cksum
+}
 
 # eval_set DIR MAP ARGS...: `visloc eval` into DIR unless its stamp matches.
 eval_set() {
   local dir="$1" map="$2"
   shift 2
   local stamp
-  stamp="$(stamp_of "$map")"
+  stamp="$(stamp_of "$map" "$@")"
   [ -f "$dir/done" ] && [ "$(cat "$dir/done")" = "$stamp" ] && return 0
   rm -f "$dir/done"
   run "eval ${dir#"$OUT"/}" "$V" eval --map "$map" "$@" --out "$dir" "${EVAL_OPTS[@]}"
@@ -90,14 +101,18 @@ echo "* PINHOLE 1226 370 707.0912 707.0912 601.8873 183.1104" > "$OUT/kitti_intr
 kitti_set() {
   local name="$1" map_frames="$2" query_frames="$3" dir="$OUT/$1"
   mkdir -p "$dir"
-  if [ ! -f "$dir/map.done" ]; then
+  if [ ! -f "$dir/map.done" ] || [ ! -f "$dir/map/manifest.json" ]; then
+    rm -f "$dir/map.done"
     awk -F, "NR == 1 { print; next } { f = substr(\$1, 1, 6) + 0 } $map_frames" "$K/gps.csv" > "$dir/map_gps.csv"
+    local logged
+    logged=$(wc -l < "$LOG")
     # map build resumes an interrupted build in its --out.
     run "$name: map build" "$V" map build --images "$K/images" --gps "$dir/map_gps.csv" --gps-subset --poses known \
       --known-poses "$K/truth.txt" --known-intrinsics "$OUT/kitti_intrinsics.txt" --min-placemarks 8 \
       --max-placemarks 8 --overlap 1 --out "$dir/map"
-    # Its summary line: "... N segments (F failed); ...".
-    { grep -o '[0-9]* segments ([0-9]* failed)' "$LOG" || true; } | tail -n 1 > "$dir/map.done"
+    # Its summary line, "... N segments (F failed); ...", among what it logged.
+    { tail -n +"$((logged + 1))" "$LOG" | grep -o '[0-9]* segments ([0-9]* failed)' || true; } | tail -n 1 \
+      > "$dir/map.done"
   fi
   awk "{ f = substr(\$1, 1, 6) + 0 } $query_frames" "$K/truth.txt" | cut -d' ' -f1 > "$dir/queries.txt"
   eval_set "$dir/eval" "$dir/map" --queries "$dir/queries.txt" --images "$K/images" --truth "$K/truth.txt" \
@@ -136,7 +151,7 @@ rows, rule, failed_maps = [], None, []
 for name in ("kitti-odd", "kitti-hard"):
     done = read(f"{name}/map.done")
     if "(0 failed)" not in done:
-        failed_maps.append(f"{name}: {done or 'no build summary in the log'}")
+        failed_maps.append(f"{name}: {done or 'no build summary in the log'} (delete {name}/map.done to build again)")
 for name, dirs in sets:
     r = {"set": name, "queries": 0, "registered": 0, "wrong": 0, "with_sigma": 0, "within_1_sigma": 0,
          "within_2_sigma": 0}

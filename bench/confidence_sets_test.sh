@@ -3,7 +3,8 @@
 # commands it runs (a stub CLI logs them and writes maps and reports), so the
 # query lists, settings and options are checked; its summary table against
 # reports whose counts are known; its resumption (nothing runs twice, an
-# eval runs again when its options change); and a failing step.
+# eval runs again when its options or its map change); a failing step; and
+# map builds interrupted, with failed segments or without a summary.
 #   confidence_sets_test.sh RUNNER
 set -u
 RUNNER="$1"
@@ -29,7 +30,8 @@ echo "$*" >> "$STUB_LOG"
 out=""; prev=""
 for a in "$@"; do [ "$prev" = "--out" ] && out="$a"; prev="$a"; done
 case "$1 $2" in
-  "map build") mkdir -p "$out" && echo '{"b": 1}' > "$out/manifest.json"; echo "80 images, 10 placemarks, 2 segments (0 failed)" ;;
+  "map build") mkdir -p "$out" && echo '{"b": 1}' > "$out/manifest.json"
+    if [ -z "${STUB_NO_SUMMARY:-}" ]; then echo "80 images, 10 placemarks, 2 segments (${STUB_FAILED_SEGMENTS:-0} failed)"; fi ;;
   "map import") mkdir -p "$out" && echo '{"i": 1}' > "$out/manifest.json" && touch "$out/holdout.txt" ;;
   eval*) key="${out#"$STUB_OUT"/}"; mkdir -p "$out"; cp "$STUB_FIXTURES/${key//\//_}.json" "$out/report.json" ;;
 esac
@@ -112,11 +114,35 @@ grep -q "eval .*--no-exif-focal --setting 3+ --out .*estimated-3+$" "$T/calls.lo
 [ "$(grep -c "^map" "$T/calls.log")" -eq 6 ] || fail "changed eval options rebuilt a map"
 grep -q "options: --min-confidence 0" "$r" || fail "the report does not give the eval options"
 
-# A failing step: exit 1, its name on the terminal, no stamp.
-rm -rf "$T/o/strecha/castle-P30/known-1"
-STUB_FAIL="castle-P30/known-1" "$RUNNER" "$T/o" --shared-data "$T/data" -- --min-confidence 0 > "$T/out.txt" 2>&1
+# A changed map: its three evals run again, nothing else.
+calls=$(wc -l < "$T/calls.log")
+echo '{"i": 2}' > "$T/o/strecha/castle-P19/map/manifest.json"
+"$RUNNER" "$T/o" --shared-data "$T/data" -- --min-confidence 0 > "$T/out.txt" 2>&1 || fail "run after a map change"
+[ "$(tail -n +"$((calls + 1))" "$T/calls.log" | grep -c "^eval .*castle-P19/map ")" -eq 3 ] ||
+  fail "a changed map did not rerun its three evals"
+[ "$(wc -l < "$T/calls.log")" -eq "$((calls + 3))" ] || fail "a changed map reran other steps"
+
+# A failing step (with new options, so that a stamp exists): exit 1, its name
+# on the terminal, the old stamp gone; the next run runs it again.
+STUB_FAIL="castle-P30/known-1" "$RUNNER" "$T/o" --shared-data "$T/data" -- --min-confidence 0.5 > "$T/out.txt" 2>&1
 rc=$?
 [ $rc -eq 1 ] || fail "a failing eval: exit $rc, expected 1"
 grep -q "eval strecha/castle-P30/known-1 failed" "$T/out.txt" || { cat "$T/out.txt"; fail "the failure is not named"; }
-[ ! -f "$T/o/strecha/castle-P30/known-1/done" ] || fail "a failed eval was stamped done"
+[ ! -f "$T/o/strecha/castle-P30/known-1/done" ] || fail "a failed eval kept its stamp"
+calls=$(wc -l < "$T/calls.log")
+"$RUNNER" "$T/o" --shared-data "$T/data" -- --min-confidence 0.5 > "$T/out.txt" 2>&1 || fail "run after a failure"
+tail -n +"$((calls + 1))" "$T/calls.log" | grep -q "^eval .*castle-P30/known-1 --min-confidence 0.5$" ||
+  fail "the failed eval did not run again"
+
+# Map builds: an interrupted one (a map folder, no stamp) runs again; one that
+# reports failed segments, or no summary, is named in the report, each with
+# its own line (not another build's).
+rm -f "$T/o/kitti-odd/map.done" "$T/o/kitti-hard/map.done"
+STUB_FAILED_SEGMENTS=1 "$RUNNER" "$T/o" --shared-data "$T/data" -- --min-confidence 0.5 > "$T/out.txt" 2>&1 ||
+  fail "run with failed segments"
+grep -q "kitti-odd: 2 segments (1 failed)" "$r" || { cat "$r"; fail "failed segments not reported"; }
+rm -f "$T/o/kitti-hard/map.done"
+STUB_NO_SUMMARY=1 "$RUNNER" "$T/o" --shared-data "$T/data" -- --min-confidence 0.5 > "$T/out.txt" 2>&1 ||
+  fail "run without a build summary"
+grep -q "kitti-hard: no build summary in the log" "$r" || { cat "$r"; fail "a build without a summary took another's"; }
 echo "confidence_sets: ok"

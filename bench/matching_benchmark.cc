@@ -482,7 +482,9 @@ constexpr ShortlistRanker kShortlistRankers[] = {
     {"pq16-ham10", 0, 0, 0, false, 0, 0, 0.10},
     {"pq16-ham20", 0, 0, 0, false, 0, 0, 0.20},
     {"pq16-ham35", 0, 0, 0, false, 0, 0, 0.35},
-    {"pq16-ham50", 0, 0, 0, false, 0, 0, 0.50}};
+    {"pq16-ham50", 0, 0, 0, false, 0, 0, 0.50},
+    {"pq16-ham65", 0, 0, 0, false, 0, 0, 0.65},
+    {"pq16-ham80", 0, 0, 0, false, 0, 0, 0.80}};
 constexpr int kShortlistLengths[] = {40, 64};
 
 std::string reranking_method(const ShortlistRanker& r, int list) {
@@ -546,11 +548,15 @@ void run_reranking(const SceneQueries& s, const LoadedMap& m, const std::functio
     const CascadeSearchOptions o = whole_shortlist_options(list, 1, ratio);
     std::vector<HashCode> query_codes;
     HashWorkspace hash_ws;
+    const bool hamming_rankers =
+        std::any_of(rankers.begin(), rankers.end(), [](size_t r) { return kShortlistRankers[r].hamming_weight > 0; });
     for (size_t qi = 0; qi < s.queries.size(); ++qi) {
       const QueryImage& q = s.queries[qi];
       ccs.match(q.features.descriptors, o, whole);  // once per query and L_R, for every ranker
-      query_codes.resize(q.features.descriptors.rows());
-      encode_hash(seg.index().hasher, q.features.descriptors.data(), query_codes.size(), query_codes.data(), hash_ws);
+      if (hamming_rankers) {
+        query_codes.resize(q.features.descriptors.rows());
+        encode_hash(seg.index().hasher, q.features.descriptors.data(), query_codes.size(), query_codes.data(), hash_ws);
+      }
       for (size_t t = 0; t < totals.size(); ++t) {
         MethodTotals& mt = totals[t];
         const size_t r = rankers[t];
@@ -560,7 +566,7 @@ void run_reranking(const SceneQueries& s, const LoadedMap& m, const std::functio
                 ? exact_distances(whole, q.features.descriptors, m.descriptors)
             : kShortlistRankers[r].hamming_weight > 0
                 ? pq_hamming_distances(whole, q.features.descriptors, query_codes, seg.index().codes,
-                                       kShortlistRankers[r].hamming_weight)
+                                       seg.index().hasher.mean, kShortlistRankers[r].hamming_weight)
                 : search_pq_distances(whole);
         Timer timer;
         rank_whole_shortlists(whole, distances, ratio, f, p);

@@ -69,13 +69,15 @@ ShortlistDistances search_pq_distances(const CascadeMatches& whole) {
 
 ShortlistDistances pq_hamming_distances(const CascadeMatches& whole, const DescriptorMatrix& queries,
                                         std::span<const HashCode> query_codes, const HashCode* point_codes,
-                                        double weight) {
-  return [&whole, &queries, query_codes, point_codes, weight](size_t list, std::span<const uint32_t> ids, float* out) {
+                                        const float* hash_mean, double weight) {
+  return [&whole, &queries, query_codes, point_codes, hash_mean, weight](size_t list, std::span<const uint32_t> ids,
+                                                                         float* out) {
+    VISLOC_CHECK(ids.data() == whole.many_points.data() + whole.many_offsets[list], "not list's own ids");
     const uint32_t f = whole.many_query[list];
     VISLOC_CHECK(f < query_codes.size(), "a short list's feature without a hash code");
     const uint8_t* q = queries.row(f);
-    double norm2 = 0;
-    for (int j = 0; j < kDescriptorDim; ++j) norm2 += double(q[j]) * double(q[j]);
+    double norm2 = 0;  // |q − μ|²: the codes are signs of W(x − μ)
+    for (int j = 0; j < kDescriptorDim; ++j) norm2 += (double(q[j]) - hash_mean[j]) * (double(q[j]) - hash_mean[j]);
     const HashCode& qc = query_codes[f];
     const float* d = whole.many_distances.data() + whole.many_offsets[list];
     for (size_t k = 0; k < ids.size(); ++k) {

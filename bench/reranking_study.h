@@ -24,9 +24,12 @@
 //                dimensions) or per quarter (4 of 32) of the vector: a
 //                candidate's distance reads 1/2 or 1/4 of the rows' floats
 //   pq16-hamWW   the search's PQ distance blended with the one the hash
-//                codes imply, weight WW/100 on the codes' (pq_hamming_distances):
-//                two estimates of one distance from independent encodings,
-//                no byte per point more
+//                codes suggest, weight WW/100 on the codes'
+//                (pq_hamming_distances): two estimates of one distance from
+//                two codes of the same descriptor (the 16-byte PQ code, and
+//                the 128-bit sign code that already chose the short list),
+//                whose errors are only partly correlated; no byte per point
+//                more
 // A feature whose two nearest search PQ distances tie has no short list here
 // (the search's 1-1 test rejects it as well), so every ranker misses it: the
 // finer rankers' recall is, if anything, slightly low.
@@ -78,13 +81,15 @@ void rank_whole_shortlists(const CascadeMatches& whole, const ShortlistDistances
 // The search's own distances, squared back (the search reports their roots).
 ShortlistDistances search_pq_distances(const CascadeMatches& whole);
 // The search's squared PQ distance blended with the one the 128-bit hash codes
-// imply: (1 − w) d²_PQ + w · 2|q|² (1 − cos(π h / 128)), h the Hamming distance
-// of the query's code (query_codes, by feature) and the point's (point_codes,
-// by id): the angle sign hashes estimate, with the point's norm taken as the
-// query's (SIFT descriptors have nearly one norm). No byte per point more.
+// suggest: (1 − w) d²_PQ + w · 2|q − μ|² (1 − cos(π h / 128)), h the Hamming
+// distance of the query's code (query_codes, by feature) and the point's
+// (point_codes, by id), μ the hasher's mean (the codes are signs of
+// W(x − μ)); the point's |x − μ| taken as the query's. For random hyperplanes
+// π h / 128 would estimate the angle between q − μ and x − μ; ITQ's learnt
+// rotation makes it a heuristic. No byte per point more.
 ShortlistDistances pq_hamming_distances(const CascadeMatches& whole, const DescriptorMatrix& queries,
                                         std::span<const HashCode> query_codes, const HashCode* point_codes,
-                                        double weight);
+                                        const float* hash_mean, double weight);
 // Exact squared L2 between query features (rows of `queries`, by
 // whole.many_query) and points (rows of `points`, by id).
 ShortlistDistances exact_distances(const CascadeMatches& whole, const DescriptorMatrix& queries,

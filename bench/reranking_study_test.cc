@@ -313,9 +313,9 @@ TEST(RerankingStudy, ExactDistancesAndTheirRanking) {
 }
 
 // pq_hamming_distances: at weight 0 the search's own squared distances; at
-// weight 1 the distance the codes imply, 2|q|²(1 − cos(π h / 128)) with the
-// list's own feature's code and norm; between, the blend, computed here from
-// the descriptors and codes.
+// weight 1 the distance the codes suggest, 2|q − μ|²(1 − cos(π h / 128)) with
+// the list's own feature's code and descriptor, μ the hasher's mean; between,
+// the blend, computed here from the descriptors and codes.
 TEST(RerankingStudy, PqHammingDistancesBlendTheSearchsWithTheCodes) {
   const SearchFixture fx;
   CascadeMatcher matcher(fx.view(), fx.codebook);
@@ -325,9 +325,13 @@ TEST(RerankingStudy, PqHammingDistancesBlendTheSearchsWithTheCodes) {
   HashWorkspace hw;
   encode_hash(fx.hasher.view(), fx.queries.data(), fx.queries.rows(), query_codes.data(), hw);
   const ShortlistDistances pq = search_pq_distances(whole);
+  size_t lists_not_in_order = 0;  // so that a list's index is not its feature
+  for (size_t i = 0; i < whole.many_query.size(); i += 29) lists_not_in_order += whole.many_query[i] != i;
+  EXPECT_GT(lists_not_in_order, 0u);
   size_t checked = 0, differing = 0;
   for (const double w : {0.0, 0.35, 1.0}) {
-    const ShortlistDistances blend = pq_hamming_distances(whole, fx.queries, query_codes, fx.codes.data(), w);
+    const ShortlistDistances blend =
+        pq_hamming_distances(whole, fx.queries, query_codes, fx.codes.data(), fx.hasher.mean.data(), w);
     for (size_t i = 0; i < whole.many_query.size(); i += 29) {
       const uint32_t begin = whole.many_offsets[i], end = whole.many_offsets[i + 1];
       const std::span<const uint32_t> ids(whole.many_points.data() + begin, end - begin);
@@ -336,7 +340,10 @@ TEST(RerankingStudy, PqHammingDistancesBlendTheSearchsWithTheCodes) {
       pq(i, ids, d_pq.data());
       const uint32_t f = whole.many_query[i];
       double norm2 = 0;
-      for (int j = 0; j < kDescriptorDim; ++j) norm2 += double(fx.queries.row(f)[j]) * fx.queries.row(f)[j];
+      for (int j = 0; j < kDescriptorDim; ++j) {
+        const double x = double(fx.queries.row(f)[j]) - fx.hasher.mean[j];
+        norm2 += x * x;
+      }
       for (size_t k = 0; k < ids.size(); ++k) {
         int h = 0;
         for (int b = 0; b < kHashBits; ++b)
