@@ -122,6 +122,23 @@ echo '{"i": 2}' > "$T/o/strecha/castle-P19/map/manifest.json"
   fail "a changed map did not rerun its three evals"
 [ "$(wc -l < "$T/calls.log")" -eq "$((calls + 3))" ] || fail "a changed map reran other steps"
 
+# Changed query list: that scene's three evals run again; a rebuilt CLI:
+# every eval; a deleted map: its build.
+calls=$(wc -l < "$T/calls.log")
+mkdir -p "$T/data/strecha/castle-P19" && echo "0001.jpg" >> "$T/data/strecha/castle-P19/queries.txt"
+"$RUNNER" "$T/o" --shared-data "$T/data" -- --min-confidence 0 > "$T/out.txt" 2>&1 || fail "run after a query change"
+[ "$(tail -n +"$((calls + 1))" "$T/calls.log" | grep -c "^eval .*castle-P19/map ")" -eq 3 ] &&
+  [ "$(wc -l < "$T/calls.log")" -eq "$((calls + 3))" ] || fail "a changed query list did not rerun its three evals alone"
+calls=$(wc -l < "$T/calls.log")
+echo "# rebuilt" >> "$VISLOC"
+"$RUNNER" "$T/o" --shared-data "$T/data" -- --min-confidence 0 > "$T/out.txt" 2>&1 || fail "run after a new CLI"
+[ "$(tail -n +"$((calls + 1))" "$T/calls.log" | grep -c "^eval ")" -eq 14 ] || fail "a new CLI did not rerun every eval"
+calls=$(wc -l < "$T/calls.log")
+rm -rf "$T/o/kitti-odd/map"
+"$RUNNER" "$T/o" --shared-data "$T/data" -- --min-confidence 0 > "$T/out.txt" 2>&1 || fail "run after a deleted map"
+[ "$(tail -n +"$((calls + 1))" "$T/calls.log" | grep -c "^map build .*kitti-odd/map")" -eq 1 ] ||
+  fail "a deleted map was not built again"
+
 # A failing step (with new options, so that a stamp exists): exit 1, its name
 # on the terminal, the old stamp gone; the next run runs it again.
 STUB_FAIL="castle-P30/known-1" "$RUNNER" "$T/o" --shared-data "$T/data" -- --min-confidence 0.5 > "$T/out.txt" 2>&1
@@ -140,7 +157,8 @@ tail -n +"$((calls + 1))" "$T/calls.log" | grep -q "^eval .*castle-P30/known-1 -
 rm -f "$T/o/kitti-odd/map.done" "$T/o/kitti-hard/map.done"
 STUB_FAILED_SEGMENTS=1 "$RUNNER" "$T/o" --shared-data "$T/data" -- --min-confidence 0.5 > "$T/out.txt" 2>&1 ||
   fail "run with failed segments"
-grep -q "kitti-odd: 2 segments (1 failed)" "$r" || { cat "$r"; fail "failed segments not reported"; }
+grep -q "kitti-odd: 2 segments (1 failed) (delete kitti-odd/map.done to build again)" "$r" ||
+  { cat "$r"; fail "failed segments not reported with the way to retry"; }
 rm -f "$T/o/kitti-hard/map.done"
 STUB_NO_SUMMARY=1 "$RUNNER" "$T/o" --shared-data "$T/data" -- --min-confidence 0.5 > "$T/out.txt" 2>&1 ||
   fail "run without a build summary"
