@@ -6,6 +6,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <iomanip>
+#include <iostream>
 #include <map>
 #include <memory>
 #include <optional>
@@ -17,10 +18,13 @@
 #include "bench/reranking_study.h"
 #include "visloc/baselines/faiss_baselines.h"
 #include "visloc/colmap/colmap_database.h"
+#include "visloc/colmap/colmap_model.h"
+#include "visloc/colmap/point_descriptors.h"
 #include "visloc/geometry/pose_list.h"
 #include "visloc/map/map.h"
 #include "visloc/matching/cascade_index.h"
 #include "visloc/matching/exact_matcher.h"
+#include "visloc/matching/hamming_blend.h"
 #include "visloc/util/error.h"
 #include "visloc/util/file_io.h"
 #include "visloc/util/timer.h"
@@ -460,6 +464,7 @@ struct ShortlistRanker {
   int coarse_centroids = 0;
   int residual_splits = 0;
   double hamming_weight = 0;  // > 0: the search's PQ distance blended with the hash codes' (pq_hamming_distances)
+  bool hamming_fitted = false;  // the blend at the weight fit_hamming_blend fits on the map's points
 };
 // Per point, what a segment would hold in place of its 16-byte PQ codes: no
 // byte more with 16-byte codes (search-pq16, faiss-pq16, faiss-opq16), 16 more with
@@ -484,7 +489,8 @@ constexpr ShortlistRanker kShortlistRankers[] = {
     {"pq16-ham35", 0, 0, 0, false, 0, 0, 0.35},
     {"pq16-ham50", 0, 0, 0, false, 0, 0, 0.50},
     {"pq16-ham65", 0, 0, 0, false, 0, 0, 0.65},
-    {"pq16-ham80", 0, 0, 0, false, 0, 0, 0.80}};
+    {"pq16-ham80", 0, 0, 0, false, 0, 0, 0.80},
+    {"pq16-hamfit", 0, 0, 0, false, 0, 0, 0, true}};
 constexpr int kShortlistLengths[] = {40, 64};
 
 std::string reranking_method(const ShortlistRanker& r, int list) {
@@ -499,6 +505,48 @@ bool reranking_wanted(const std::vector<std::string>& methods, const ShortlistRa
 bool reranker_wanted(const std::vector<std::string>& methods, const ShortlistRanker& r) {
   return std::any_of(std::begin(kShortlistLengths), std::end(kShortlistLengths),
                      [&](int list) { return reranking_wanted(methods, r, list); });
+}
+
+// The blend's weight as a map would fit it (hamming_blend.h): held-out views
+// of 4,000 points from the COLMAP model and database the map was imported
+// from (its holdout images removed again), whose track means must be the
+// map's descriptors.
+HammingBlendFit fit_blend_on_held_out_views(const LoadedMap& m) {
+  const auto& man = m.map.manifest();
+  const std::string model_dir = man.source.value("model", ""), database = man.source.value("database", "");
+  if (model_dir.empty() || database.empty())
+    throw_error(ErrorCode::kInvalidArgument, "rerank-pq16-hamfit needs a map imported from a COLMAP model");
+  ColmapModel model = read_colmap_model(model_dir);
+  if (!man.holdout_images.empty()) remove_images(model, man.holdout_images);
+  ColmapDatabase db(database);
+  const PointDescriptors desc = compute_point_descriptors(model, db, 4000);
+  const DescriptorMatrix means = round_descriptors(desc.mean);
+  if (means.rows() != m.descriptors.rows() ||
+      !std::equal(means.data(), means.data() + means.size_bytes(), m.descriptors.data()))
+    throw_error(ErrorCode::kInvalidArgument, "rerank-pq16-hamfit: ", model_dir,
+                ": the model's track means are not the map's descriptors");
+  DescriptorMatrix views(desc.sampled_points.size());
+  std::vector<uint32_t> ids;
+  for (size_t k = 0; k < desc.sampled_points.size(); ++k) {
+    const uint32_t p = desc.sampled_points[k];
+    if (held_out_view(desc.mean.data() + size_t(p) * kDescriptorDim, desc.sampled_observations.row(k),
+                      desc.track_size[p], views.row(ids.size())))
+      ids.push_back(p);
+  }
+  views.resize(ids.size());
+  DescriptorMatrix distractors(desc.sampled_points.size());
+  for (size_t k = 0; k < desc.sampled_points.size(); ++k)
+    std::copy_n(m.descriptors.row(desc.sampled_points[k]), kDescriptorDim, distractors.row(k));
+  Timer timer;
+  HammingBlendFit fit =
+      fit_hamming_blend(m.segment->index(), m.map.codebook(), views, ids, {}, &distractors, desc.sampled_points);
+  std::cerr << "fit_hamming_blend: w " << fit.weight << " (" << fit.queries << " views, " << fit.listed << " listed, "
+            << timer.elapsed_ms() << " ms); correct/wrong by w:";
+  for (size_t k = 0; k < fit.correct.size(); ++k)
+    std::cerr << " " << double(k) / double(fit.correct.size() - 1) << ":" << fit.correct[k] << "/" << fit.wrong[k]
+              << "/" << fit.distractor_matched[k];
+  std::cerr << "\n";
+  return fit;
 }
 
 void run_reranking(const SceneQueries& s, const LoadedMap& m, const std::function<void(const MethodTotals&)>& done) {
@@ -524,6 +572,10 @@ void run_reranking(const SceneQueries& s, const LoadedMap& m, const std::functio
                                                                      .coarse_centroids = ranker.coarse_centroids,
                                                                      .residual_splits = ranker.residual_splits});
   }
+  std::optional<HammingBlendFit> blend_fit;
+  if (std::any_of(std::begin(kShortlistRankers), std::end(kShortlistRankers),
+                  [&](const ShortlistRanker& r) { return r.hamming_fitted && reranker_wanted(methods, r); }))
+    blend_fit = fit_blend_on_held_out_views(m);
   CascadeMatcher ccs(seg.index(), m.map.codebook());
   CascadeMatches whole;
   const double base = seg.bytes().per_point_bytes_per_point(np);
@@ -548,8 +600,12 @@ void run_reranking(const SceneQueries& s, const LoadedMap& m, const std::functio
     const CascadeSearchOptions o = whole_shortlist_options(list, 1, ratio);
     std::vector<HashCode> query_codes;
     HashWorkspace hash_ws;
-    const bool hamming_rankers =
-        std::any_of(rankers.begin(), rankers.end(), [](size_t r) { return kShortlistRankers[r].hamming_weight > 0; });
+    const auto blend_weight = [&](size_t r) {
+      return kShortlistRankers[r].hamming_fitted ? blend_fit->weight : kShortlistRankers[r].hamming_weight;
+    };
+    const bool hamming_rankers = std::any_of(rankers.begin(), rankers.end(), [](size_t r) {
+      return kShortlistRankers[r].hamming_weight > 0 || kShortlistRankers[r].hamming_fitted;
+    });
     for (size_t qi = 0; qi < s.queries.size(); ++qi) {
       const QueryImage& q = s.queries[qi];
       ccs.match(q.features.descriptors, o, whole);  // once per query and L_R, for every ranker
@@ -564,9 +620,9 @@ void run_reranking(const SceneQueries& s, const LoadedMap& m, const std::functio
             faiss_rerankers[r] ? faiss_distances(whole, q.features.descriptors, *faiss_rerankers[r])
             : std::string_view(kShortlistRankers[r].name) == "exact"
                 ? exact_distances(whole, q.features.descriptors, m.descriptors)
-            : kShortlistRankers[r].hamming_weight > 0
+            : kShortlistRankers[r].hamming_weight > 0 || kShortlistRankers[r].hamming_fitted
                 ? pq_hamming_distances(whole, q.features.descriptors, query_codes, seg.index().codes,
-                                       seg.index().hasher.mean, kShortlistRankers[r].hamming_weight)
+                                       seg.index().hasher.mean, blend_weight(r))
                 : search_pq_distances(whole);
         Timer timer;
         rank_whole_shortlists(whole, distances, ratio, f, p);

@@ -14,6 +14,7 @@
 
 #include "visloc/baselines/faiss_baselines.h"
 #include "visloc/matching/binary_hasher.h"
+#include "visloc/matching/hamming_blend.h"
 #include "visloc/matching/pq_codebook.h"
 #include "visloc/util/error.h"
 #include "visloc/util/test_support.h"
@@ -386,4 +387,110 @@ TEST(RerankingStudy, FaissDistancesOfAShortListAreItsFeatures) {
     EXPECT_EQ(got, want);
   }
   EXPECT_GT(lists_not_in_order, 0u);  // the test tells a list's index from its feature
+}
+
+// fit_hamming_blend's counts are those of the study's blend ranker: at each
+// grid weight, the views whose 1-1 match (the blend's nearest, passing ν_h)
+// is their own point or another; its weight is the first best grid weight.
+TEST(RerankingStudy, FitHammingBlendCountsWhatTheBlendRanks) {
+  const SearchFixture fx;
+  const HammingBlendFit fit = fit_hamming_blend(fx.view(), fx.codebook, fx.queries, fx.sources, {.weight_steps = 4});
+  CascadeMatcher matcher(fx.view(), fx.codebook);
+  const CascadeMatches whole = matcher.match(fx.queries, whole_shortlist_options(40));
+  EXPECT_EQ(fit.queries, fx.queries.rows());
+  EXPECT_EQ(fit.listed, whole.many_query.size());
+  ASSERT_EQ(fit.correct.size(), 5u);
+  ASSERT_EQ(fit.wrong.size(), 5u);
+  std::vector<HashCode> query_codes(fx.queries.rows());
+  HashWorkspace hw;
+  encode_hash(fx.hasher.view(), fx.queries.data(), fx.queries.rows(), query_codes.data(), hw);
+  for (size_t k = 0; k <= 4; ++k) {
+    std::vector<uint32_t> f, p;
+    rank_whole_shortlists(
+        whole, pq_hamming_distances(whole, fx.queries, query_codes, fx.codes.data(), fx.hasher.mean.data(), k / 4.0),
+        0.8f, f, p);
+    size_t correct = 0;
+    for (size_t i = 0; i < f.size(); ++i) correct += p[i] == fx.sources[f[i]];
+    const size_t wrong = f.size() - correct;
+    if (k == 0) {  // the same float distances
+      EXPECT_EQ(fit.correct[k], correct);
+      EXPECT_EQ(fit.wrong[k], wrong);
+    } else {  // the blend rounds in float here, in double there
+      EXPECT_NEAR(double(fit.correct[k]), double(correct), 2.0) << "weight " << k / 4.0;
+      EXPECT_NEAR(double(fit.wrong[k]), double(wrong), 2.0) << "weight " << k / 4.0;
+    }
+    EXPECT_GT(correct, 300u);
+  }
+  size_t best = 0;  // the first with the most right less wrong matches
+  for (size_t k = 1; k <= 4; ++k)
+    if (fit.correct[k] - fit.wrong[k] > fit.correct[best] - fit.wrong[best]) best = k;
+  EXPECT_DOUBLE_EQ(fit.weight, best / 4.0);
+  EXPECT_EQ(fit.distractors, 0u);
+  EXPECT_EQ(fit.distractor_matched, std::vector<size_t>(5, 0));
+  // Mismatched counts are the caller's error.
+  const std::vector<uint32_t> short_truth(fx.sources.begin(), fx.sources.begin() + 10);
+  const std::string e = error_of([&] { fit_hamming_blend(fx.view(), fx.codebook, fx.queries, short_truth); });
+  EXPECT_NE(e.find("800 views for 10 points"), std::string::npos) << e;
+}
+
+// Distractors: points' own descriptors with their point left out of their
+// short lists; any 1-1 match of theirs counts, and the weight is the first
+// with the most right matches less wrong ones and matched distractors.
+TEST(RerankingStudy, FitHammingBlendCountsMatchedDistractors) {
+  const SearchFixture fx;
+  std::vector<uint32_t> left_out;
+  DescriptorMatrix distractors(300);
+  for (uint32_t k = 0; k < 300; ++k) {
+    left_out.push_back(k * 19 + 5);
+    std::copy_n(fx.db.row(left_out.back()), kDescriptorDim, distractors.row(k));
+  }
+  const HammingBlendFit fit =
+      fit_hamming_blend(fx.view(), fx.codebook, fx.queries, fx.sources, {.weight_steps = 2}, &distractors, left_out);
+  EXPECT_EQ(fit.distractors, 300u);
+  ASSERT_EQ(fit.distractor_matched.size(), 3u);
+  // The distractors' lists without their own point, ranked by the study's blend.
+  CascadeMatcher matcher(fx.view(), fx.codebook);
+  const CascadeMatches whole = matcher.match(distractors, whole_shortlist_options(40));
+  CascadeMatches pruned;
+  pruned.many_offsets = {0};
+  for (size_t i = 0; i < whole.many_query.size(); ++i) {
+    const uint32_t f = whole.many_query[i];
+    const size_t before = pruned.many_points.size();
+    for (uint32_t k = whole.many_offsets[i]; k < whole.many_offsets[i + 1]; ++k)
+      if (whole.many_points[k] != left_out[f]) {
+        pruned.many_points.push_back(whole.many_points[k]);
+        pruned.many_distances.push_back(whole.many_distances[k]);
+      }
+    if (pruned.many_points.size() - before < 2) {
+      pruned.many_points.resize(before);
+      pruned.many_distances.resize(before);
+      continue;
+    }
+    pruned.many_query.push_back(f);
+    pruned.many_offsets.push_back(uint32_t(pruned.many_points.size()));
+  }
+  std::vector<HashCode> codes(distractors.rows());
+  HashWorkspace hw;
+  encode_hash(fx.hasher.view(), distractors.data(), distractors.rows(), codes.data(), hw);
+  size_t matched_somewhere = 0;
+  for (size_t k = 0; k <= 2; ++k) {
+    std::vector<uint32_t> f, p;
+    rank_whole_shortlists(
+        pruned, pq_hamming_distances(pruned, distractors, codes, fx.codes.data(), fx.hasher.mean.data(), k / 2.0), 0.8f,
+        f, p);
+    EXPECT_NEAR(double(fit.distractor_matched[k]), double(f.size()), k == 0 ? 0.0 : 2.0) << "weight " << k / 2.0;
+    for (size_t i = 0; i < f.size(); ++i) EXPECT_NE(p[i], left_out[f[i]]);
+    matched_somewhere += f.size();
+  }
+  EXPECT_GT(matched_somewhere, 0u);  // the counts are not trivially zero
+  size_t best = 0;
+  const auto net = [&](size_t k) {
+    return double(fit.correct[k]) - double(fit.wrong[k]) - double(fit.distractor_matched[k]);
+  };
+  for (size_t k = 1; k <= 2; ++k)
+    if (net(k) > net(best)) best = k;
+  EXPECT_DOUBLE_EQ(fit.weight, best / 2.0);
+  const std::string e = error_of(
+      [&] { fit_hamming_blend(fx.view(), fx.codebook, fx.queries, fx.sources, {}, &distractors, fx.sources); });
+  EXPECT_NE(e.find("300 distractors for 800 points"), std::string::npos) << e;
 }

@@ -1,5 +1,6 @@
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <filesystem>
 #include <functional>
 #include <limits>
@@ -233,4 +234,45 @@ TEST(ColmapModelValidation, RejectsMeaninglessValuesInBothFormats) {
         EXPECT_NE(std::string(e.what()).find(dir.string()), std::string::npos) << e.what();
       }
     }
+}
+
+// The observation sample: evenly spaced points, each its track's first view's
+// descriptor, whatever order the images are read in.
+TEST(PointDescriptors, SamplesTheFirstViewOfEvenlySpacedPoints) {
+  ColmapModel m;
+  for (uint32_t id : {3u, 1u, 2u}) {  // images in a different order from the tracks
+    ColmapImage im;
+    im.image_id = id;
+    im.name = "im" + std::to_string(id);
+    im.points2d.resize(10);
+    im.point3d_ids.assign(10, kColmapInvalidPoint3DId);
+    m.images.push_back(im);
+  }
+  std::sort(m.images.begin(), m.images.end(), [](const auto& a, const auto& b) { return a.image_id < b.image_id; });
+  // Point p: seen by images 2 then 3 then 1, as 2D point p.
+  for (int p = 0; p < 10; ++p) {
+    ColmapPoint3D pt;
+    pt.point3d_id = p + 1;
+    pt.track = {{2, uint32_t(p)}, {3, uint32_t(p)}, {1, uint32_t(p)}};
+    m.points.push_back(pt);
+  }
+  // Image i's descriptor of 2D point k: every byte 10·i + k.
+  const ImageDescriptorSource source = [](const ColmapImage& im) {
+    DescriptorMatrix d(10);
+    for (size_t k = 0; k < 10; ++k) std::fill_n(d.row(k), kDescriptorDim, uint8_t(10 * im.image_id + k));
+    return d;
+  };
+  const PointDescriptors none = compute_point_descriptors(m, source, "test");
+  EXPECT_TRUE(none.sampled_points.empty());
+  EXPECT_TRUE(none.sampled_observations.empty());
+  const PointDescriptors d = compute_point_descriptors(m, source, "test", 4);
+  EXPECT_EQ(d.sampled_points, (std::vector<uint32_t>{0, 2, 5, 7}));
+  ASSERT_EQ(d.sampled_observations.rows(), 4u);
+  for (size_t k = 0; k < 4; ++k)
+    for (int j = 0; j < kDescriptorDim; ++j)
+      ASSERT_EQ(d.sampled_observations.row(k)[j], 20 + d.sampled_points[k]) << "sample " << k;  // image 2's view
+  EXPECT_FLOAT_EQ(d.mean[5 * kDescriptorDim], (25.0f + 35.0f + 15.0f) / 3);
+  const PointDescriptors all = compute_point_descriptors(m, source, "test", 50);  // more than the points: all
+  EXPECT_EQ(all.sampled_points.size(), 10u);
+  EXPECT_EQ(all.sampled_observations.rows(), 10u);
 }

@@ -8,11 +8,23 @@
 namespace visloc {
 
 PointDescriptors compute_point_descriptors(const ColmapModel& model, const ImageDescriptorSource& source,
-                                           const std::string& source_name) {
+                                           const std::string& source_name, size_t observation_sample) {
   PointDescriptors out;
   out.num_points = model.points.size();
   out.mean.assign(out.num_points * kDescriptorDim, 0.0f);
   out.track_size.assign(out.num_points, 0);
+  // Sampled point p's row in sampled_observations, or -1.
+  std::vector<int32_t> sample_row;
+  const size_t sampled = std::min(observation_sample, out.num_points);
+  if (sampled > 0) {
+    sample_row.assign(out.num_points, -1);
+    for (size_t k = 0; k < sampled; ++k) {
+      const auto p = static_cast<uint32_t>(k * out.num_points / sampled);
+      sample_row[p] = static_cast<int32_t>(k);
+      out.sampled_points.push_back(p);
+    }
+    out.sampled_observations.resize(sampled);
+  }
   // Observations grouped by image so that each image's descriptors are read once.
   std::vector<std::vector<std::pair<uint32_t, uint32_t>>> by_image(model.images.size());  // (point index, 2D idx)
   for (size_t p = 0; p < model.points.size(); ++p)
@@ -33,6 +45,9 @@ PointDescriptors compute_point_descriptors(const ColmapModel& model, const Image
       float* m = &out.mean[size_t(p) * kDescriptorDim];
       const uint8_t* r = d.row(k);
       for (int j = 0; j < kDescriptorDim; ++j) m[j] += r[j];
+      if (!sample_row.empty() && sample_row[p] >= 0 && model.points[p].track.front().image_id == image.image_id &&
+          model.points[p].track.front().point2d_idx == k)
+        std::copy_n(r, kDescriptorDim, out.sampled_observations.row(size_t(sample_row[p])));
       ++out.track_size[p];
     }
   }
@@ -54,8 +69,10 @@ ImageDescriptorSource database_descriptor_source(const ColmapDatabase& database)
   };
 }
 
-PointDescriptors compute_point_descriptors(const ColmapModel& model, const ColmapDatabase& database) {
-  return compute_point_descriptors(model, database_descriptor_source(database), database.path().string());
+PointDescriptors compute_point_descriptors(const ColmapModel& model, const ColmapDatabase& database,
+                                           size_t observation_sample) {
+  return compute_point_descriptors(model, database_descriptor_source(database), database.path().string(),
+                                   observation_sample);
 }
 
 DescriptorMatrix round_descriptors(const std::vector<float>& values) {

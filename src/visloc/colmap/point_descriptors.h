@@ -20,12 +20,18 @@ struct PointDescriptors {
   size_t num_points = 0;
   std::vector<float> mean;           // num_points × 128, float mean of the track's uint8 descriptors
   std::vector<uint32_t> track_size;  // observations per point
+  // With observation_sample > 0: one observation's descriptor (its track's
+  // first element) of that many points (all when fewer), evenly spaced by
+  // index: a held-out view's sample of what queries of the point look like.
+  std::vector<uint32_t> sampled_points;   // point indices, increasing
+  DescriptorMatrix sampled_observations;  // a row per sampled point
 };
 
 // Reads each image's descriptors once. Throws Error(kFormat) naming the
 // image when the database lacks it or has fewer keypoints than the model's
 // 2D points refer to.
-PointDescriptors compute_point_descriptors(const ColmapModel& model, const ColmapDatabase& database);
+PointDescriptors compute_point_descriptors(const ColmapModel& model, const ColmapDatabase& database,
+                                           size_t observation_sample = 0);
 
 // The descriptors of one image of a model: row i belongs to its i-th 2D
 // point (a COLMAP database's keypoints, a Bundler image's key file...).
@@ -35,7 +41,7 @@ using ImageDescriptorSource = std::function<DescriptorMatrix(const ColmapImage& 
 // point. `source_name` starts the error message when an image has fewer
 // descriptors than its 2D points that the model refers to.
 PointDescriptors compute_point_descriptors(const ColmapModel& model, const ImageDescriptorSource& source,
-                                           const std::string& source_name);
+                                           const std::string& source_name, size_t observation_sample = 0);
 
 // A database as a descriptor source: the descriptors of the image of the same
 // name; Error(kFormat) naming the database when it lacks the image. The
