@@ -18,10 +18,9 @@
 #include "bench/reranking_study.h"
 #include "visloc/baselines/faiss_baselines.h"
 #include "visloc/colmap/colmap_database.h"
-#include "visloc/colmap/colmap_model.h"
-#include "visloc/colmap/point_descriptors.h"
 #include "visloc/geometry/pose_list.h"
 #include "visloc/map/map.h"
+#include "visloc/map_building/hash_blend_fit.h"
 #include "visloc/matching/cascade_index.h"
 #include "visloc/matching/exact_matcher.h"
 #include "visloc/matching/hamming_blend.h"
@@ -113,6 +112,10 @@ struct SceneResult {
 
 // A map's first segment with its raw (mean) point descriptors.
 struct LoadedMap {
+  std::string map_dir;
+  // The hash blend's weight fitted on the map (`map fit-blend`), at the
+  // first method that asks for it.
+  mutable std::optional<double> fitted_blend_weight;
   Map map;
   std::unique_ptr<Segment> segment;
   size_t points = 0;
@@ -153,6 +156,7 @@ std::map<std::string, std::pair<Eigen::Quaterniond, Eigen::Vector3d>> read_truth
 
 LoadedMap load_map(const std::string& map_dir) {
   LoadedMap m;
+  m.map_dir = map_dir;
   m.map = Map::open(map_dir);
   const auto& man = m.map.manifest();
   if (man.segments.empty()) throw_error(ErrorCode::kFormat, map_dir, ": map has no segments");
@@ -322,6 +326,9 @@ struct CascadeConfig {
   std::string name;
   bool lsh;
   CascadeSearchOptions options;
+  // Opt-in (only when a --method names it): the hash-code blend at the weight
+  // `map fit-blend` fits on the map (an imported COLMAP map).
+  bool fitted_blend = false;
 };
 
 // `ratio`: the 1-1 sets' ν_h (--ratio), as for every other method; the 1-M
@@ -382,6 +389,10 @@ std::vector<CascadeConfig> cascade_configs(float ratio) {
     configs.push_back(directed);
   }
   configs.push_back({"ccs-prioritized-r1-group1M", false, opts(1, true, true, group)});
+  // The search ranking by the hash-code blend (hash_blend_weight) at the
+  // map's fitted weight. Named apart from ccs-full-r1 and ccs-prioritized-r1.
+  configs.push_back({"ccs-blend-full-r1", false, opts(1, true, false, best), true});
+  configs.push_back({"ccs-blend-prioritized-r1", false, opts(1, true, true, best), true});
   return configs;
 }
 
@@ -394,6 +405,7 @@ MethodTotals run_cascade_method(const SceneQueries& s, const LoadedMap& m, const
   mt.bytes_per_point_total =
       seg.bytes().file_bytes_per_point(m.points) + double(m.map.codebook().centroids().size_bytes()) / double(m.points);
   mt.extra["lookup_memory_bytes_per_point"] = double(seg.bytes().lookup_memory) / double(m.points);
+  if (c.fitted_blend) mt.extra["hash_blend_weight"] = c.options.hash_blend_weight;
   matcher.match(s.queries[0].features.descriptors, c.options, cm);  // warm-up
   double ms_hash = 0, ms_order = 0, ms_search = 0;
   for (size_t qi = 0; qi < s.queries.size(); ++qi) {
@@ -430,6 +442,24 @@ MethodTotals run_cascade_method(const SceneQueries& s, const LoadedMap& m, const
 
 // Cascade methods: CCS on the mapped segment; the LSH cascade on LSH codes of
 // the same descriptors with the segment's PQ codes.
+// The map's fitted hash-blend weight at the benchmark's ν_h, fitted once.
+double fitted_blend_weight(const SceneQueries& s, const LoadedMap& m) {
+  if (!m.fitted_blend_weight) {
+    MapBlendFitOptions o;
+    o.fit.ratio_one_to_one = static_cast<float>(s.options.ratio);
+    m.fitted_blend_weight = fit_map_hash_blend(m.map_dir, o).fit.weight;
+  }
+  return *m.fitted_blend_weight;
+}
+
+// Whether a --method that starts with `opt_in` names `name` (the fitted
+// blend's methods run only when named that far: a plain "ccs" or "rerank"
+// would ask a map that cannot be fitted for a fit).
+bool named_past(const std::vector<std::string>& methods, const std::string& name, const std::string& opt_in) {
+  return std::any_of(methods.begin(), methods.end(),
+                     [&](const std::string& p) { return p.rfind(opt_in, 0) == 0 && name.rfind(p, 0) == 0; });
+}
+
 void run_cascades(const SceneQueries& s, const LoadedMap& m, const std::function<void(const MethodTotals&)>& done) {
   const size_t np = m.points;
   BinaryHasher lsh = make_lsh_hasher(m.descriptors_float.data(), np, 1);
@@ -444,8 +474,12 @@ void run_cascades(const SceneQueries& s, const LoadedMap& m, const std::function
   CascadeMatcher ccs(m.segment->index(), m.map.codebook());
   CascadeMatcher lsh_matcher(lsh_view, m.map.codebook());
   CascadeMatches cm;
-  for (const auto& c : cascade_configs(static_cast<float>(s.options.ratio))) {
+  for (auto c : cascade_configs(static_cast<float>(s.options.ratio))) {
     if (!method_wanted(s.options.methods, c.name)) continue;
+    if (c.fitted_blend) {
+      if (!named_past(s.options.methods, c.name, "ccs-blend")) continue;
+      c.options.hash_blend_weight = float(fitted_blend_weight(s, m));
+    }
     done(run_cascade_method(s, m, c, c.lsh ? lsh_matcher : ccs, cm));
   }
 }
@@ -497,56 +531,16 @@ std::string reranking_method(const ShortlistRanker& r, int list) {
   return std::string("rerank-") + r.name + "-lr" + std::to_string(list);
 }
 
-// Opt-in: only when a --method names it (an empty list runs every other method).
+// Opt-in: only when a --method names it (an empty list runs every other
+// method); the fitted blend only when named past "rerank-pq16-hamfit".
 bool reranking_wanted(const std::vector<std::string>& methods, const ShortlistRanker& r, int list) {
+  if (r.hamming_fitted) return named_past(methods, reranking_method(r, list), "rerank-pq16-hamfit");
   return !methods.empty() && method_wanted(methods, reranking_method(r, list));
 }
 
 bool reranker_wanted(const std::vector<std::string>& methods, const ShortlistRanker& r) {
   return std::any_of(std::begin(kShortlistLengths), std::end(kShortlistLengths),
                      [&](int list) { return reranking_wanted(methods, r, list); });
-}
-
-// The blend's weight as a map would fit it (hamming_blend.h): held-out views
-// of 4,000 points from the COLMAP model and database the map was imported
-// from (its holdout images removed again), whose track means must be the
-// map's descriptors.
-HammingBlendFit fit_blend_on_held_out_views(const LoadedMap& m) {
-  const auto& man = m.map.manifest();
-  const std::string model_dir = man.source.value("model", ""), database = man.source.value("database", "");
-  if (model_dir.empty() || database.empty())
-    throw_error(ErrorCode::kInvalidArgument, "rerank-pq16-hamfit needs a map imported from a COLMAP model");
-  ColmapModel model = read_colmap_model(model_dir);
-  if (!man.holdout_images.empty()) remove_images(model, man.holdout_images);
-  ColmapDatabase db(database);
-  const PointDescriptors desc = compute_point_descriptors(model, db, 4000);
-  const DescriptorMatrix means = round_descriptors(desc.mean);
-  if (means.rows() != m.descriptors.rows() ||
-      !std::equal(means.data(), means.data() + means.size_bytes(), m.descriptors.data()))
-    throw_error(ErrorCode::kInvalidArgument, "rerank-pq16-hamfit: ", model_dir,
-                ": the model's track means are not the map's descriptors");
-  DescriptorMatrix views(desc.sampled_points.size());
-  std::vector<uint32_t> ids;
-  for (size_t k = 0; k < desc.sampled_points.size(); ++k) {
-    const uint32_t p = desc.sampled_points[k];
-    if (held_out_view(desc.mean.data() + size_t(p) * kDescriptorDim, desc.sampled_observations.row(k),
-                      desc.track_size[p], views.row(ids.size())))
-      ids.push_back(p);
-  }
-  views.resize(ids.size());
-  DescriptorMatrix distractors(desc.sampled_points.size());
-  for (size_t k = 0; k < desc.sampled_points.size(); ++k)
-    std::copy_n(m.descriptors.row(desc.sampled_points[k]), kDescriptorDim, distractors.row(k));
-  Timer timer;
-  HammingBlendFit fit =
-      fit_hamming_blend(m.segment->index(), m.map.codebook(), views, ids, {}, &distractors, desc.sampled_points);
-  std::cerr << "fit_hamming_blend: w " << fit.weight << " (" << fit.queries << " views, " << fit.listed << " listed, "
-            << timer.elapsed_ms() << " ms); correct/wrong by w:";
-  for (size_t k = 0; k < fit.correct.size(); ++k)
-    std::cerr << " " << double(k) / double(fit.correct.size() - 1) << ":" << fit.correct[k] << "/" << fit.wrong[k]
-              << "/" << fit.distractor_matched[k];
-  std::cerr << "\n";
-  return fit;
 }
 
 void run_reranking(const SceneQueries& s, const LoadedMap& m, const std::function<void(const MethodTotals&)>& done) {
@@ -572,10 +566,6 @@ void run_reranking(const SceneQueries& s, const LoadedMap& m, const std::functio
                                                                      .coarse_centroids = ranker.coarse_centroids,
                                                                      .residual_splits = ranker.residual_splits});
   }
-  std::optional<HammingBlendFit> blend_fit;
-  if (std::any_of(std::begin(kShortlistRankers), std::end(kShortlistRankers),
-                  [&](const ShortlistRanker& r) { return r.hamming_fitted && reranker_wanted(methods, r); }))
-    blend_fit = fit_blend_on_held_out_views(m);
   CascadeMatcher ccs(seg.index(), m.map.codebook());
   CascadeMatches whole;
   const double base = seg.bytes().per_point_bytes_per_point(np);
@@ -591,6 +581,7 @@ void run_reranking(const SceneQueries& s, const LoadedMap& m, const std::functio
       const std::string name = reranking_method(ranker, list);
       if (!reranking_wanted(methods, ranker, list)) continue;
       MethodTotals mt{name};
+      if (ranker.hamming_fitted) mt.extra["hash_blend_weight"] = fitted_blend_weight(s, m);
       mt.bytes_per_point = base + ranker.per_point_bytes;
       mt.bytes_per_point_total = base_total + ranker.per_point_bytes + ranker.per_map_bytes / double(np);
       totals.push_back(mt);
@@ -601,7 +592,7 @@ void run_reranking(const SceneQueries& s, const LoadedMap& m, const std::functio
     std::vector<HashCode> query_codes;
     HashWorkspace hash_ws;
     const auto blend_weight = [&](size_t r) {
-      return kShortlistRankers[r].hamming_fitted ? blend_fit->weight : kShortlistRankers[r].hamming_weight;
+      return kShortlistRankers[r].hamming_fitted ? fitted_blend_weight(s, m) : kShortlistRankers[r].hamming_weight;
     };
     const bool hamming_rankers = std::any_of(rankers.begin(), rankers.end(), [](size_t r) {
       return kShortlistRankers[r].hamming_weight > 0 || kShortlistRankers[r].hamming_fitted;

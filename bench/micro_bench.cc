@@ -535,6 +535,48 @@ void BM_CascadeSearch100KPointsPrefetch(benchmark::State& state) {
 }
 BENCHMARK(BM_CascadeSearch100KPointsPrefetch)->Unit(benchmark::kMillisecond)->Iterations(10);
 
+// The hash-code blend (CascadeSearchOptions::hash_blend_weight, 0.5 here)
+// against the PQ alone, in the full search at radius 1 (10K features, the
+// 100K-point segment): each query timed alternately in one process (ABBA),
+// medians over the pairs. Its cost per feature: |q − μ|² (128 dimensions),
+// then per ranked candidate a Hamming distance and a table lookup.
+void BM_CascadeSearch100KPointsHashBlend(benchmark::State& state) {
+  const SyntheticSegment& s = SyntheticSegment::get();
+  visloc::CascadeWorkspace ws;
+  visloc::CascadeMatcher matcher(s.view(), s.codebook, ws);
+  visloc::CascadeSearchOptions plain, blend;
+  plain.lut_radius = blend.lut_radius = 1;
+  plain.prioritize = blend.prioritize = false;
+  blend.hash_blend_weight = 0.5f;
+  visloc::CascadeMatches a, b;
+  std::vector<double> ms_blend, ms_plain;
+  for (auto _ : state) {
+    for (int pair = 0; pair < 2; ++pair) {
+      const bool plain_first = (ms_blend.size() % 2) == 0;
+      if (plain_first) {
+        matcher.match(s.queries, plain, b);
+        ms_plain.push_back(b.stats.ms_total);
+      }
+      matcher.match(s.queries, blend, a);
+      ms_blend.push_back(a.stats.ms_total);
+      if (!plain_first) {
+        matcher.match(s.queries, plain, b);
+        ms_plain.push_back(b.stats.ms_total);
+      }
+    }
+  }
+  auto median = [](std::vector<double> v) {
+    std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+    return v[v.size() / 2];
+  };
+  state.counters["ms_blend"] = median(ms_blend);
+  state.counters["ms_plain"] = median(ms_plain);
+  state.counters["cost_ratio"] = median(ms_blend) / median(ms_plain);
+  state.counters["matches_blend"] = double(a.query.size());
+  state.counters["matches_plain"] = double(b.query.size());
+}
+BENCHMARK(BM_CascadeSearch100KPointsHashBlend)->Unit(benchmark::kMillisecond)->Iterations(10);
+
 // The prioritized order's key alone: the coarse sizes of 10K features at
 // radius 1, from 136 probes per feature (argument 0) or from the lookup's
 // neighbourhood sizes (1); the same sizes either way.

@@ -423,7 +423,7 @@ TEST(RerankingStudy, FitHammingBlendCountsWhatTheBlendRanks) {
   }
   size_t best = 0;  // the first with the most right less wrong matches
   for (size_t k = 1; k <= 4; ++k)
-    if (fit.correct[k] - fit.wrong[k] > fit.correct[best] - fit.wrong[best]) best = k;
+    if (double(fit.correct[k]) - double(fit.wrong[k]) > double(fit.correct[best]) - double(fit.wrong[best])) best = k;
   EXPECT_DOUBLE_EQ(fit.weight, best / 4.0);
   EXPECT_EQ(fit.distractors, 0u);
   EXPECT_EQ(fit.distractor_matched, std::vector<size_t>(5, 0));
@@ -493,4 +493,62 @@ TEST(RerankingStudy, FitHammingBlendCountsMatchedDistractors) {
   const std::string e = error_of(
       [&] { fit_hamming_blend(fx.view(), fx.codebook, fx.queries, fx.sources, {}, &distractors, fx.sources); });
   EXPECT_NE(e.find("300 distractors for 800 points"), std::string::npos) << e;
+}
+
+// CascadeSearchOptions::hash_blend_weight: the search's own 1-1 matches are
+// those of the study's blend ranker on the same short lists (up to float
+// rounding at near ties), and they differ from the PQ's alone.
+TEST(RerankingStudy, SearchWithHashBlendMatchesTheStudysBlend) {
+  const SearchFixture fx;
+  CascadeMatcher matcher(fx.view(), fx.codebook);
+  const CascadeMatches whole = matcher.match(fx.queries, whole_shortlist_options(40));
+  std::vector<HashCode> query_codes(fx.queries.rows());
+  HashWorkspace hw;
+  encode_hash(fx.hasher.view(), fx.queries.data(), fx.queries.rows(), query_codes.data(), hw);
+  CascadeSearchOptions plain;
+  plain.prioritize = false;
+  plain.refined_list = 40;
+  const CascadeMatches pq_only = matcher.match(fx.queries, plain);
+  std::set<std::pair<uint32_t, uint32_t>> pq_pairs;
+  for (size_t i = 0; i < pq_only.query.size(); ++i) pq_pairs.emplace(pq_only.query[i], pq_only.point[i]);
+  for (const float w : {0.25f, 0.5f, 1.0f}) {
+    SCOPED_TRACE(testing::Message() << "weight " << w);
+    CascadeSearchOptions o = plain;
+    o.hash_blend_weight = w;
+    const CascadeMatches direct = matcher.match(fx.queries, o);
+    std::vector<uint32_t> f, p;
+    rank_whole_shortlists(
+        whole, pq_hamming_distances(whole, fx.queries, query_codes, fx.codes.data(), fx.hasher.mean.data(), w), 0.8f, f,
+        p);
+    std::set<std::pair<uint32_t, uint32_t>> got, want;
+    for (size_t i = 0; i < direct.query.size(); ++i) got.emplace(direct.query[i], direct.point[i]);
+    for (size_t i = 0; i < f.size(); ++i) want.emplace(f[i], p[i]);
+    size_t common = 0, changed = 0;
+    for (const auto& x : got) common += want.count(x), changed += !pq_pairs.count(x);
+    EXPECT_GE(common + 3, std::max(got.size(), want.size()));
+    EXPECT_GT(want.size(), 300u);
+    EXPECT_GT(changed, 0u);  // the blend changes matches
+    // The distances it reports are the PQ's (the guided confirmation compares
+    // PQ distances with them), those of the same pairs in the PQ's lists.
+    std::map<std::pair<uint32_t, uint32_t>, float> pq_distance;
+    for (size_t i = 0; i < whole.many_query.size(); ++i)
+      for (uint32_t k = whole.many_offsets[i]; k < whole.many_offsets[i + 1]; ++k)
+        pq_distance[{whole.many_query[i], whole.many_points[k]}] = whole.many_distances[k];
+    size_t compared = 0;
+    for (size_t i = 0; i < direct.many_query.size(); ++i)
+      for (uint32_t k = direct.many_offsets[i]; k < direct.many_offsets[i + 1]; ++k) {
+        const auto it = pq_distance.find({direct.many_query[i], direct.many_points[k]});
+        if (it == pq_distance.end()) continue;
+        ASSERT_EQ(direct.many_distances[k], it->second);
+        ++compared;
+      }
+    for (size_t i = 0; i < direct.query.size(); ++i) {
+      const auto it = pq_distance.find({direct.query[i], direct.point[i]});
+      if (it != pq_distance.end()) ASSERT_EQ(direct.distance[i], it->second);
+    }
+    EXPECT_GT(compared, 1000u);
+  }
+  CascadeSearchOptions bad = plain;
+  bad.hash_blend_weight = 1.5f;
+  EXPECT_NE(error_of([&] { bad.validate(); }).find("hash_blend_weight"), std::string::npos);
 }

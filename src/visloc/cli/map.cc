@@ -1,14 +1,16 @@
 // visloc map import --colmap MODEL --database DB --out MAP [--holdout LIST]
 // visloc map import --bundler bundle.out --list LIST [--keys DIR] [--images DIR] --out MAP [--holdout LIST]
 // visloc map info MAP [--json]
+// visloc map fit-blend MAP [--views N] [--weight-steps N] [--json]
 #include <iostream>
 #include <memory>
 #include <nlohmann/json.hpp>
 
 #include "visloc/cli/commands.h"
 #include "visloc/cli/option_binding.h"
-#include "visloc/map_building/colmap_import.h"
 #include "visloc/map/map.h"
+#include "visloc/map_building/colmap_import.h"
+#include "visloc/map_building/hash_blend_fit.h"
 #include "visloc/util/error.h"
 
 namespace visloc::cli {
@@ -62,6 +64,33 @@ void add_info(CLI::App& map) {
   });
 }
 
+void add_fit_blend(CLI::App& map) {
+  struct Args {
+    std::string map_dir;
+    MapBlendFitOptions options;
+    bool json = false;
+  };
+  auto args = std::make_shared<Args>();
+  CLI::App* cmd = map.add_subcommand(
+      "fit-blend",
+      "Fit the weight of the hash codes' distance in the cascade search's ranking (localize/eval --hash-blend) on "
+      "the map's own data: held-out views of its points (one observation each, read again from the COLMAP model "
+      "and database the map was imported from, searched with their point re-encoded without them) and its "
+      "points as distractors; prints the weight with the most net right 1-1 matches (not stored: pass it as "
+      "--hash-blend). Needs a one-segment map from map import --colmap that kept its descriptors");
+  OptionTable t;
+  t.add("map", args->map_dir, "Map directory").require();
+  t.add("--views", args->options.views, "Points whose held-out view is searched (and as many distractors)")
+      .range(2, 1 << 24);
+  t.add("--weight-steps", args->options.fit.weight_steps, "The weights tried: k / N for k = 0..N").range(1, 1000);
+  t.flag("--json", args->json, "Print JSON");
+  bind_options(cmd, t);
+  cmd->callback([args] {
+    const MapBlendFit fit = fit_map_hash_blend(args->map_dir, args->options);
+    std::cout << (args->json ? fit.to_json().dump(2) + "\n" : fit.summary(args->map_dir));
+  });
+}
+
 }  // namespace
 
 void add_map_command(CLI::App& app) {
@@ -70,6 +99,7 @@ void add_map_command(CLI::App& app) {
   add_map_build_commands(*map);  // build, update (map_build.cc)
   add_import(*map);
   add_info(*map);
+  add_fit_blend(*map);
 }
 
 }  // namespace visloc::cli

@@ -7,6 +7,20 @@
 
 namespace visloc {
 
+namespace {
+
+// The track element sampled for point p: one picked by a hash of p, so that
+// the sample does not lean to the images COLMAP registered first (its
+// tracks' order).
+const ColmapTrackElement& sampled_track_element(const ColmapPoint3D& point, size_t p) {
+  const uint64_t mixed = (uint64_t(p) + 1) * 0x9E3779B97F4A7C15ull;
+  return point.track[size_t(mixed >> 33) % point.track.size()];
+}
+uint32_t sampled_element(const ColmapPoint3D& point, size_t p) { return sampled_track_element(point, p).image_id; }
+uint32_t sampled_index(const ColmapPoint3D& point, size_t p) { return sampled_track_element(point, p).point2d_idx; }
+
+}  // namespace
+
 PointDescriptors compute_point_descriptors(const ColmapModel& model, const ImageDescriptorSource& source,
                                            const std::string& source_name, size_t observation_sample) {
   PointDescriptors out;
@@ -45,8 +59,8 @@ PointDescriptors compute_point_descriptors(const ColmapModel& model, const Image
       float* m = &out.mean[size_t(p) * kDescriptorDim];
       const uint8_t* r = d.row(k);
       for (int j = 0; j < kDescriptorDim; ++j) m[j] += r[j];
-      if (!sample_row.empty() && sample_row[p] >= 0 && model.points[p].track.front().image_id == image.image_id &&
-          model.points[p].track.front().point2d_idx == k)
+      if (!sample_row.empty() && sample_row[p] >= 0 && sampled_element(model.points[p], p) == image.image_id &&
+          sampled_index(model.points[p], p) == k)
         std::copy_n(r, kDescriptorDim, out.sampled_observations.row(size_t(sample_row[p])));
       ++out.track_size[p];
     }

@@ -20,9 +20,9 @@ struct PointDescriptors {
   size_t num_points = 0;
   std::vector<float> mean;           // num_points × 128, float mean of the track's uint8 descriptors
   std::vector<uint32_t> track_size;  // observations per point
-  // With observation_sample > 0: one observation's descriptor (its track's
-  // first element) of that many points (all when fewer), evenly spaced by
-  // index: a held-out view's sample of what queries of the point look like.
+  // With observation_sample > 0: one observation's descriptor (a track
+  // element picked by a hash of the point's index) of that many points (all
+  // when fewer), evenly spaced by index: held-out views of the points.
   std::vector<uint32_t> sampled_points;   // point indices, increasing
   DescriptorMatrix sampled_observations;  // a row per sampled point
 };

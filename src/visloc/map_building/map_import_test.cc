@@ -3,13 +3,14 @@
 #include <filesystem>
 #include <random>
 
+#include "visloc/baselines/faiss_baselines.h"
 #include "visloc/colmap/colmap_database.h"
 #include "visloc/colmap/colmap_model.h"
-#include "visloc/map_building/colmap_import.h"
 #include "visloc/map/map.h"
 #include "visloc/map/segment_file.h"
+#include "visloc/map_building/colmap_import.h"
+#include "visloc/map_building/hash_blend_fit.h"
 #include "visloc/matching/cascade_index.h"
-#include "visloc/baselines/faiss_baselines.h"
 #include "visloc/util/error.h"
 #include "visloc/util/file_io.h"
 #include "visloc/util/test_support.h"
@@ -267,4 +268,50 @@ TEST(Map, SharedHashRotationOpensSegmentsWithoutTheirOwn) {
   bad.mean[0] = std::nanf("");
   write_hash_rotation_file(dir / "bad.vlitq", bad, "{}");
   EXPECT_NE(error_of([&] { read_hash_rotation_file(dir / "bad.vlitq"); }).find("not finite"), std::string::npos);
+}
+
+// map fit-blend: the weight of fountain-P11's imported map, fitted on
+// held-out views of its points read again from its model and database; the
+// maps it cannot fit are refused with the reason.
+TEST(MapImport, FitsTheHashBlendOnItsOwnViews) {
+  const fs::path scene = fs::path(VISLOC_SHARED_DATA_DIR) / "strecha" / "fountain-P11";
+  if (!fs::exists(scene / "colmap" / "sparse" / "points3D.bin")) GTEST_SKIP() << "shared data absent: " << scene;
+  auto out = temp_dir("fountain_blend");
+  ColmapImportOptions o;
+  o.holdout_images = read_name_list(scene / "queries.txt");
+  o.itq.iterations = 3;
+  o.pq.iterations = 3;
+  import_colmap_map(scene / "colmap" / "sparse", scene / "colmap" / "database.db", out / "map", o);
+  const MapBlendFit fit = fit_map_hash_blend(out / "map", {.views = 1500, .fit = {.weight_steps = 4}});
+  EXPECT_EQ(fit.fit.queries, 1500u);  // every point has 2 views or more
+  EXPECT_EQ(fit.fit.distractors, 1500u);
+  EXPECT_GT(fit.fit.listed, 1400u);
+  ASSERT_EQ(fit.fit.correct.size(), 5u);
+  EXPECT_GT(fit.fit.correct[0], 1000u);  // a held-out view mostly finds its point
+  for (size_t k = 0; k < 5; ++k) EXPECT_LE(fit.fit.correct[k] + fit.fit.wrong[k], fit.fit.listed);
+  EXPECT_GE(fit.fit.weight, 0.0);
+  EXPECT_LE(fit.fit.weight, 1.0);
+  const nlohmann::json j = fit.to_json();
+  EXPECT_EQ(j["grid"].size(), 5u);
+  EXPECT_EQ(j["weight"], fit.fit.weight);
+  EXPECT_NE(fit.summary("M").find("<- chosen"), std::string::npos);
+
+  // The model no longer the import's: with no held-out images it has more points.
+  MapManifest man = read_manifest(out / "map");
+  man.holdout_images.clear();
+  write_manifest(out / "map", man);
+  std::string e = error_of([&] { fit_map_hash_blend(out / "map"); });
+  EXPECT_NE(e.find("changed since the import"), std::string::npos) << e;
+  // Without descriptors, or not from a COLMAP model.
+  man.source["type"] = "built";
+  write_manifest(out / "map", man);
+  e = error_of([&] { fit_map_hash_blend(out / "map"); });
+  EXPECT_NE(e.find("imported from a COLMAP model"), std::string::npos) << e;
+  EXPECT_NE(e.find("'built'"), std::string::npos) << e;
+  o.keep_descriptors = false;
+  import_colmap_map(scene / "colmap" / "sparse", scene / "colmap" / "database.db", out / "bare", o);
+  e = error_of([&] { fit_map_hash_blend(out / "bare"); });
+  EXPECT_NE(e.find("kept no point descriptors"), std::string::npos) << e;
+  EXPECT_NE(error_of([&] { fit_map_hash_blend(out / "map", {.views = 1, .fit = {}}); }).find("views"),
+            std::string::npos);
 }

@@ -5,6 +5,7 @@
 #include <limits>
 #include <string>
 
+#include "visloc/matching/hamming_blend.h"
 #include "visloc/util/error.h"
 #include "visloc/util/timer.h"
 
@@ -122,6 +123,9 @@ void CascadeSearchOptions::validate() const {
                 "], got ", lut_flips);
   if (early_stop < 0)
     throw_error(ErrorCode::kInvalidArgument, "CascadeSearchOptions.early_stop must be >= 0, got ", early_stop);
+  if (!(hash_blend_weight >= 0 && hash_blend_weight <= 1))
+    throw_error(ErrorCode::kInvalidArgument, "CascadeSearchOptions.hash_blend_weight must be in [0, 1], got ",
+                hash_blend_weight);
   if (!cpu_supports(simd))
     throw_error(ErrorCode::kInvalidArgument, "CascadeSearchOptions.simd: this CPU does not support ", to_string(simd));
 }
@@ -513,16 +517,39 @@ inline void refined_shortlist(const SearchKernels& kernels, const HashCode& code
   VISLOC_CHECK(taken == list, "the refined step's short list holds L_R candidates");
 }
 
+// The `keep` smallest of d[0..n) by insertion, nearest first, into best_d
+// and best_id (ids[r], or r itself without ids); the first of equal
+// distances first. Returns how many (min(n, keep)).
+inline int keep_nearest(const float* d, const uint32_t* ids, size_t n, int keep, float* best_d, uint32_t* best_id) {
+  int filled = 0;
+  for (size_t r = 0; r < n; ++r) {
+    const float x = d[r];
+    const uint32_t id = ids ? ids[r] : static_cast<uint32_t>(r);
+    if (filled == keep && x >= best_d[keep - 1]) continue;
+    int pos = filled < keep ? filled++ : keep - 1;
+    while (pos > 0 && best_d[pos - 1] > x) {
+      best_d[pos] = best_d[pos - 1];
+      best_id[pos] = best_id[pos - 1];
+      --pos;
+    }
+    best_d[pos] = x;
+    best_id[pos] = id;
+  }
+  return filled;
+}
+
 // The ratio tests on the `filled` nearest (squared distances best_d, at least
-// 2): feature f's 1-1 match and 1-M candidates, appended to `out`.
-inline void emit_matches(uint32_t f, const float* best_d, const uint32_t* best_id, int filled,
+// 2): feature f's 1-1 match and 1-M candidates, appended to `out` with the
+// distances `reported` (squared; best_d's own, or with the hash blend the
+// candidates' PQ distances).
+inline void emit_matches(uint32_t f, const float* best_d, const float* reported, const uint32_t* best_id, int filled,
                          const CascadeSearchOptions& options, float r11, float r1m, CascadeMatches& out) {
   // Ratio tests on squared distances: d0/d1 < ν ⇔ d0² < ν² d1².
   const float d0 = best_d[0], d1 = best_d[1];
   if (d0 < r11 * d1) {
     out.query.push_back(f);
     out.point.push_back(best_id[0]);
-    out.distance.push_back(std::sqrt(std::max(0.0f, d0)));
+    out.distance.push_back(std::sqrt(std::max(0.0f, reported[0])));
   }
   int accepted = 0;
   if (options.one_to_many_rule == OneToManyRule::kBestRatio) {
@@ -538,7 +565,7 @@ inline void emit_matches(uint32_t f, const float* best_d, const uint32_t* best_i
     out.many_query.push_back(f);
     for (int i = 0; i < accepted; ++i) {
       out.many_points.push_back(best_id[i]);
-      out.many_distances.push_back(std::sqrt(std::max(0.0f, best_d[i])));
+      out.many_distances.push_back(std::sqrt(std::max(0.0f, reported[i])));
     }
     out.many_offsets.push_back(static_cast<uint32_t>(out.many_points.size()));
   }
@@ -709,7 +736,7 @@ void CascadeMatcher::match_hashed(const DescriptorMatrix& queries, std::span<con
   const AdcKernels& adc = kernels.adc(codebook_->subvectors());
   const AdditiveKernels::Direct additive = residual ? kernels.additive.direct(codebook_->residual_splits()) : nullptr;
   const int keep = std::max(options.max_one_to_many, 1) + 1;  // ranks needed by both rules
-  float best_d[65];
+  float best_d[65], best_pq[65];
   uint32_t best_id[65];
   const float r11 = options.ratio_one_to_one * options.ratio_one_to_one;
   const float r1m = options.ratio_one_to_many * options.ratio_one_to_many;
@@ -722,6 +749,8 @@ void CascadeMatcher::match_hashed(const DescriptorMatrix& queries, std::span<con
   const HashCode* prefetched_codes = options.prefetch ? index_.codes : nullptr;
   const size_t pq_bytes = size_t(index_.pq_subvectors);
   std::span<const uint32_t> ranked;
+  const float blend = options.hash_blend_weight;
+  const std::array<float, kHashBits + 1>& unit_chord = unit_chord_table();
 
   for (size_t position = 0; position < ws.order.size(); ++position) {
     if (out.query.size() >= early) {
@@ -773,21 +802,30 @@ void CascadeMatcher::match_hashed(const DescriptorMatrix& queries, std::span<con
       adc.table(codebook_->centroids_transposed(), qf, ws.table.data());
       adc.distances(ws.table.data(), index_.pq_codes, ranked.data(), ranked.size(), ws.ranked_distances.data());
     }
-    int filled = 0;
-    for (size_t r = 0; r < ranked.size(); ++r) {
-      const float d = ws.ranked_distances[r];
-      const uint32_t id = ranked[r];
-      if (filled == keep && d >= best_d[keep - 1]) continue;
-      int pos = filled < keep ? filled++ : keep - 1;
-      while (pos > 0 && best_d[pos - 1] > d) {
-        best_d[pos] = best_d[pos - 1];
-        best_id[pos] = best_id[pos - 1];
-        --pos;
+    if (blend > 0) {
+      // Ranked by the blend with the codes' distance, 2|q − μ|²(1 − cos(π h
+      // / 128)); the PQ distances are still the ones reported (the guided
+      // confirmation compares PQ distances with them).
+      float norm2 = 0;
+      for (int j = 0; j < kDescriptorDim; ++j)
+        norm2 += (qf[j] - index_.hasher.mean[j]) * (qf[j] - index_.hasher.mean[j]);
+      const float scale = 2 * blend * norm2;
+      ws.ranked_blend.resize(ranked.size());
+      for (size_t r = 0; r < ranked.size(); ++r) {
+        const HashCode& pc = index_.codes[ranked[r]];
+        const int h = std::popcount(code.w[0] ^ pc.w[0]) + std::popcount(code.w[1] ^ pc.w[1]);
+        ws.ranked_blend[r] = (1 - blend) * ws.ranked_distances[r] + scale * unit_chord[h];
       }
-      best_d[pos] = d;
-      best_id[pos] = id;
+      const int filled = keep_nearest(ws.ranked_blend.data(), nullptr, ranked.size(), keep, best_d, best_id);
+      for (int i = 0; i < filled; ++i) {
+        best_pq[i] = ws.ranked_distances[best_id[i]];
+        best_id[i] = ranked[best_id[i]];
+      }
+      emit_matches(f, best_d, best_pq, best_id, filled, options, r11, r1m, out);
+    } else {
+      const int filled = keep_nearest(ws.ranked_distances.data(), ranked.data(), ranked.size(), keep, best_d, best_id);
+      emit_matches(f, best_d, best_d, best_id, filled, options, r11, r1m, out);
     }
-    emit_matches(f, best_d, best_id, filled, options, r11, r1m, out);
   }
   out.stats.ms_search = t.elapsed_ms();
   out.stats.ms_total = total.elapsed_ms();

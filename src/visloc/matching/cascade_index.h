@@ -195,6 +195,13 @@ struct CascadeSearchOptions {
   // before they are read. The same matches either way; off is the baseline
   // of the benchmarks that measure it.
   bool prefetch = true;
+  // > 0: the precise step ranks by (1 − w) d²_PQ + w · 2|q − μ|²(1 − cos(π h
+  // / 128)), blending in the distance the 128-bit codes imply (h their
+  // Hamming distance; hamming_blend.h), where w is this weight in [0, 1]
+  // (`visloc map fit-blend` fits one on a map's own data). The reported
+  // distances stay the PQ's (a 1-M list is then in the blend's order, not
+  // theirs). 0: the PQ distance alone (the paper's).
+  float hash_blend_weight = 0.0f;
   void validate() const;
 };
 
@@ -215,7 +222,8 @@ struct CascadeMatches {
   std::vector<float> distance;      // ADC distance (not squared)
   // 1-M set, CSR over the features that passed ν (a superset of the 1-1 features
   // under both rules): feature many_query[i] has candidates
-  // many_points[many_offsets[i] .. many_offsets[i+1]), nearest first.
+  // many_points[many_offsets[i] .. many_offsets[i+1]), nearest first (by the
+  // ranking distance: with the hash blend, the blend's, not many_distances').
   std::vector<uint32_t> many_query;
   std::vector<uint32_t> many_offsets{0};
   std::vector<uint32_t> many_points;
@@ -242,6 +250,7 @@ struct CascadeWorkspace {
   std::vector<uint8_t> hamming;
   std::vector<uint32_t> shortlist;
   std::vector<float> ranked_distances;
+  std::vector<float> ranked_blend;  // with CascadeSearchOptions::hash_blend_weight: the blended distances
   HashWorkspace encode;
   std::vector<float> table;
   size_t capacity_bytes() const;

@@ -9,6 +9,15 @@
 
 namespace visloc {
 
+const std::array<float, kHashBits + 1>& unit_chord_table() {
+  static const std::array<float, kHashBits + 1> table = [] {
+    std::array<float, kHashBits + 1> t{};
+    for (int h = 0; h <= kHashBits; ++h) t[h] = float(1 - std::cos(std::numbers::pi * h / double(kHashBits)));
+    return t;
+  }();
+  return table;
+}
+
 void hash_chord_table(double norm2, float* out) {
   for (int h = 0; h <= kHashBits; ++h)
     out[h] = float(2 * norm2 * (1 - std::cos(std::numbers::pi * h / double(kHashBits))));
@@ -23,13 +32,10 @@ double squared_norm_from_mean(const uint8_t* descriptor, const float* hash_mean)
   return s;
 }
 
-bool held_out_view(const float* mean, const uint8_t* observation, uint32_t track_size, uint8_t* out) {
+bool leave_one_out_mean(const float* mean, const uint8_t* observation, uint32_t track_size, float* out) {
   if (track_size < 2) return false;
-  const double c = std::sqrt((double(track_size) + 1) / (double(track_size) - 1));
-  for (int j = 0; j < kDescriptorDim; ++j) {
-    const double v = mean[j] + c * (double(observation[j]) - mean[j]);
-    out[j] = static_cast<uint8_t>(std::clamp(std::lround(v), 0L, 255L));
-  }
+  const double t = track_size;
+  for (int j = 0; j < kDescriptorDim; ++j) out[j] = float((t * mean[j] - observation[j]) / (t - 1));
   return true;
 }
 

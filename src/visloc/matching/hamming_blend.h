@@ -12,18 +12,20 @@
 // order than either.
 //
 // The weight w is a property of the map (its codebook, its hasher, its
-// descriptors), fitted when the map is made, never on queries. Its queries
-// are held-out views: for a sample of points, one observation of the point
-// in a map image (the map's descriptor is its track's mean), pushed away
-// from the mean so that it lies as far from it as a new view would
-// (held_out_view). Its distractors are query features with no point in the
-// map: points' own descriptors, each with its point left out of its short
-// list. fit_hamming_blend searches both and takes the weight, on a grid,
-// with the most net right 1-1 matches (a 1-1 match: the blend's nearest,
-// passing the search's ratio test): views matched to their own point, less
-// views matched to another and distractors matched at all; the smallest
-// such weight on ties. Taking as many distractors as views is a prior
-// (about half a query's features see a mapped point), not a fit.
+// descriptors), fitted on the map's own data, never on queries (`visloc map
+// fit-blend`, map_building/hash_blend_fit.h; not stored in the map: pass it
+// to the search). Its queries are held-out views: for a sample of points,
+// one observation of the point in a map image, searched against the map
+// with that point re-encoded from its track's mean without the observation
+// (leave_one_out_mean), so that the view is to its point as a new view is,
+// and to every other point as it is. Its distractors are query features
+// with no point in the map: points' own descriptors, each with its point
+// left out of its short list. fit_hamming_blend searches both and takes the
+// weight, on a grid, with the most net right 1-1 matches (a 1-1 match: the
+// blend's nearest, passing the search's ratio test): views matched to their
+// own point, less views matched to another and distractors matched at all;
+// the smallest such weight on ties. Taking as many distractors as views is
+// a prior (about half a query's features see a mapped point), not a fit.
 //
 // Measured and not kept: the map's own points as queries (each left out of
 // its own short list), with the weight from a regression of the exact
@@ -35,6 +37,7 @@
 // 0.817 of exact's 1-1 matches but only 79% of them right (89% at w 0).
 #pragma once
 
+#include <array>
 #include <cstddef>
 #include <cstdint>
 #include <span>
@@ -45,18 +48,16 @@
 
 namespace visloc {
 
+// 1 − cos(π h / 128) for h = 0..128: d²_H / (2|q − μ|²).
+const std::array<float, kHashBits + 1>& unit_chord_table();
 // d²_H for each Hamming distance 0..128 of a query with |q − μ|² = norm2.
 void hash_chord_table(double norm2, float* out /* kHashBits + 1 */);
 // |q − μ|² of a descriptor.
 double squared_norm_from_mean(const uint8_t* descriptor, const float* hash_mean);
 
-// A descriptor that lies from `mean` (a point's track mean) as a new view of
-// the point would: observation o is one of the track's t views, so
-// o − mean = (t − 1)/t (o − mean₋ₒ) is short by the mean's own pull; with
-// views of i.i.d. noise about the point, mean + c (o − mean), c = √((t + 1)
-// / (t − 1)), has the second moment of a new view's offset from the mean.
-// Rounded and clamped to [0, 255]. False (out untouched) when t < 2.
-bool held_out_view(const float* mean, const uint8_t* observation, uint32_t track_size, uint8_t* out);
+// The mean of a point's track without one of its views: (t · mean −
+// observation) / (t − 1), t = track_size. False (out untouched) when t < 2.
+bool leave_one_out_mean(const float* mean, const uint8_t* observation, uint32_t track_size, float* out);
 
 struct HammingBlendFitOptions {
   int refined_list = 40;          // L_R of the short lists, as the search's; in [2, 64]
@@ -78,8 +79,9 @@ struct HammingBlendFit {
   std::vector<size_t> distractor_matched;
 };
 
-// `queries` (held-out views) and `true_points` (each one's point id in the
-// index) have equal counts; none is an Error(kInvalidArgument). With no view
+// `queries` (held-out views, searched in `index`: the caller's index with
+// each view's point re-encoded without it) and `true_points` (each one's
+// point id) have equal counts; none is an Error(kInvalidArgument). With no view
 // listed, the weight is 0. Optional distractors: query features with no
 // point in the map, here points' own descriptors (`distractors`, rows) with
 // their point (`distractor_points`, equal counts) left out of their lists.

@@ -28,49 +28,31 @@ TEST(HammingBlend, ChordTableGoesFromZeroToTheDiameter) {
   EXPECT_DOUBLE_EQ(squared_norm_from_mean(d, mean), 4.0 * kDescriptorDim);
 }
 
-TEST(HammingBlend, HeldOutViewLiesAsFarAsANewView) {
-  float mean[kDescriptorDim];
-  uint8_t obs[kDescriptorDim], out[kDescriptorDim];
-  std::fill_n(mean, kDescriptorDim, 100.0f);
-  std::fill_n(obs, kDescriptorDim, uint8_t(110));
-  std::fill_n(out, kDescriptorDim, uint8_t(7));
-  EXPECT_FALSE(held_out_view(mean, obs, 1, out));  // a single view: no spread to scale
-  EXPECT_EQ(out[0], 7);
-  ASSERT_TRUE(held_out_view(mean, obs, 3, out));  // c = √2
-  EXPECT_EQ(out[0], 114);
-  ASSERT_TRUE(held_out_view(mean, obs, 1000, out));  // c → 1
-  EXPECT_EQ(out[5], 110);
-  mean[1] = 250, obs[1] = 255, mean[2] = 5, obs[2] = 0;
-  ASSERT_TRUE(held_out_view(mean, obs, 2, out));  // c = √3, clamped
-  EXPECT_EQ(out[1], 255);
-  EXPECT_EQ(out[2], 0);
-  // Statistically: views of a point with i.i.d. noise, t per track; the
-  // scaled view's mean squared offset from the track mean matches a new view's.
+// The track's mean without one view is the mean of the others.
+TEST(HammingBlend, LeaveOneOutMeanIsTheOtherViewsMean) {
   std::mt19937 rng(5);
-  std::normal_distribution<double> noise(0, 8);
-  for (const uint32_t t : {2u, 3u, 6u}) {
-    double scaled = 0, fresh = 0;
-    const int trials = 4000;
-    for (int trial = 0; trial < trials; ++trial) {
-      std::vector<std::array<double, kDescriptorDim>> views(t + 1);
-      for (auto& v : views)
-        for (double& x : v) x = 120 + noise(rng);
-      float m[kDescriptorDim];
-      for (int j = 0; j < kDescriptorDim; ++j) {
-        double s = 0;
-        for (uint32_t k = 0; k < t; ++k) s += views[k][j];
-        m[j] = float(s / t);
-      }
-      uint8_t o[kDescriptorDim], v[kDescriptorDim];
-      for (int j = 0; j < kDescriptorDim; ++j) o[j] = uint8_t(std::lround(views[0][j]));
-      ASSERT_TRUE(held_out_view(m, o, t, v));
-      for (int j = 0; j < kDescriptorDim; ++j) {
-        scaled += (v[j] - m[j]) * (v[j] - m[j]);
-        fresh += (views[t][j] - m[j]) * (views[t][j] - m[j]);  // view t is not in the mean
-      }
+  std::uniform_int_distribution<int> byte(0, 255);
+  for (const uint32_t t : {2u, 3u, 7u}) {
+    std::vector<std::array<uint8_t, kDescriptorDim>> views(t);
+    for (auto& v : views)
+      for (uint8_t& x : v) x = uint8_t(byte(rng));
+    float mean[kDescriptorDim], others[kDescriptorDim], out[kDescriptorDim];
+    for (int j = 0; j < kDescriptorDim; ++j) {
+      double all = 0, rest = 0;
+      for (uint32_t k = 0; k < t; ++k) all += views[k][j], rest += k == 1 ? 0 : views[k][j];
+      mean[j] = float(all / t);
+      others[j] = float(rest / (t - 1));
     }
-    EXPECT_NEAR(scaled / fresh, 1.0, 0.03) << "track " << t;
+    ASSERT_TRUE(leave_one_out_mean(mean, views[1].data(), t, out));
+    for (int j = 0; j < kDescriptorDim; ++j) EXPECT_NEAR(out[j], others[j], 1e-3) << "track " << t << ", dim " << j;
   }
+  float mean[kDescriptorDim], out[kDescriptorDim];
+  uint8_t obs[kDescriptorDim];
+  std::fill_n(mean, kDescriptorDim, 3.0f);
+  std::fill_n(obs, kDescriptorDim, uint8_t(3));
+  std::fill_n(out, kDescriptorDim, 7.0f);
+  EXPECT_FALSE(leave_one_out_mean(mean, obs, 1, out));  // a single view: no other
+  EXPECT_EQ(out[0], 7.0f);
 }
 
 TEST(HammingBlend, OptionsAreValidated) {

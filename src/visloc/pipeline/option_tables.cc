@@ -56,6 +56,12 @@ void add_options(OptionTable& t, LocalizerOptions& o) {
         "list (the sum of their 136 buckets' sizes) holds more than this many points; the others probe all 16 "
         "(0: every feature)")
       .range(0, 1 << 30);
+  t.add("--hash-blend", o.search.hash_blend_weight,
+        "Cascade search (every setting): weight w in [0, 1] of the distance the 128-bit hash codes imply, "
+        "blended into the PQ distance that ranks each short list: (1 - w) d2_PQ + w d2_hash. 0: the PQ alone "
+        "(the paper's); > 0: more right matches, but a smaller share of them right. `visloc map fit-blend` "
+        "fits a weight on an imported map's own data")
+      .range(0.0, 1.0);
   t.add("--early-stop", o.search.early_stop,
         "Settings 3, 3+: the prioritized search stops at this many 1-1 matches (N_early)");
   t.flag("!--no-fallback", o.full_search_fallback,

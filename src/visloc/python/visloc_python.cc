@@ -246,6 +246,7 @@ void take_localizer_options(Kwargs& k, LocalizerOptions& o) {
   k.take("early_stop", o.search.early_stop);
   k.take("lut_flips", o.search.lut_flips);
   k.take("lut_flips_min_list", o.search.lut_flips_min_list);
+  k.take("hash_blend", o.search.hash_blend_weight);
   k.take("full_search_fallback", o.full_search_fallback);
   k.take("threshold_px", o.ransac.threshold_px);
   k.take("min_inliers", o.ransac.min_inliers);
@@ -735,6 +736,7 @@ Localizer(map_dir, **options): options are LocalizerOptions fields, named as
 the `visloc localize` flags: setting ('1', '2', '3', '3+'), top_images,
 max_segments, fallback_segments, segment_votes ('auto', 'points', 'images',
 'both'), vote_points, vote_max_points, vote_radius, vote_ratio, vote_chance_normalization, accept_inliers, early_stop, lut_flips, lut_flips_min_list,
+hash_blend,
 full_search_fallback, threshold_px, min_inliers, min_confidence, under_street_check (False: --allow-under-street),
 map_point_uncertainty (False: --no-map-point-uncertainty),
 max_drop_below_map, use_exif_focal, seed, cache_mib, max_image_side,

@@ -79,6 +79,8 @@ def test_not_a_map_raises_format_error(tmp_path):
         ({"vote_radius": 2}, ValueError, "vote_radius"),
         ({"lut_flips": 17}, ValueError, "lut_flips"),
         ({"lut_flips_min_list": -1}, ValueError, "lut_flips_min_list"),
+        ({"hash_blend": 1.5}, ValueError, "hash_blend"),
+        ({"hash_blend": float("nan")}, ValueError, "hash_blend"),
         ({"vote_ratio": 1.5}, ValueError, "vote_ratio"),
         ({"vote_ratio": 0.0}, ValueError, "vote_ratio"),
         ({"top_images": "20"}, TypeError, "top_images"),
