@@ -534,7 +534,8 @@ std::string reranking_method(const ShortlistRanker& r, int list) {
 // Opt-in: only when a --method names it (an empty list runs every other
 // method); the fitted blend only when named past "rerank-pq16-hamfit".
 bool reranking_wanted(const std::vector<std::string>& methods, const ShortlistRanker& r, int list) {
-  if (r.hamming_fitted) return named_past(methods, reranking_method(r, list), "rerank-pq16-hamfit");
+  if (r.hamming_fitted)  // fitted at the search's L_R, 40
+    return list == 40 && named_past(methods, reranking_method(r, list), "rerank-pq16-hamfit");
   return !methods.empty() && method_wanted(methods, reranking_method(r, list));
 }
 

@@ -75,9 +75,10 @@ void add_fit_blend(CLI::App& map) {
       "fit-blend",
       "Fit the weight of the hash codes' distance in the cascade search's ranking (localize/eval --hash-blend) on "
       "the map's own data: held-out views of its points (one observation each, read again from the COLMAP model "
-      "and database the map was imported from, searched with their point re-encoded without them) and its "
-      "points as distractors; prints the weight with the most net right 1-1 matches (not stored: pass it as "
-      "--hash-blend). Needs a one-segment map from map import --colmap that kept its descriptors");
+      "and database the map was imported from, or a built map's MAP/work, searched with their point re-encoded "
+      "without them) and its points as distractors; prints the weight with the most net right 1-1 matches (not "
+      "stored: pass it as --hash-blend). Needs a map from map import --colmap or map build that kept its "
+      "descriptors (and, built, its work folder)");
   OptionTable t;
   t.add("map", args->map_dir, "Map directory").require();
   t.add("--views", args->options.views, "Points whose held-out view is searched (and as many distractors)")

@@ -239,9 +239,9 @@ TEST(ColmapModelValidation, RejectsMeaninglessValuesInBothFormats) {
 
 // The observation sample: evenly spaced points, each one of its own track's
 // views (not always the track's first), whatever order the images are read in.
-TEST(PointDescriptors, SamplesTheFirstViewOfEvenlySpacedPoints) {
+TEST(PointDescriptors, SamplesOneOwnViewOfEvenlySpacedPoints) {
   ColmapModel m;
-  for (uint32_t id : {3u, 1u, 2u}) {  // images in a different order from the tracks
+  for (uint32_t id : {1u, 2u, 3u}) {
     ColmapImage im;
     im.image_id = id;
     im.name = "im" + std::to_string(id);
@@ -249,8 +249,7 @@ TEST(PointDescriptors, SamplesTheFirstViewOfEvenlySpacedPoints) {
     im.point3d_ids.assign(10, kColmapInvalidPoint3DId);
     m.images.push_back(im);
   }
-  std::sort(m.images.begin(), m.images.end(), [](const auto& a, const auto& b) { return a.image_id < b.image_id; });
-  // Point p: seen by images 2 then 3 then 1, as 2D point p.
+  // Point p: seen by images 2 then 3 then 1 (not the images' order), as 2D point p.
   for (int p = 0; p < 10; ++p) {
     ColmapPoint3D pt;
     pt.point3d_id = p + 1;

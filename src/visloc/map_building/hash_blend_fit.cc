@@ -10,8 +10,11 @@
 #include "visloc/colmap/colmap_model.h"
 #include "visloc/colmap/point_descriptors.h"
 #include "visloc/map/map.h"
+#include "visloc/map_building/map_builder.h"
 #include "visloc/util/error.h"
 #include "visloc/util/timer.h"
+
+namespace fs = std::filesystem;
 
 namespace visloc {
 
@@ -21,62 +24,23 @@ void MapBlendFitOptions::validate() const {
   fit.validate();
 }
 
-MapBlendFit fit_map_hash_blend(const std::filesystem::path& map_dir, const MapBlendFitOptions& options) {
-  options.validate();
-  Timer timer;
-  const Map map = Map::open(map_dir);
-  const MapManifest& man = map.manifest();
-  const std::string where = map_dir.string();
-  const auto text_of = [&man](const char* key) {
-    const auto it = man.source.is_object() ? man.source.find(key) : man.source.end();
-    return it != man.source.end() && it->is_string() ? it->get<std::string>() : std::string();
-  };
-  const std::string type = text_of("type");
-  MapBlendFit out;
-  out.weight_steps = options.fit.weight_steps;
-  out.model = text_of("model");
-  out.database = text_of("database");
-  if (type != "colmap" || out.model.empty() || out.database.empty())
-    throw_error(ErrorCode::kInvalidArgument, where,
-                ": fitting the hash blend needs a map imported from a COLMAP model and database (map import "
-                "--colmap); this map's source is ",
-                type.empty() ? std::string("not recorded") : "'" + type + "'");
-  if (man.segments.size() != 1)
-    throw_error(ErrorCode::kInvalidArgument, where, ": fitting the hash blend needs a one-segment map; it has ",
-                man.segments.size());
-  if (man.segments[0].descriptors_file.empty())
-    throw_error(ErrorCode::kInvalidArgument, where,
-                ": the map kept no point descriptors (imported with --no-descriptors); fitting the hash blend "
-                "checks them against the model's");
-  const std::unique_ptr<Segment> segment = map.open_segment(0);
-  const DescriptorMatrix stored =
-      read_point_descriptor_file(std::filesystem::path(map_dir) / man.segments[0].descriptors_file);
-  ColmapModel model = read_colmap_model(out.model);
-  try {
-    if (!man.holdout_images.empty()) remove_images(model, man.holdout_images);
-  } catch (const Error& e) {
-    throw_error(ErrorCode::kFormat, where, ": the map's held-out images are not in ", out.model,
-                " (the model changed since the import?): ", e.what());
-  }
-  const ColmapDatabase db(out.database);
-  const PointDescriptors desc = compute_point_descriptors(model, db, options.views);
-  out.points = segment->num_points();
-  if (stored.rows() != out.points)
-    throw_error(ErrorCode::kFormat, where, ": its descriptor file holds ", stored.rows(), " points, its segment ",
-                out.points);
-  const DescriptorMatrix means = round_descriptors(desc.mean);
-  if (means.rows() != out.points)
-    throw_error(ErrorCode::kFormat, where, ": ", out.model, " has ", means.rows(),
-                " points (its held-out images "
-                "removed), the map ",
-                out.points, ": the model changed since the import");
-  if (!std::equal(means.data(), means.data() + means.size_bytes(), stored.data()))
-    throw_error(ErrorCode::kFormat, where, ": the track means of ", out.model, " and ", out.database,
-                " are not the map's point descriptors: model or database changed since the import");
-  // The views: each sampled point's observation, searched in a copy of the
-  // index where that point is re-encoded (hash and PQ codes, lookup rebuilt)
-  // from its track's mean without the observation.
-  const CascadeIndexView& index = segment->index();
+namespace {
+
+bool is_model_dir(const fs::path& dir) {
+  std::error_code ec;
+  return fs::exists(dir / "points3D.bin", ec) || fs::exists(dir / "points3D.txt", ec);
+}
+
+// A segment's views and distractors. The views are searched in rounds, each
+// in a copy of the index where only that round's points are re-encoded
+// (hash and PQ codes, lookup rebuilt) from their track's mean without their
+// view: at most a twentieth of the segment's points per round, so that the
+// other points stand as the map has them. The distractors are searched in
+// the segment's own index.
+HammingBlendFit fit_segment(const Map& map, const Segment& segment, const DescriptorMatrix& stored,
+                            const PointDescriptors& desc, const HammingBlendFitOptions& options) {
+  const CascadeIndexView& index = segment.index();
+  const size_t n = segment.num_points();
   DescriptorMatrix views(desc.sampled_points.size()), distractors(desc.sampled_points.size());
   std::vector<uint32_t> view_points;
   std::vector<float> others(desc.sampled_points.size() * kDescriptorDim);
@@ -89,30 +53,178 @@ MapBlendFit fit_map_hash_blend(const std::filesystem::path& map_dir, const MapBl
     std::copy_n(desc.sampled_observations.row(k), kDescriptorDim, views.row(view_points.size()));
     view_points.push_back(p);
   }
-  views.resize(view_points.size());
-  if (view_points.empty())
-    throw_error(ErrorCode::kInvalidArgument, where, ": no point has a track of 2 views or more to fit on");
   const size_t nv = view_points.size();
-  std::vector<HashCode> codes(index.codes, index.codes + out.points), other_codes(nv);
+  std::vector<HashCode> other_codes(nv);
   const size_t code_bytes = size_t(index.pq_subvectors);
-  std::vector<uint8_t> pq(index.pq_codes, index.pq_codes + out.points * code_bytes), other_pq(nv * code_bytes);
-  HashWorkspace hash_ws;
-  encode_hash(index.hasher, others.data(), nv, other_codes.data(), hash_ws);
-  map.codebook().encode(others.data(), nv, other_pq.data());
-  for (size_t k = 0; k < nv; ++k) {
-    codes[view_points[k]] = other_codes[k];
-    std::copy_n(other_pq.data() + k * code_bytes, code_bytes, pq.data() + size_t(view_points[k]) * code_bytes);
+  std::vector<uint8_t> other_pq(nv * code_bytes);
+  if (nv > 0) {
+    HashWorkspace hash_ws;
+    encode_hash(index.hasher, others.data(), nv, other_codes.data(), hash_ws);
+    map.codebook().encode(others.data(), nv, other_pq.data());
   }
-  const CascadeLookup lookup(codes);
-  CascadeIndexView held_out = index;
-  held_out.codes = codes.data();
-  held_out.pq_codes = pq.data();
-  held_out.lookup = &lookup;
-  out.ms_read = timer.elapsed_ms();
-  timer.reset();
-  out.fit =
-      fit_hamming_blend(held_out, map.codebook(), views, view_points, options.fit, &distractors, desc.sampled_points);
-  out.ms_fit = timer.elapsed_ms();
+  // The distractors (no view) in the segment's own index.
+  HammingBlendFit sum =
+      fit_hamming_blend(index, map.codebook(), DescriptorMatrix(), {}, options, &distractors, desc.sampled_points);
+  std::vector<HashCode> codes(index.codes, index.codes + n);
+  std::vector<uint8_t> pq(index.pq_codes, index.pq_codes + n * code_bytes);
+  const size_t per_round = std::max<size_t>(1, n / 20);
+  for (size_t begin = 0; begin < nv; begin += per_round) {
+    const size_t end = std::min(nv, begin + per_round);
+    for (size_t k = begin; k < end; ++k) {
+      codes[view_points[k]] = other_codes[k];
+      std::copy_n(other_pq.data() + k * code_bytes, code_bytes, pq.data() + size_t(view_points[k]) * code_bytes);
+    }
+    const CascadeLookup lookup(codes, /*neighbourhood_sizes=*/false);  // the fit's search is not prioritized
+    CascadeIndexView held_out = index;
+    held_out.codes = codes.data();
+    held_out.pq_codes = pq.data();
+    held_out.lookup = &lookup;
+    const DescriptorMatrix round_views(views.row(begin), end - begin);
+    const std::span<const uint32_t> round_points(view_points.data() + begin, end - begin);
+    const HammingBlendFit round = fit_hamming_blend(held_out, map.codebook(), round_views, round_points, options);
+    sum.queries += round.queries;
+    sum.listed += round.listed;
+    for (size_t s = 0; s < sum.correct.size(); ++s) sum.correct[s] += round.correct[s], sum.wrong[s] += round.wrong[s];
+    for (size_t k = begin; k < end; ++k) {  // restore the map's codes
+      const uint32_t p = view_points[k];
+      codes[p] = index.codes[p];
+      std::copy_n(index.pq_codes + size_t(p) * code_bytes, code_bytes, pq.data() + size_t(p) * code_bytes);
+    }
+  }
+  choose_hamming_blend_weight(sum);
+  return sum;
+}
+
+}  // namespace
+
+MapBlendFit fit_map_hash_blend(const fs::path& map_dir, const MapBlendFitOptions& options) {
+  options.validate();
+  Timer timer;
+  const Map map = Map::open(map_dir);
+  const MapManifest& man = map.manifest();
+  const std::string where = map_dir.string();
+  const auto text_of = [&man](const char* key) {
+    const auto it = man.source.is_object() ? man.source.find(key) : man.source.end();
+    return it != man.source.end() && it->is_string() ? it->get<std::string>() : std::string();
+  };
+  const std::string type = text_of("type");
+  MapBlendFit out;
+  out.weight_steps = options.fit.weight_steps;
+  const bool imported = type == "colmap" && !text_of("model").empty() && !text_of("database").empty();
+  if (!imported && type != "build")
+    throw_error(ErrorCode::kInvalidArgument, where,
+                ": fitting the hash blend needs a map imported from a COLMAP model and database (map import "
+                "--colmap) or built by map build; this map's source is ",
+                type.empty() ? std::string("not recorded") : "'" + type + "'");
+  if (imported && man.segments.size() != 1)
+    throw_error(ErrorCode::kInvalidArgument, where, ": an imported map has one segment; this one has ",
+                man.segments.size());
+  if (man.segments.empty()) throw_error(ErrorCode::kInvalidArgument, where, ": the map has no segments");
+  for (const auto& s : man.segments) out.points += s.points;
+
+  std::vector<HammingBlendFit> fits;
+  for (size_t si = 0; si < man.segments.size(); ++si) {
+    const MapSegmentEntry& entry = man.segments[si];
+    if (entry.descriptors_file.empty())
+      throw_error(ErrorCode::kInvalidArgument, where, ": segment ", entry.id,
+                  " kept no point descriptors (imported with --no-descriptors); fitting the hash blend checks "
+                  "them against its model's");
+    MapBlendFit::SegmentSource src;
+    src.segment = int(entry.id);
+    std::vector<fs::path> candidates;
+    if (imported) {
+      src.model = text_of("model");
+      src.database = text_of("database");
+      candidates.push_back(src.model);
+    } else {
+      const fs::path work = segment_work_dir(map_dir, int(entry.id));
+      src.database = (work / "database.db").string();
+      std::error_code ec;
+      if (fs::is_directory(work / "sparse", ec))
+        for (const auto& d : fs::directory_iterator(work / "sparse", ec))
+          if (is_model_dir(d.path())) candidates.push_back(d.path());
+      std::sort(candidates.begin(), candidates.end());
+      if (candidates.empty() || !fs::exists(src.database, ec))
+        throw_error(ErrorCode::kInvalidArgument, where, ": segment ", entry.id, "'s COLMAP model and database ",
+                    "are not in ", work.string(), " (built with its work folder removed?)");
+    }
+    const std::unique_ptr<Segment> segment = map.open_segment(si);
+    const DescriptorMatrix stored = read_point_descriptor_file(fs::path(map_dir) / entry.descriptors_file);
+    if (stored.rows() != segment->num_points())
+      throw_error(ErrorCode::kFormat, where, ": segment ", entry.id, "'s descriptor file holds ", stored.rows(),
+                  " points, the segment ", segment->num_points());
+    // The segment's share of the views, by its points.
+    const size_t share =
+        std::max<size_t>(2, size_t(double(options.views) * double(segment->num_points()) / double(out.points)));
+    std::unique_ptr<ColmapDatabase> db;
+    try {
+      db = std::make_unique<ColmapDatabase>(src.database);
+    } catch (const Error& e) {
+      throw_error(e.code(), where, ": opening segment ", entry.id, "'s database ", src.database,
+                  " (recorded when the map was made): ", e.what());
+    }
+    std::string mismatch;
+    bool found = false;
+    for (const fs::path& dir : candidates) {
+      ColmapModel model;
+      try {
+        model = read_colmap_model(dir);
+      } catch (const Error& e) {
+        throw_error(e.code(), where, ": reading segment ", entry.id, "'s model ", dir.string(),
+                    " (recorded when the map was made): ", e.what());
+      }
+      if (imported && !man.holdout_images.empty()) {
+        try {
+          remove_images(model, man.holdout_images);
+        } catch (const Error& e) {
+          throw_error(ErrorCode::kFormat, where, ": the map's held-out images are not in ", dir.string(),
+                      " (the model changed since the import?): ", e.what());
+        }
+      }
+      if (model.points.size() != segment->num_points()) {
+        mismatch = dir.string() + " has " + std::to_string(model.points.size()) + " points, the segment " +
+                   std::to_string(segment->num_points());
+        continue;
+      }
+      const PointDescriptors desc = compute_point_descriptors(model, *db, share);
+      const DescriptorMatrix means = round_descriptors(desc.mean);
+      if (!std::equal(means.data(), means.data() + means.size_bytes(), stored.data())) {
+        mismatch =
+            "the track means of " + dir.string() + " and " + src.database + " are not the segment's point descriptors";
+        continue;
+      }
+      src.model = dir.string();
+      src.points = segment->num_points();
+      fits.push_back(fit_segment(map, *segment, stored, desc, options.fit));
+      src.views = fits.back().queries;
+      found = true;
+      break;
+    }
+    if (!found)
+      throw_error(ErrorCode::kFormat, where, ": segment ", entry.id, ": ", mismatch,
+                  ": the model or database changed since the map was made");
+    out.segments.push_back(src);
+  }
+  out.ms = timer.elapsed_ms();
+  // The sum over the segments, and its weight.
+  HammingBlendFit& sum = out.fit;
+  const size_t steps = size_t(options.fit.weight_steps);
+  sum.correct.assign(steps + 1, 0);
+  sum.wrong.assign(steps + 1, 0);
+  sum.distractor_matched.assign(steps + 1, 0);
+  for (const HammingBlendFit& f : fits) {
+    sum.queries += f.queries;
+    sum.listed += f.listed;
+    sum.distractors += f.distractors;
+    for (size_t k = 0; k <= steps; ++k) {
+      sum.correct[k] += f.correct[k];
+      sum.wrong[k] += f.wrong[k];
+      sum.distractor_matched[k] += f.distractor_matched[k];
+    }
+  }
+  choose_hamming_blend_weight(sum);
+  if (sum.queries == 0)
+    throw_error(ErrorCode::kInvalidArgument, where, ": no point has a track of 2 views or more to fit on");
   return out;
 }
 
@@ -123,18 +235,29 @@ nlohmann::json MapBlendFit::to_json() const {
                     {"views_right", fit.correct[k]},
                     {"views_wrong", fit.wrong[k]},
                     {"distractors_matched", fit.distractor_matched[k]}});
-  return {
-      {"weight", fit.weight}, {"views", fit.queries}, {"views_listed", fit.listed}, {"distractors", fit.distractors},
-      {"points", points},     {"model", model},       {"database", database},       {"ms_read", ms_read},
-      {"ms_fit", ms_fit},     {"grid", grid}};
+  nlohmann::json sources = nlohmann::json::array();
+  for (const auto& s : segments)
+    sources.push_back({{"segment", s.segment},
+                       {"model", s.model},
+                       {"database", s.database},
+                       {"points", s.points},
+                       {"views", s.views}});
+  return {{"weight", fit.weight},
+          {"views", fit.queries},
+          {"views_listed", fit.listed},
+          {"distractors", fit.distractors},
+          {"points", points},
+          {"segments", sources},
+          {"ms", ms},
+          {"grid", grid}};
 }
 
 std::string MapBlendFit::summary(const std::string& map_dir) const {
   std::ostringstream s;
   s << map_dir << ": hash blend weight " << fit.weight << " (search with --hash-blend " << fit.weight << ")\n"
-    << "  " << fit.queries << " held-out views of the " << points << " points (" << fit.listed
-    << " with a short list), " << fit.distractors << " distractors; read in " << std::fixed << std::setprecision(0)
-    << ms_read << " ms, fitted in " << ms_fit << " ms\n"
+    << "  " << fit.queries << " held-out views of the " << points << " points of " << segments.size()
+    << (segments.size() == 1 ? " segment (" : " segments (") << fit.listed << " with a short list), " << fit.distractors
+    << " distractors; " << std::fixed << std::setprecision(0) << ms << " ms\n"
     << "  weight  views right  views wrong  distractors matched  net\n";
   for (size_t k = 0; k < fit.correct.size(); ++k) {
     const double w = double(k) / weight_steps;

@@ -1,41 +1,55 @@
 // The hash-code blend's weight of a map (CascadeSearchOptions::
 // hash_blend_weight, matching/hamming_blend.h), fitted on the map's own
 // data: `visloc map fit-blend`. The views are observations of the map's
-// points in its own images, read again from the COLMAP model and database a
-// map was imported from (its held-out images removed as at the import), so
-// it needs a one-segment map from `map import --colmap` that kept its point
-// descriptors (the check that the model's track means are the map's
-// descriptors, i.e. that model and database are still those of the import).
+// points in its own images, read again from the COLMAP models and databases
+// the map was made from:
+//   - a map imported from a COLMAP model (map import --colmap): the model and
+//     database its manifest names, its held-out images removed again;
+//   - a built map (map build): each segment's MAP/work/segNNNN/database.db
+//     and the model under its sparse/ (kept unless the build removed its
+//     work folder).
+// The map must have kept its point descriptors: each segment's model's track
+// means must be its descriptors (the check that model and database are still
+// those the map was made from). The views are shared among the segments by
+// their points; their counts are summed over the segments, and the weight is
+// the grid weight with the most net right 1-1 matches in the sum. Not stored
+// in the map: pass it to the search (--hash-blend).
 #pragma once
 
 #include <cstddef>
 #include <filesystem>
 #include <nlohmann/json_fwd.hpp>
 #include <string>
+#include <vector>
 
 #include "visloc/matching/hamming_blend.h"
 
 namespace visloc {
 
 struct MapBlendFitOptions {
-  size_t views = 4000;  // points whose held-out view is searched (and as many distractors)
+  size_t views = 4000;  // points whose held-out view is searched (and as many distractors), over the map
   HammingBlendFitOptions fit;
   void validate() const;  // throws kInvalidArgument
 };
 
 struct MapBlendFit {
-  HammingBlendFit fit;
-  size_t points = 0;  // the segment's
+  struct SegmentSource {
+    int segment = 0;
+    std::string model, database;
+    size_t points = 0, views = 0;
+  };
+  HammingBlendFit fit;  // summed over the segments; its weight chosen on the sum
+  std::vector<SegmentSource> segments;
+  size_t points = 0;  // the map's
   int weight_steps = 20;
-  std::string model, database;
-  double ms_read = 0, ms_fit = 0;
+  double ms = 0;  // reading the models and databases, and the fits
   nlohmann::json to_json() const;
   std::string summary(const std::string& map_dir) const;
 };
 
-// Throws Error(kInvalidArgument) naming the map when it is not such a map,
-// Error(kFormat) when its model's means are not its descriptors, and the
-// model's and database's readers' errors.
+// Throws Error(kInvalidArgument) naming the map when it is neither kind or
+// kept no descriptors or model, Error(kFormat) when a model's means are not
+// its descriptors, and the model's and database's readers' errors.
 MapBlendFit fit_map_hash_blend(const std::filesystem::path& map_dir, const MapBlendFitOptions& options = {});
 
 }  // namespace visloc

@@ -281,7 +281,6 @@ struct BuildContext {
 fs::path feature_path(const BuildContext& ctx, const std::string& image) {
   return ctx.map_dir / "work" / "features" / (image + ".vlfeat");
 }
-fs::path segment_work_dir(const fs::path& map_dir, int id) { return map_dir / "work" / ("seg" + segment_stem(id)); }
 fs::path segment_progress_file(const fs::path& map_dir, int id) { return segment_work_dir(map_dir, id) / "progress.json"; }
 fs::path segment_result_file(const fs::path& map_dir, int id) { return segment_work_dir(map_dir, id) / "result.json"; }
 fs::path segment_file(const fs::path& map_dir, int id) { return map_dir / "segments" / (segment_stem(id) + ".vlseg"); }
@@ -944,6 +943,8 @@ double stage_fraction(const SegmentProgress& p) {
 }
 
 }  // namespace
+
+fs::path segment_work_dir(const fs::path& map_dir, int id) { return map_dir / "work" / ("seg" + segment_stem(id)); }
 
 HashRotationScope resolve_hash_rotation(const fs::path& map_dir, const std::optional<HashRotationScope>& given) {
   if (given) return *given;

@@ -214,6 +214,10 @@ struct MapBuildProgress {
 SegmentBuildResult build_planned_segment(const std::filesystem::path& map_dir, const MapBuildOptions& options,
                                          int segment);
 
+// MAP/work/segNNNN: segment `segment`'s working folder (its COLMAP database,
+// model under sparse/, logs), kept after the build unless keep_work is off.
+std::filesystem::path segment_work_dir(const std::filesystem::path& map_dir, int segment);
+
 // The hash rotation a build of `map_dir` uses: `given`, else the existing
 // map's (MAP/hash_rotation.vlitq present: kMap; a manifest without it: a
 // map built with a rotation per segment, kSegment), else kMap for a new map.

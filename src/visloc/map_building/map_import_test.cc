@@ -288,6 +288,11 @@ TEST(MapImport, FitsTheHashBlendOnItsOwnViews) {
   EXPECT_GT(fit.fit.listed, 1400u);
   ASSERT_EQ(fit.fit.correct.size(), 5u);
   EXPECT_GT(fit.fit.correct[0], 1000u);  // a held-out view mostly finds its point
+  // ... where a distractor, its point left out, seldom matches at all.
+  EXPECT_LT(fit.fit.distractor_matched[0], 300u);
+  ASSERT_EQ(fit.segments.size(), 1u);
+  EXPECT_EQ(fit.segments[0].views, 1500u);
+  EXPECT_NE(fit.segments[0].model.find("sparse"), std::string::npos);
   for (size_t k = 0; k < 5; ++k) EXPECT_LE(fit.fit.correct[k] + fit.fit.wrong[k], fit.fit.listed);
   EXPECT_GE(fit.fit.weight, 0.0);
   EXPECT_LE(fit.fit.weight, 1.0);
@@ -301,13 +306,19 @@ TEST(MapImport, FitsTheHashBlendOnItsOwnViews) {
   man.holdout_images.clear();
   write_manifest(out / "map", man);
   std::string e = error_of([&] { fit_map_hash_blend(out / "map"); });
-  EXPECT_NE(e.find("changed since the import"), std::string::npos) << e;
+  EXPECT_NE(e.find("changed since the map was made"), std::string::npos) << e;
   // Without descriptors, or not from a COLMAP model.
   man.source["type"] = "built";
   write_manifest(out / "map", man);
   e = error_of([&] { fit_map_hash_blend(out / "map"); });
   EXPECT_NE(e.find("imported from a COLMAP model"), std::string::npos) << e;
   EXPECT_NE(e.find("'built'"), std::string::npos) << e;
+  // A built map reads each segment's work folder.
+  man.source["type"] = "build";
+  write_manifest(out / "map", man);
+  e = error_of([&] { fit_map_hash_blend(out / "map"); });
+  EXPECT_NE(e.find("work/seg0000"), std::string::npos) << e;
+  EXPECT_NE(e.find("work folder removed"), std::string::npos) << e;
   o.keep_descriptors = false;
   import_colmap_map(scene / "colmap" / "sparse", scene / "colmap" / "database.db", out / "bare", o);
   e = error_of([&] { fit_map_hash_blend(out / "bare"); });

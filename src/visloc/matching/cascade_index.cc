@@ -144,7 +144,7 @@ void CascadeMatches::clear() {
 size_t CascadeWorkspace::capacity_bytes() const {
   return seen.capacity() + query_codes.capacity() * sizeof(HashCode) + sizes.capacity() * 4 + order.capacity() * 8 +
          candidates.capacity() * 4 + margins.capacity() * 4 + margin_codes.capacity() * sizeof(HashCode) +
-         hamming.capacity() + shortlist.capacity() * 4 + ranked_distances.capacity() * 4 +
+         hamming.capacity() + shortlist.capacity() * 4 + ranked_distances.capacity() * 4 + ranked_blend.capacity() * 4 +
          encode.projection_transposed.capacity() * 4 + encode.centred.capacity() * 4 +
          encode.quantized.weight_pairs.capacity() * 2 + encode.quantized.weights_transposed.capacity() * 2 +
          encode.quantized.thresholds.capacity() * 4 + table.capacity() * 4 + counts.capacity() * 4;

@@ -51,19 +51,41 @@ void HammingBlendFitOptions::validate() const {
                 weight_steps);
 }
 
+void choose_hamming_blend_weight(HammingBlendFit& fit) {
+  VISLOC_CHECK(!fit.correct.empty() && fit.wrong.size() == fit.correct.size() &&
+                   fit.distractor_matched.size() == fit.correct.size(),
+               "a blend fit's counts per grid weight");
+  // Net right 1-1 matches: each wrong match, a view's or a distractor's,
+  // costs what a right one gains.
+  const auto net = [&fit](size_t s) {
+    return double(fit.correct[s]) - double(fit.wrong[s]) - double(fit.distractor_matched[s]);
+  };
+  const size_t steps = fit.correct.size() - 1;
+  if (fit.listed == 0) {  // no view to gain: the PQ alone
+    fit.weight = 0;
+    return;
+  }
+  size_t best_step = 0;
+  for (size_t s = 1; s <= steps; ++s)
+    if (net(s) > net(best_step)) best_step = s;
+  fit.weight = steps == 0 ? 0.0 : double(best_step) / double(steps);
+}
+
 HammingBlendFit fit_hamming_blend(const CascadeIndexView& index, const PqCodebook& codebook,
                                   const DescriptorMatrix& queries, std::span<const uint32_t> true_points,
                                   const HammingBlendFitOptions& options, const DescriptorMatrix* distractors,
                                   std::span<const uint32_t> distractor_points) {
   options.validate();
   index.validate("fit_hamming_blend");
-  if (queries.rows() != true_points.size() || queries.empty())
+  if (queries.rows() != true_points.size())
     throw_error(ErrorCode::kInvalidArgument, "fit_hamming_blend: ", queries.rows(), " views for ", true_points.size(),
-                " points (equal counts, at least one)");
+                " points (equal counts)");
   const size_t nd = distractors ? distractors->rows() : 0;
   if (nd != distractor_points.size())
     throw_error(ErrorCode::kInvalidArgument, "fit_hamming_blend: ", nd, " distractors for ", distractor_points.size(),
                 " points");
+  if (queries.empty() && nd == 0)
+    throw_error(ErrorCode::kInvalidArgument, "fit_hamming_blend: no view and no distractor");
   HammingBlendFit fit;
   fit.queries = queries.rows();
   fit.distractors = nd;
@@ -136,15 +158,7 @@ HammingBlendFit fit_hamming_blend(const CascadeIndexView& index, const PqCodeboo
       }
     }
   }
-  // Net right 1-1 matches: each wrong match, a view's or a distractor's,
-  // costs what a right one gains.
-  const auto net = [&fit](size_t s) {
-    return double(fit.correct[s]) - double(fit.wrong[s]) - double(fit.distractor_matched[s]);
-  };
-  size_t best_step = 0;
-  for (size_t s = 1; s <= steps; ++s)
-    if (net(s) > net(best_step)) best_step = s;
-  fit.weight = double(best_step) / double(steps);
+  choose_hamming_blend_weight(fit);
   return fit;
 }
 

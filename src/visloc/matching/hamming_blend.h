@@ -15,10 +15,11 @@
 // descriptors), fitted on the map's own data, never on queries (`visloc map
 // fit-blend`, map_building/hash_blend_fit.h; not stored in the map: pass it
 // to the search). Its queries are held-out views: for a sample of points,
-// one observation of the point in a map image, searched against the map
+// one observation of the point in a map image (points of 2 views or more), searched against the map
 // with that point re-encoded from its track's mean without the observation
-// (leave_one_out_mean), so that the view is to its point as a new view is,
-// and to every other point as it is. Its distractors are query features
+// (leave_one_out_mean), so that the view is to its point as a new view is
+// (map_building re-encodes a twentieth of the points at a time, the others
+// as the map has them). Its distractors are query features
 // with no point in the map: points' own descriptors, each with its point
 // left out of its short list. fit_hamming_blend searches both and takes the
 // weight, on a grid, with the most net right 1-1 matches (a 1-1 match: the
@@ -79,10 +80,15 @@ struct HammingBlendFit {
   std::vector<size_t> distractor_matched;
 };
 
+// Sets fit.weight: the grid weight (k / (correct.size() − 1)) with the most
+// net right 1-1 matches, correct − wrong − distractor_matched; the smallest
+// on ties; 0 when no view was listed.
+void choose_hamming_blend_weight(HammingBlendFit& fit);
+
 // `queries` (held-out views, searched in `index`: the caller's index with
 // each view's point re-encoded without it) and `true_points` (each one's
-// point id) have equal counts; none is an Error(kInvalidArgument). With no view
-// listed, the weight is 0. Optional distractors: query features with no
+// point id) have equal counts (no view at all only with distractors),
+// else Error(kInvalidArgument). With no view listed, the weight is 0. Optional distractors: query features with no
 // point in the map, here points' own descriptors (`distractors`, rows) with
 // their point (`distractor_points`, equal counts) left out of their lists.
 HammingBlendFit fit_hamming_blend(const CascadeIndexView& index, const PqCodebook& codebook,

@@ -59,8 +59,8 @@ void add_options(OptionTable& t, LocalizerOptions& o) {
   t.add("--hash-blend", o.search.hash_blend_weight,
         "Cascade search (every setting): weight w in [0, 1] of the distance the 128-bit hash codes imply, "
         "blended into the PQ distance that ranks each short list: (1 - w) d2_PQ + w d2_hash. 0: the PQ alone "
-        "(the paper's); > 0: more right matches, but a smaller share of them right. `visloc map fit-blend` "
-        "fits a weight on an imported map's own data")
+        "(the paper's); > 0: more right matches, but a smaller share of them right, and the confidence model "
+        "was fitted without it. `visloc map fit-blend` fits a weight on a map's own data")
       .range(0.0, 1.0);
   t.add("--early-stop", o.search.early_stop,
         "Settings 3, 3+: the prioritized search stops at this many 1-1 matches (N_early)");
