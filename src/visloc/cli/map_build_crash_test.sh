@@ -4,6 +4,7 @@
 #  - no child process (COLMAP) outlives the killed build;
 #  - the re-run reuses the written segment;
 #  - its manifest and `map info --json` equal those of an uninterrupted build.
+# And `map fit-blend` on the uninterrupted build reads every segment's work folder.
 # A small synthetic street, known poses, our guided matcher, no retrieval.
 # Usage: map_build_crash_test.sh VISLOC   (exit 77: skipped without COLMAP)
 set -euo pipefail
@@ -42,4 +43,18 @@ grep -qi "reus" "$T/rerun.log" || { cat "$T/rerun.log"; fail "the re-run did not
 "$V" map info "$T/killed" --json > "$T/killed.json"
 diff "$T/reference.json" "$T/killed.json" || fail "map info differs from the uninterrupted build"
 diff "$T/reference/manifest.json" "$T/killed/manifest.json" || fail "the manifest differs from the uninterrupted build"
-echo "killed after $written segment(s), no process left; re-run reused them; manifest and map info equal the uninterrupted build"
+# A built map's hash-blend weight is fitted on its own MAP/work models and
+# databases (visloc map fit-blend): every segment, each from its own folder.
+"$V" map fit-blend "$T/reference" --views 400 --json > "$T/blend.json" || fail "map fit-blend failed on a built map"
+/usr/bin/python3 - "$T/blend.json" "$T/reference.json" <<'PY' || fail "map fit-blend's report of a built map"
+import json, sys
+fit, info = json.load(open(sys.argv[1])), json.load(open(sys.argv[2]))
+ids = [s["id"] for s in info["segments"]]
+assert [s["segment"] for s in fit["segments"]] == ids, (fit["segments"], ids)
+for s in fit["segments"]:
+    assert "/work/seg%04d/sparse/" % s["segment"] in s["model"], s
+    assert s["views"] > 0 and s["points"] > 0, s
+assert 0 <= fit["weight"] <= 1 and fit["views"] == sum(s["views"] for s in fit["segments"]) > 0, fit
+assert len(fit["grid"]) == 21, fit["grid"]
+PY
+echo "killed after $written segment(s), no process left; re-run reused them; manifest and map info equal the uninterrupted build; map fit-blend read every segment's work folder"
