@@ -82,7 +82,7 @@ void add_fit_blend(CLI::App& map) {
   OptionTable t;
   t.add("map", args->map_dir, "Map directory").require();
   t.add("--views", args->options.views, "Points whose held-out view is searched (and as many distractors)")
-      .range(2, 1 << 24);
+      .range(2, 100000);
   t.add("--weight-steps", args->options.fit.weight_steps, "The weights tried: k / N for k = 0..N").range(1, 1000);
   t.flag("--json", args->json, "Print JSON");
   bind_options(cmd, t);

@@ -19,8 +19,8 @@ namespace fs = std::filesystem;
 namespace visloc {
 
 void MapBlendFitOptions::validate() const {
-  if (views < 2 || views > (size_t(1) << 24))
-    throw_error(ErrorCode::kInvalidArgument, "MapBlendFitOptions.views must be in [2, 16777216], got ", views);
+  if (views < 2 || views > 100000)
+    throw_error(ErrorCode::kInvalidArgument, "MapBlendFitOptions.views must be in [2, 100000], got ", views);
   fit.validate();
 }
 
