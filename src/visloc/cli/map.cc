@@ -81,7 +81,9 @@ void add_fit_blend(CLI::App& map) {
       "descriptors (and, built, its work folder)");
   OptionTable t;
   t.add("map", args->map_dir, "Map directory").require();
-  t.add("--views", args->options.views, "Points whose held-out view is searched (and as many distractors)")
+  t.add("--views", args->options.views,
+        "Points sampled over the map (shared among its segments by their points): each a distractor, and a "
+        "held-out view when it has 2 views or more")
       .range(2, 100000);
   t.add("--weight-steps", args->options.fit.weight_steps, "The weights tried: k / N for k = 0..N").range(1, 1000);
   t.flag("--json", args->json, "Print JSON");

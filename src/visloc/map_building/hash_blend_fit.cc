@@ -146,7 +146,7 @@ MapBlendFit fit_map_hash_blend(const fs::path& map_dir, const MapBlendFitOptions
       std::sort(candidates.begin(), candidates.end());
       if (candidates.empty() || !fs::exists(src.database, ec))
         throw_error(ErrorCode::kInvalidArgument, where, ": segment ", entry.id, "'s COLMAP model and database ",
-                    "are not in ", work.string(), " (built with its work folder removed?)");
+                    "are not in ", work.string(), " (map build keeps them there: was it removed?)");
     }
     const std::unique_ptr<Segment> segment = map.open_segment(si);
     const DescriptorMatrix stored = read_point_descriptor_file(fs::path(map_dir) / entry.descriptors_file);
@@ -163,46 +163,38 @@ MapBlendFit fit_map_hash_blend(const fs::path& map_dir, const MapBlendFitOptions
       throw_error(e.code(), where, ": opening segment ", entry.id, "'s database ", src.database,
                   " (recorded when the map was made): ", e.what());
     }
-    std::string mismatch;
+    std::string reasons;  // why each candidate model was not the segment's
     bool found = false;
     for (const fs::path& dir : candidates) {
-      ColmapModel model;
       try {
-        model = read_colmap_model(dir);
-      } catch (const Error& e) {
-        throw_error(e.code(), where, ": reading segment ", entry.id, "'s model ", dir.string(),
-                    " (recorded when the map was made): ", e.what());
-      }
-      if (imported && !man.holdout_images.empty()) {
-        try {
-          remove_images(model, man.holdout_images);
-        } catch (const Error& e) {
-          throw_error(ErrorCode::kFormat, where, ": the map's held-out images are not in ", dir.string(),
-                      " (the model changed since the import?): ", e.what());
+        ColmapModel model = read_colmap_model(dir);
+        if (imported && !man.holdout_images.empty()) remove_images(model, man.holdout_images);
+        if (model.points.size() != segment->num_points()) {
+          reasons += "; " + dir.string() + " has " + std::to_string(model.points.size()) + " points, the segment " +
+                     std::to_string(segment->num_points());
+          continue;
         }
-      }
-      if (model.points.size() != segment->num_points()) {
-        mismatch = dir.string() + " has " + std::to_string(model.points.size()) + " points, the segment " +
-                   std::to_string(segment->num_points());
+        const PointDescriptors desc = compute_point_descriptors(model, *db, share);
+        const DescriptorMatrix means = round_descriptors(desc.mean);
+        if (!std::equal(means.data(), means.data() + means.size_bytes(), stored.data())) {
+          reasons += "; the track means of " + dir.string() + " and " + src.database +
+                     " are not the segment's point descriptors";
+          continue;
+        }
+        src.model = dir.string();
+        src.points = segment->num_points();
+        fits.push_back(fit_segment(map, *segment, stored, desc, options.fit));
+      } catch (const Error& e) {
+        reasons += "; " + dir.string() + ": " + e.what();
         continue;
       }
-      const PointDescriptors desc = compute_point_descriptors(model, *db, share);
-      const DescriptorMatrix means = round_descriptors(desc.mean);
-      if (!std::equal(means.data(), means.data() + means.size_bytes(), stored.data())) {
-        mismatch =
-            "the track means of " + dir.string() + " and " + src.database + " are not the segment's point descriptors";
-        continue;
-      }
-      src.model = dir.string();
-      src.points = segment->num_points();
-      fits.push_back(fit_segment(map, *segment, stored, desc, options.fit));
       src.views = fits.back().queries;
       found = true;
       break;
     }
     if (!found)
-      throw_error(ErrorCode::kFormat, where, ": segment ", entry.id, ": ", mismatch,
-                  ": the model or database changed since the map was made");
+      throw_error(ErrorCode::kFormat, where, ": segment ", entry.id,
+                  ": no model matches its points (the model or database changed since the map was made)", reasons);
     out.segments.push_back(src);
   }
   out.ms = timer.elapsed_ms();

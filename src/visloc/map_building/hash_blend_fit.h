@@ -6,8 +6,7 @@
 //   - a map imported from a COLMAP model (map import --colmap): the model and
 //     database its manifest names, its held-out images removed again;
 //   - a built map (map build): each segment's MAP/work/segNNNN/database.db
-//     and the model under its sparse/ (kept unless the build removed its
-//     work folder).
+//     and the model under its sparse/ (map build keeps them).
 // The map must have kept its point descriptors: each segment's model's track
 // means must be its descriptors (the check that model and database are still
 // those the map was made from). The views are shared among the segments by
@@ -27,7 +26,9 @@
 namespace visloc {
 
 struct MapBlendFitOptions {
-  size_t views = 4000;  // points whose held-out view is searched (and as many distractors), over the map
+  // Points sampled over the map, shared among its segments by their points:
+  // each a distractor, and a held-out view when it has 2 views or more.
+  size_t views = 4000;
   HammingBlendFitOptions fit;
   void validate() const;  // throws kInvalidArgument
 };

@@ -91,8 +91,9 @@ void choose_hamming_blend_weight(HammingBlendFit& fit);
 // else Error(kInvalidArgument). With no view listed, the weight is 0. Optional distractors: query features with no
 // point in the map, here points' own descriptors (`distractors`, rows) with
 // their point (`distractor_points`, equal counts) left out of their lists
-// (after the refined step: their own point, nearest by Hamming distance,
-// takes one of the L_R places, so they rank L_R − 1 others).
+// (after the refined step: their own point, almost always the nearest by
+// Hamming distance, takes one of the L_R places, so they rank L_R − 1
+// others).
 HammingBlendFit fit_hamming_blend(const CascadeIndexView& index, const PqCodebook& codebook,
                                   const DescriptorMatrix& queries, std::span<const uint32_t> true_points,
                                   const HammingBlendFitOptions& options = {},
