@@ -492,11 +492,45 @@ void BM_DirectedFlips10KFeatures(benchmark::State& state) {
 }
 BENCHMARK(BM_DirectedFlips10KFeatures)->Arg(4)->Arg(16)->Unit(benchmark::kMillisecond);
 
+// Two searches of the same matcher timed alternately in one process (ABBA:
+// each order once per two pairs, two pairs per benchmark iteration), this
+// machine's noise moving whole runs by tens of percent; their last matches
+// into a and b, and the medians of their ms_total.
+struct AlternatedMedians {
+  double ms_a = 0, ms_b = 0;
+};
+AlternatedMedians time_alternately(benchmark::State& state, visloc::CascadeMatcher& matcher,
+                                   const visloc::DescriptorMatrix& queries,
+                                   const visloc::CascadeSearchOptions& a_options,
+                                   const visloc::CascadeSearchOptions& b_options, visloc::CascadeMatches& a,
+                                   visloc::CascadeMatches& b) {
+  std::vector<double> ms_a, ms_b;
+  for (auto _ : state) {
+    for (int pair = 0; pair < 2; ++pair) {
+      const bool b_first = (ms_a.size() % 2) == 0;
+      if (b_first) {
+        matcher.match(queries, b_options, b);
+        ms_b.push_back(b.stats.ms_total);
+      }
+      matcher.match(queries, a_options, a);
+      ms_a.push_back(a.stats.ms_total);
+      if (!b_first) {
+        matcher.match(queries, b_options, b);
+        ms_b.push_back(b.stats.ms_total);
+      }
+    }
+  }
+  auto median = [](std::vector<double> v) {
+    std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+    return v[v.size() / 2];
+  };
+  return {median(ms_a), median(ms_b)};
+}
+
 // Software prefetching in the full search at radius 1 (10K features, the
 // 100K-point segment), as the ratio of the search without it to the search
-// with it, each query timed alternately in one process (this machine's noise
-// moves whole runs by tens of percent, so separate runs are not compared);
-// medians over the alternated pairs. The same matches either way (checked).
+// with it, timed alternately (time_alternately); medians over the pairs. The
+// same matches either way (checked).
 void BM_CascadeSearch100KPointsPrefetch(benchmark::State& state) {
   const SyntheticSegment& s = SyntheticSegment::get();
   visloc::CascadeWorkspace ws;
@@ -506,40 +540,20 @@ void BM_CascadeSearch100KPointsPrefetch(benchmark::State& state) {
   with.prioritize = without.prioritize = false;
   without.prefetch = false;
   visloc::CascadeMatches a, b;
-  std::vector<double> ms_with, ms_without;
-  for (auto _ : state) {
-    for (int pair = 0; pair < 2; ++pair) {
-      // ABBA: each order once per two pairs.
-      const bool without_first = (ms_with.size() % 2) == 0;
-      if (without_first) {
-        matcher.match(s.queries, without, b);
-        ms_without.push_back(b.stats.ms_total);
-      }
-      matcher.match(s.queries, with, a);
-      ms_with.push_back(a.stats.ms_total);
-      if (!without_first) {
-        matcher.match(s.queries, without, b);
-        ms_without.push_back(b.stats.ms_total);
-      }
-    }
-  }
+  const AlternatedMedians t = time_alternately(state, matcher, s.queries, with, without, a, b);
   if (a.query != b.query || a.point != b.point || a.many_points != b.many_points)
     state.SkipWithError("the search with prefetching found other matches");
-  auto median = [](std::vector<double> v) {
-    std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
-    return v[v.size() / 2];
-  };
-  state.counters["ms_with"] = median(ms_with);
-  state.counters["ms_without"] = median(ms_without);
-  state.counters["speedup"] = median(ms_without) / median(ms_with);
+  state.counters["ms_with"] = t.ms_a;
+  state.counters["ms_without"] = t.ms_b;
+  state.counters["speedup"] = t.ms_b / t.ms_a;
 }
 BENCHMARK(BM_CascadeSearch100KPointsPrefetch)->Unit(benchmark::kMillisecond)->Iterations(10);
 
 // The hash-code blend (CascadeSearchOptions::hash_blend_weight, 0.5 here)
 // against the PQ alone, in the full search at radius 1 (10K features, the
-// 100K-point segment): each query timed alternately in one process (ABBA),
-// medians over the pairs. Its cost per feature: |q − μ|² (128 dimensions),
-// then per ranked candidate a Hamming distance and a table lookup.
+// 100K-point segment), timed alternately (time_alternately); medians over
+// the pairs. Its cost per feature: |q − μ|² (128 dimensions), then per
+// ranked candidate a Hamming distance and a table lookup.
 void BM_CascadeSearch100KPointsHashBlend(benchmark::State& state) {
   const SyntheticSegment& s = SyntheticSegment::get();
   visloc::CascadeWorkspace ws;
@@ -549,29 +563,10 @@ void BM_CascadeSearch100KPointsHashBlend(benchmark::State& state) {
   plain.prioritize = blend.prioritize = false;
   blend.hash_blend_weight = 0.5f;
   visloc::CascadeMatches a, b;
-  std::vector<double> ms_blend, ms_plain;
-  for (auto _ : state) {
-    for (int pair = 0; pair < 2; ++pair) {
-      const bool plain_first = (ms_blend.size() % 2) == 0;
-      if (plain_first) {
-        matcher.match(s.queries, plain, b);
-        ms_plain.push_back(b.stats.ms_total);
-      }
-      matcher.match(s.queries, blend, a);
-      ms_blend.push_back(a.stats.ms_total);
-      if (!plain_first) {
-        matcher.match(s.queries, plain, b);
-        ms_plain.push_back(b.stats.ms_total);
-      }
-    }
-  }
-  auto median = [](std::vector<double> v) {
-    std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
-    return v[v.size() / 2];
-  };
-  state.counters["ms_blend"] = median(ms_blend);
-  state.counters["ms_plain"] = median(ms_plain);
-  state.counters["cost_ratio"] = median(ms_blend) / median(ms_plain);
+  const AlternatedMedians t = time_alternately(state, matcher, s.queries, blend, plain, a, b);
+  state.counters["ms_blend"] = t.ms_a;
+  state.counters["ms_plain"] = t.ms_b;
+  state.counters["cost_ratio"] = t.ms_a / t.ms_b;
   state.counters["matches_blend"] = double(a.query.size());
   state.counters["matches_plain"] = double(b.query.size());
 }

@@ -19,8 +19,8 @@ const std::array<float, kHashBits + 1>& unit_chord_table() {
 }
 
 void hash_chord_table(double norm2, float* out) {
-  for (int h = 0; h <= kHashBits; ++h)
-    out[h] = float(2 * norm2 * (1 - std::cos(std::numbers::pi * h / double(kHashBits))));
+  const std::array<float, kHashBits + 1>& unit = unit_chord_table();
+  for (int h = 0; h <= kHashBits; ++h) out[h] = float(2 * norm2 * unit[h]);
 }
 
 double squared_norm_from_mean(const uint8_t* descriptor, const float* hash_mean) {
