@@ -1,7 +1,7 @@
 // visloc map import --colmap MODEL --database DB --out MAP [--holdout LIST]
 // visloc map import --bundler bundle.out --list LIST [--keys DIR] [--images DIR] --out MAP [--holdout LIST]
 // visloc map info MAP [--json]
-// visloc map fit-blend MAP [--views N] [--weight-steps N] [--json]
+// visloc map fit-blend MAP [--views N] [--weight-steps N] [--store] [--json]
 #include <iostream>
 #include <memory>
 #include <nlohmann/json.hpp>
@@ -68,6 +68,7 @@ void add_fit_blend(CLI::App& map) {
   struct Args {
     std::string map_dir;
     MapBlendFitOptions options;
+    bool store = false;
     bool json = false;
   };
   auto args = std::make_shared<Args>();
@@ -76,9 +77,10 @@ void add_fit_blend(CLI::App& map) {
       "Fit the weight of the hash codes' distance in the cascade search's ranking (localize/eval --hash-blend) on "
       "the map's own data: held-out views of its points (one observation each, read again from the COLMAP model "
       "and database the map was imported from, or a built map's MAP/work, searched with their point re-encoded "
-      "without them) and its points as distractors; prints the weight with the most net right 1-1 matches (not "
-      "stored: pass it as --hash-blend). Needs a map from map import --colmap or map build that kept its "
-      "descriptors (and, built, its work folder)");
+      "without them) and its points as distractors; prints the weight with the most net right 1-1 matches, and "
+      "with --store writes it into the map's manifest, where localize and eval take it by default (--hash-blend "
+      "map). Needs a map from map import --colmap or map build that kept its descriptors (and, built, its work "
+      "folder)");
   OptionTable t;
   t.add("map", args->map_dir, "Map directory").require();
   t.add("--views", args->options.views,
@@ -86,11 +88,24 @@ void add_fit_blend(CLI::App& map) {
         "held-out view when it has 2 views or more")
       .range(2, 100000);
   t.add("--weight-steps", args->options.fit.weight_steps, "The weights tried: k / N for k = 0..N").range(1, 1000);
+  t.flag("--store", args->store,
+         "Write the weight into the map's manifest, with the checksums of the segments it was fitted on (a "
+         "rebuilt segment makes it unused until fitted again)");
   t.flag("--json", args->json, "Print JSON");
   bind_options(cmd, t);
   cmd->callback([args] {
     const MapBlendFit fit = fit_map_hash_blend(args->map_dir, args->options);
-    std::cout << (args->json ? fit.to_json().dump(2) + "\n" : fit.summary(args->map_dir));
+    if (args->store) store_map_hash_blend(args->map_dir, fit);
+    if (args->json) {
+      nlohmann::json j = fit.to_json();
+      j["stored"] = args->store;
+      std::cout << j.dump(2) << "\n";
+    } else {
+      std::cout << fit.summary(args->map_dir)
+                << (args->store ? "stored in the map's manifest: localize and eval use it by default\n"
+                                : "not stored: add --store, or search with --hash-blend " +
+                                      nlohmann::json(fit.fit.weight).dump() + "\n");
+    }
   });
 }
 

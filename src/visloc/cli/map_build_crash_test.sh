@@ -4,7 +4,8 @@
 #  - no child process (COLMAP) outlives the killed build;
 #  - the re-run reuses the written segment;
 #  - its manifest and `map info --json` equal those of an uninterrupted build.
-# And `map fit-blend` on the uninterrupted build reads every segment's work folder.
+# And `map fit-blend --store` on the uninterrupted build reads every segment's
+# work folder and stores the weight; `map build --fit-blend` stores the same.
 # A small synthetic street, known poses, our guided matcher, no retrieval.
 # Usage: map_build_crash_test.sh VISLOC   (exit 77: skipped without COLMAP)
 set -euo pipefail
@@ -45,7 +46,7 @@ diff "$T/reference.json" "$T/killed.json" || fail "map info differs from the uni
 diff "$T/reference/manifest.json" "$T/killed/manifest.json" || fail "the manifest differs from the uninterrupted build"
 # A built map's hash-blend weight is fitted on its own MAP/work models and
 # databases (visloc map fit-blend): every segment, each from its own folder.
-"$V" map fit-blend "$T/reference" --views 400 --json > "$T/blend.json" || fail "map fit-blend failed on a built map"
+"$V" map fit-blend "$T/reference" --store --json > "$T/blend.json" || fail "map fit-blend failed on a built map"
 /usr/bin/python3 - "$T/blend.json" "$T/reference.json" <<'PY' || fail "map fit-blend's report of a built map"
 import json, sys
 fit, info = json.load(open(sys.argv[1])), json.load(open(sys.argv[2]))
@@ -59,5 +60,29 @@ grid = fit["grid"]
 assert len(grid) == 21 and fit["views_listed"] > 0 and max(g["views_right"] for g in grid) > 0, fit
 net = [g["views_right"] - g["views_wrong"] - g["distractors_matched"] for g in grid]
 assert fit["weight"] == grid[net.index(max(net))]["weight"], (fit["weight"], net)
+assert fit["stored"] is True, fit
 PY
-echo "killed after $written segment(s), no process left; re-run reused them; manifest and map info equal the uninterrupted build; map fit-blend read every segment's work folder"
+# --store wrote it into the manifest, with the segments' checksums.
+/usr/bin/python3 - "$T/blend.json" "$T/reference/manifest.json" <<'PY' || fail "map fit-blend --store"
+import json, sys
+fit, man = json.load(open(sys.argv[1])), json.load(open(sys.argv[2]))
+b = man["hash_blend"]
+assert b["weight"] == fit["weight"], (b, fit["weight"])
+assert b["segment_crc32c"] == [s["file_crc32c"] for s in man["segments"]], b
+PY
+"$V" map info "$T/reference" | grep -q "hash blend: weight .* (fitted on these segments" || fail "map info does not show the stored weight"
+# A resumed build (nothing to rebuild) rewrites the manifest and keeps it.
+cp "$T/reference/manifest.json" "$T/stored_manifest.json"
+"$V" map build "${args[@]}" --out "$T/reference" > "$T/resume.log" 2>&1 || { cat "$T/resume.log"; fail "the resumed build failed"; }
+diff "$T/stored_manifest.json" "$T/reference/manifest.json" || fail "a resumed build changed the manifest with its stored weight"
+# map build --fit-blend fits it last: the resumed build of the same segments stores the same weight.
+"$V" map build "${args[@]}" --fit-blend --out "$T/killed" > "$T/fit.log" 2>&1 ||
+  { cat "$T/fit.log"; fail "map build --fit-blend failed"; }
+grep -q "hash blend weight .* fitted on the map and stored" "$T/fit.log" || { cat "$T/fit.log"; fail "map build --fit-blend said nothing of it"; }
+/usr/bin/python3 - "$T/reference/manifest.json" "$T/killed/manifest.json" <<'PY' || fail "map build --fit-blend's stored weight"
+import json, sys
+ref, built = (json.load(open(p)) for p in sys.argv[1:3])
+assert built["hash_blend"]["weight"] == ref["hash_blend"]["weight"], (built["hash_blend"], ref["hash_blend"])
+assert built["hash_blend"]["segment_crc32c"] == ref["hash_blend"]["segment_crc32c"]
+PY
+echo "killed after $written segment(s), no process left; re-run reused them; manifest and map info equal the uninterrupted build; map fit-blend read every segment's work folder and stored its weight; map build --fit-blend stored the same"

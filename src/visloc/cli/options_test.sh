@@ -27,7 +27,7 @@ for v in nan inf -1; do check --max-drop-below-map localize --map /nonexistent -
 check --vote-radius localize --map /nonexistent --vote-radius 2 q.jpg
 for v in -1 17; do check --lut-flips localize --map /nonexistent --lut-flips "$v" q.jpg; done
 check --lut-flips-min-list localize --map /nonexistent --lut-flips-min-list -1 q.jpg
-for v in nan -0.1 1.5; do check --hash-blend localize --map /nonexistent --hash-blend "$v" q.jpg; done
+for v in nan -0.1 1.5 abc 0.5x ""; do check --hash-blend localize --map /nonexistent --hash-blend "$v" q.jpg; done
 check --views map fit-blend /nonexistent --views 1
 check --vote-ratio localize --map /nonexistent --vote-ratio 1.5 q.jpg
 check --vote-ratio localize --map /nonexistent --vote-ratio nan q.jpg

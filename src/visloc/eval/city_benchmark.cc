@@ -799,6 +799,7 @@ void record_slurm_city_build(const fs::path& out_dir, MapBuildOptions& map) {
                                    "--overlap",
                                    std::to_string(map.plan.overlap)};
   if (map.segment_file.point_uncertainty) args.push_back("--point-uncertainty");
+  if (map.fit_hash_blend) args.push_back("--fit-blend");
   record_build_for_tasks(map, out / "map", args);
 }
 

@@ -246,6 +246,11 @@ EvaluationRunResult run_evaluation(const EvaluationRunOptions& o) {
   nlohmann::json context = {{"map", fs::absolute(o.map).string()},
                             {"setting", to_string(o.localizer.setting)},
                             {"query_features", to_string(o.query_features)}};
+  // The cascade search's hash-blend weight the localizer uses: given, or the map's fitted one.
+  context["hash_blend"] = hash_blend_text(o.localizer);
+  context["hash_blend_weight"] = o.localizer.hash_blend_source == HashBlendSource::kMap
+                                     ? read_manifest(o.map).fitted_hash_blend().value_or(0.0)
+                                     : double(o.localizer.search.hash_blend_weight);
   const QueryRun run = o.leave_one_out ? localize_leave_one_out(o, context) : localize_query_list(o, context);
   const std::vector<LocalizationResult> negative_results = localize_negatives(o, context);
 

@@ -42,7 +42,17 @@ nlohmann::json MapManifest::to_json() const {
                                          {"lon", (*enu_origin_lat_lon_alt)[1]},
                                          {"alt", (*enu_origin_lat_lon_alt)[2]}}
                         : nlohmann::json(nullptr);
+  if (hash_blend)
+    j["hash_blend"] = {
+        {"weight", hash_blend->weight}, {"segment_crc32c", hash_blend->segment_crc32c}, {"fit", hash_blend->fit}};
   return j;
+}
+
+std::optional<double> MapManifest::fitted_hash_blend() const {
+  if (!hash_blend || hash_blend->segment_crc32c.size() != segments.size()) return std::nullopt;
+  for (size_t i = 0; i < segments.size(); ++i)
+    if (hash_blend->segment_crc32c[i] != segments[i].file_crc32c) return std::nullopt;
+  return hash_blend->weight;
 }
 
 namespace {
@@ -103,6 +113,18 @@ MapManifest MapManifest::from_json(const nlohmann::json& json, const std::string
     if (!(lon >= -180 && lon <= 180)) o.at("lon").fail("must be a longitude in [-180, 180], found ", lon);
     if (!(std::abs(alt) <= 1e5)) o.at("alt").fail("must be an altitude within ±100 km, found ", alt);
     m.enu_origin_lat_lon_alt = std::array<double, 3>{lat, lon, alt};
+  }
+  if (j.has("hash_blend") && !json["hash_blend"].is_null()) {
+    const JsonField b = j.at("hash_blend");
+    MapHashBlend blend;
+    blend.weight = b.at("weight").number();
+    if (!(blend.weight >= 0 && blend.weight <= 1)) b.at("weight").fail("must be in [0, 1], found ", blend.weight);
+    const JsonField crcs = b.at("segment_crc32c");
+    for (size_t i = 0; i < crcs.size(); ++i)
+      blend.segment_crc32c.push_back(
+          static_cast<uint32_t>(crcs.at(i).unsigned_integer(std::numeric_limits<uint32_t>::max())));
+    if (b.has("fit")) blend.fit = json["hash_blend"]["fit"];
+    m.hash_blend = std::move(blend);
   }
   return m;
 }
@@ -226,7 +248,10 @@ nlohmann::json MapInfo::to_json() const {
             {"pq_residual_splits", pq_residual_splits ? nlohmann::json(pq_residual_splits) : nlohmann::json()},
             {"pq_residual_beam", pq_residual_beam ? nlohmann::json(pq_residual_beam) : nlohmann::json()},
             {"hash_rotation_bytes", hash_rotation_bytes}}},
-          {"holdout_images", manifest.holdout_images}};
+          {"holdout_images", manifest.holdout_images},
+          {"hash_blend", manifest.hash_blend ? nlohmann::json{{"weight", manifest.hash_blend->weight},
+                                                              {"current", manifest.fitted_hash_blend().has_value()}}
+                                             : nlohmann::json()}};
 }
 
 namespace {
@@ -270,6 +295,13 @@ std::string MapInfo::summary(const std::string& map_name) const {
       << (hash_rotation_bytes ? " and the shared hash rotation (" + std::to_string(hash_rotation_bytes) + " bytes)"
                               : std::string())
       << "\n";
+  if (manifest.hash_blend) {
+    out << std::setprecision(2) << "hash blend: weight " << manifest.hash_blend->weight;
+    if (manifest.fitted_hash_blend())
+      out << " (fitted on these segments; the search's default)\n";
+    else
+      out << " (fitted on other segments than the map's now: not used; run 'visloc map fit-blend --store')\n";
+  }
   return out.str();
 }
 

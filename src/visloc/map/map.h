@@ -42,6 +42,16 @@ struct MapSegmentEntry {
   uint32_t file_crc32c = 0;
 };
 
+// The cascade search's hash-code blend weight fitted on the map's own data
+// (CascadeSearchOptions::hash_blend_weight; `visloc map fit-blend --store`,
+// or map build / map import --fit-blend), with the segment files it was
+// fitted on: a weight whose segments have since changed is not used.
+struct MapHashBlend {
+  double weight = 0;                              // in [0, 1]
+  std::vector<uint32_t> segment_crc32c;           // the segments' file_crc32c at the fit, in manifest order
+  nlohmann::json fit = nlohmann::json::object();  // what the fit saw (views, matches, grid), as reported
+};
+
 struct MapManifest {
   int format_version = kMapFormatVersion;
   std::optional<std::array<double, 3>> enu_origin_lat_lon_alt;
@@ -52,7 +62,11 @@ struct MapManifest {
   nlohmann::json source = nlohmann::json::object();   // e.g. {"colmap": ..., "database": ...}
   std::vector<std::string> holdout_images;
   std::string holdout_file;                            // relative; empty when none
+  std::optional<MapHashBlend> hash_blend;              // "hash_blend"; absent when never fitted
 
+  // The stored blend weight when it was fitted on these segments (the same
+  // files, by their checksums, in the same order); nullopt otherwise.
+  std::optional<double> fitted_hash_blend() const;
   nlohmann::json to_json() const;
   static MapManifest from_json(const nlohmann::json& j, const std::string& what);
 };

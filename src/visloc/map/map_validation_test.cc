@@ -172,6 +172,46 @@ TEST(ManifestValidation, RejectsWrongTypesAndRanges) {
                                           {{"id", 0}, {"file", "b"}, {"points", 1}, {"images", 1}, {"file_bytes", 1}, {"file_crc32c", 0}}};
                        }),
                        "repeats segment id"));
+  // The stored hash-blend weight: in [0, 1], with its segments' checksums.
+  EXPECT_TRUE(mentions(error_with([](auto& j) {
+                         j["hash_blend"] = {{"weight", 1.5}, {"segment_crc32c", {}}};
+                       }),
+                       "hash_blend.weight"));
+  EXPECT_TRUE(mentions(error_with([](auto& j) {
+                         j["hash_blend"] = {{"weight", "a"}, {"segment_crc32c", {}}};
+                       }),
+                       "hash_blend.weight"));
+  EXPECT_TRUE(mentions(error_with([](auto& j) {
+                         j["hash_blend"] = {{"weight", 0.5}, {"segment_crc32c", {-1}}};
+                       }),
+                       "hash_blend.segment_crc32c[0]"));
+  EXPECT_TRUE(mentions(error_with([](auto& j) { j["hash_blend"] = {{"weight", 0.5}}; }), "segment_crc32c"));
+  EXPECT_EQ(error_with([](auto& j) { j["hash_blend"] = nullptr; }), "");
+}
+
+// The stored weight counts only for the segments it was fitted on.
+TEST(ManifestHashBlend, RoundTripsAndCountsOnlyForItsSegments) {
+  MapManifest m;
+  m.segments = {{3, "segments/0003.vlseg", "", 10, 2, 100, 0xdeadbeefu},
+                {4, "segments/0004.vlseg", "", 10, 2, 100, 7u}};
+  EXPECT_FALSE(m.fitted_hash_blend().has_value());
+  m.hash_blend = MapHashBlend{0.35, {0xdeadbeefu, 7u}, {{"views", 12}}};
+  const MapManifest back = MapManifest::from_json(m.to_json(), "m");
+  ASSERT_TRUE(back.hash_blend.has_value());
+  EXPECT_EQ(back.hash_blend->segment_crc32c, m.hash_blend->segment_crc32c);
+  EXPECT_EQ(back.hash_blend->fit["views"], 12);
+  ASSERT_TRUE(back.fitted_hash_blend().has_value());
+  EXPECT_EQ(*back.fitted_hash_blend(), 0.35);
+  MapManifest changed = back;
+  changed.segments[1].file_crc32c = 8u;  // a rebuilt segment
+  EXPECT_FALSE(changed.fitted_hash_blend().has_value());
+  changed = back;
+  changed.segments.pop_back();  // a segment fewer
+  EXPECT_FALSE(changed.fitted_hash_blend().has_value());
+  changed = back;
+  std::swap(changed.segments[0], changed.segments[1]);  // the same files in another order
+  EXPECT_FALSE(changed.fitted_hash_blend().has_value());
+  EXPECT_FALSE(MapManifest::from_json(MapManifest{}.to_json(), "m").hash_blend.has_value());
 }
 
 TEST(ReaderValidation, OnlyRegularFilesAreOpened) {

@@ -33,6 +33,11 @@ void ColmapImportOptions::validate() const {
   pq.validate();
   if (pq_training_database.empty() && !pq_training_images.empty())
     throw_error(ErrorCode::kInvalidArgument, "ColmapImportOptions.pq_training_images needs pq_training_database");
+  if (fit_hash_blend && !keep_descriptors)
+    throw_error(ErrorCode::kInvalidArgument,
+                "map import: fitting the hash blend (--fit-blend) needs the map's point descriptors (drop "
+                "--no-descriptors)");
+  hash_blend.validate();
 }
 
 
@@ -243,8 +248,24 @@ void import_model_map(ColmapModel model, const ModelSource& source, const fs::pa
   man.segments.push_back({0, seg_file, desc_file, desc.num_points, seg.images.size(), fs::file_size(seg_path),
                           file_crc(seg_path)});
   write_manifest(out_dir, man);
-  staging.publish();
   res.ms_write = t.elapsed_ms();
+  if (options.fit_hash_blend) {
+    // On the staged map, so that the map replaces a previous one only whole.
+    t.reset();
+    MapBlendFit fit;
+    try {
+      fit = fit_map_hash_blend(out_dir, options.hash_blend);
+    } catch (const Error& e) {
+      throw_error(e.code(), map_dir.string(),
+                  ": map import: fitting the hash blend (--fit-blend) failed, so the map "
+                  "was not written: ",
+                  e.what());
+    }
+    store_map_hash_blend(out_dir, fit);
+    res.hash_blend_weight = fit.fit.weight;
+    res.ms_hash_blend = t.elapsed_ms();
+  }
+  staging.publish();
 }
 
 }  // namespace
@@ -274,6 +295,10 @@ BundlerImportResult import_bundler_map(const fs::path& bundle_file, const fs::pa
                                        const BundlerConversionOptions& bundler, const ColmapImportOptions& options) {
   options.validate();
   bundler.validate();
+  if (options.fit_hash_blend)
+    throw_error(ErrorCode::kInvalidArgument,
+                "map import: the hash blend (--fit-blend) is fitted on a COLMAP model and database; a Bundler "
+                "import has none");
   BundlerImportResult out;
   check_out_dir(out_dir, options);
   Timer t;
@@ -307,13 +332,15 @@ nlohmann::json to_json(const ColmapImportResult& r) {
             {"points_dropped", r.holdout.points_dropped}}},
           {"pq_training", {{"descriptors", r.pq_training_descriptors}, {"source", r.pq_training_source}}},
           {"itq_final_error", r.itq_final_error},
+          {"hash_blend_weight", r.hash_blend_weight ? nlohmann::json(*r.hash_blend_weight) : nlohmann::json()},
           {"ms",
            {{"read", r.ms_read},
             {"descriptors", r.ms_descriptors},
             {"pq", r.ms_pq},
             {"itq", r.ms_itq},
             {"encode", r.ms_encode},
-            {"write", r.ms_write}}}};
+            {"write", r.ms_write},
+            {"hash_blend", r.ms_hash_blend}}}};
 }
 
 bool MapImportSources::is_bundler() const { return !bundle_file.empty() || !bundler_list.empty(); }
@@ -393,7 +420,10 @@ std::string import_summary(const MapImportResult& r, const MapImportSources& sou
   out << "  PQ codebook trained on " << m.pq_training_descriptors << " descriptors (" << m.pq_training_source << ")\n"
       << std::fixed << std::setprecision(0) << "  time ms: read " << m.ms_read << ", descriptors " << m.ms_descriptors
       << ", pq " << m.ms_pq << ", itq " << m.ms_itq << ", encode " << m.ms_encode << ", write " << m.ms_write
-      << "\n";
+      << (m.hash_blend_weight ? ", hash blend " + std::to_string(long(m.ms_hash_blend)) : std::string()) << "\n";
+  if (m.hash_blend_weight)
+    out << std::setprecision(2) << "  hash blend weight " << *m.hash_blend_weight
+        << " fitted on the map and stored (localize and eval use it by default)\n";
   return out.str();
 }
 

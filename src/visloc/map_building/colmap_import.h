@@ -25,6 +25,7 @@
 #include "visloc/colmap/colmap_model.h"
 #include "visloc/geometry/pose_list.h"  // read_name_list
 #include "visloc/map/segment_file.h"
+#include "visloc/map_building/hash_blend_fit.h"
 #include "visloc/matching/binary_hasher.h"
 #include "visloc/matching/pq_codebook.h"
 
@@ -40,6 +41,11 @@ struct ColmapImportOptions {
   PqTrainingOptions pq;
   bool keep_descriptors = true;  // write descriptors/NNNN.vldesc
   bool overwrite = false;        // replace an existing map in the output directory
+  // Fit the cascade search's hash-blend weight on the new map and store it in
+  // its manifest before the map replaces any previous one (fit_map_hash_blend,
+  // store_map_hash_blend): COLMAP imports that keep their descriptors only.
+  bool fit_hash_blend = false;
+  MapBlendFitOptions hash_blend;
   void validate() const;
 };
 
@@ -55,7 +61,8 @@ struct ColmapImportResult {
   size_t pq_training_descriptors = 0;
   std::string pq_training_source;
   double itq_final_error = 0;
-  double ms_read = 0, ms_descriptors = 0, ms_pq = 0, ms_itq = 0, ms_encode = 0, ms_write = 0;
+  std::optional<double> hash_blend_weight;  // fitted and stored (fit_hash_blend)
+  double ms_read = 0, ms_descriptors = 0, ms_pq = 0, ms_itq = 0, ms_encode = 0, ms_write = 0, ms_hash_blend = 0;
 };
 
 // The statistics as `visloc map import --json` prints them (and Python returns).

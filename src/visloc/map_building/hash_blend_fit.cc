@@ -120,7 +120,10 @@ MapBlendFit fit_map_hash_blend(const fs::path& map_dir, const MapBlendFitOptions
     throw_error(ErrorCode::kInvalidArgument, where, ": an imported map has one segment; this one has ",
                 man.segments.size());
   if (man.segments.empty()) throw_error(ErrorCode::kInvalidArgument, where, ": the map has no segments");
-  for (const auto& s : man.segments) out.points += s.points;
+  for (const auto& s : man.segments) {
+    out.points += s.points;
+    out.segment_crc32c.push_back(s.file_crc32c);
+  }
 
   std::vector<HammingBlendFit> fits;
   for (size_t si = 0; si < man.segments.size(); ++si) {
@@ -220,6 +223,21 @@ MapBlendFit fit_map_hash_blend(const fs::path& map_dir, const MapBlendFitOptions
   return out;
 }
 
+void store_map_hash_blend(const fs::path& map_dir, const MapBlendFit& fit) {
+  MapManifest man = read_manifest(map_dir);
+  std::vector<uint32_t> now;
+  for (const auto& s : man.segments) now.push_back(s.file_crc32c);
+  if (now != fit.segment_crc32c)
+    throw_error(ErrorCode::kInvalidArgument, map_dir.string(),
+                ": the map's segments changed after the hash blend was fitted (was it rebuilt meanwhile?); not "
+                "stored: fit again");
+  nlohmann::json summary = fit.to_json();
+  summary.erase("ms");  // the manifest records what was fitted, not how fast
+  summary["weight_steps"] = fit.weight_steps;
+  man.hash_blend = MapHashBlend{fit.fit.weight, fit.segment_crc32c, std::move(summary)};
+  write_manifest(map_dir, man);
+}
+
 nlohmann::json MapBlendFit::to_json() const {
   nlohmann::json grid = nlohmann::json::array();
   for (size_t k = 0; k < fit.correct.size(); ++k)
@@ -246,7 +264,7 @@ nlohmann::json MapBlendFit::to_json() const {
 
 std::string MapBlendFit::summary(const std::string& map_dir) const {
   std::ostringstream s;
-  s << map_dir << ": hash blend weight " << fit.weight << " (search with --hash-blend " << fit.weight << ")\n"
+  s << map_dir << ": hash blend weight " << fit.weight << "\n"
     << "  " << fit.queries << " held-out views of the " << points << " points of " << segments.size()
     << (segments.size() == 1 ? " segment (" : " segments (") << fit.listed << " with a short list), " << fit.distractors
     << " distractors; " << std::fixed << std::setprecision(0) << ms << " ms\n"

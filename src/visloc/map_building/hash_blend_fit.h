@@ -11,8 +11,10 @@
 // means must be its descriptors (the check that model and database are still
 // those the map was made from). The views are shared among the segments by
 // their points; their counts are summed over the segments, and the weight is
-// the grid weight with the most net right 1-1 matches in the sum. Not stored
-// in the map: pass it to the search (--hash-blend).
+// the grid weight with the most net right 1-1 matches in the sum.
+// store_map_hash_blend writes it into the map's manifest (MapHashBlend), with
+// the checksums of the segments it was fitted on; the localizer then uses it
+// by default (LocalizerOptions::hash_blend_source).
 #pragma once
 
 #include <cstddef>
@@ -41,6 +43,7 @@ struct MapBlendFit {
   };
   HammingBlendFit fit;  // summed over the segments; its weight chosen on the sum
   std::vector<SegmentSource> segments;
+  std::vector<uint32_t> segment_crc32c;  // the manifest's segment files' checksums at the fit, in its order
   size_t points = 0;  // the map's
   int weight_steps = 20;
   double ms = 0;  // reading the models and databases, and the fits
@@ -52,5 +55,10 @@ struct MapBlendFit {
 // kept no descriptors or model, Error(kFormat) when a model's means are not
 // its descriptors, and the model's and database's readers' errors.
 MapBlendFit fit_map_hash_blend(const std::filesystem::path& map_dir, const MapBlendFitOptions& options = {});
+
+// Writes the fit's weight into the map's manifest (atomically; the rest of the
+// manifest unchanged). Throws Error(kInvalidArgument) naming the map when its
+// segments are no longer those the fit read (the map was rebuilt meanwhile).
+void store_map_hash_blend(const std::filesystem::path& map_dir, const MapBlendFit& fit);
 
 }  // namespace visloc

@@ -1146,6 +1146,7 @@ MapBuildResult MapBuilder::run() {
   else if (!s.to_build.empty()) build_segments_slurm();
   s.result.seconds_segments = s.t_segments.elapsed_ms() / 1000;
   build_retrieval();
+  fit_hash_blend();
   s.result.seconds_total = s.total.elapsed_ms() / 1000;
   return std::move(s.result);
 }
@@ -1352,6 +1353,17 @@ void MapBuilder::write_current_manifest() {
                 {"poses", opt.poses == PoseSource::kKnown ? "known" : "sfm"},
                 {"segment_placemarks", plan_json},
                 {"failed_segments", failed}};
+  // A weight fitted earlier is kept: it counts only while the segments it was
+  // fitted on are the map's (MapManifest::fitted_hash_blend), and
+  // fit_hash_blend() replaces it at the end of a run that asks for it.
+  std::error_code exists_error;
+  if (fs::exists(s.map_dir / "manifest.json", exists_error)) {
+    try {
+      man.hash_blend = read_manifest(s.map_dir).hash_blend;
+    } catch (const Error&) {
+      // An unreadable old manifest is replaced whole, without it.
+    }
+  }
   for (const auto& r : s.result.segments) {
     if (!r.ok) continue;
     const std::string file = "segments/" + segment_stem(r.id) + ".vlseg";
@@ -1545,6 +1557,24 @@ void MapBuilder::settle_slurm_tasks(SlurmRun& run) {
 }
 
 // Retrieval over the images of the segments that were built.
+void MapBuilder::fit_hash_blend() {
+  State& s = *state_;
+  if (!s.opt.fit_hash_blend || s.result.failed() >= s.n_segments) return;
+  Timer t;
+  if (s.progress) s.progress({"hash blend", 0, 1, s.total.elapsed_ms() / 1000, {}, -1});
+  MapBlendFit fit;
+  try {
+    fit = fit_map_hash_blend(s.map_dir, s.opt.hash_blend);
+  } catch (const Error& e) {
+    throw_error(e.code(), s.map_dir.string(), ": map build: the segments are built, but fitting the hash blend ",
+                "(--fit-blend) failed (the map works without it; 'visloc map fit-blend' fits it alone): ", e.what());
+  }
+  store_map_hash_blend(s.map_dir, fit);
+  s.result.hash_blend_weight = fit.fit.weight;
+  s.result.seconds_hash_blend = t.elapsed_ms() / 1000;
+  if (s.progress) s.progress({"hash blend", 1, 1, s.total.elapsed_ms() / 1000, {}, -1});
+}
+
 void MapBuilder::build_retrieval() {
   State& s = *state_;
   if (!s.opt.build_retrieval || s.result.failed() >= s.n_segments) return;
@@ -1593,7 +1623,9 @@ nlohmann::json to_json(const MapBuildResult& r) {
            {{"features", r.seconds_features},
             {"segments", r.seconds_segments},
             {"retrieval", r.seconds_retrieval},
-            {"total", r.seconds_total}}}};
+            {"hash_blend", r.seconds_hash_blend},
+            {"total", r.seconds_total}}},
+          {"hash_blend_weight", r.hash_blend_weight ? nlohmann::json(*r.hash_blend_weight) : nlohmann::json()}};
 }
 
 std::string build_summary(const MapBuildResult& r) {
@@ -1613,6 +1645,9 @@ std::string build_summary(const MapBuildResult& r) {
   out << r.images << " images, " << r.placemarks << " placemarks, " << r.segments.size() << " segments ("
       << r.failed() << " failed); features " << std::setprecision(1) << r.seconds_features << " s, segments "
       << r.seconds_segments << " s, total " << r.seconds_total << " s\n";
+  if (r.hash_blend_weight)
+    out << std::setprecision(2) << "hash blend weight " << *r.hash_blend_weight
+        << " fitted on the map and stored (localize and eval use it by default)\n";
   return out.str();
 }
 

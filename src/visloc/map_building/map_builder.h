@@ -31,6 +31,7 @@
 #include "visloc/features/sift_extractor.h"
 #include "visloc/geo/similarity_transform.h"
 #include "visloc/map/segment_file.h"
+#include "visloc/map_building/hash_blend_fit.h"
 #include "visloc/matching/binary_hasher.h"
 #include "visloc/matching/pq_codebook.h"
 #include "visloc/retrieval/image_index.h"
@@ -129,6 +130,11 @@ struct MapBuildOptions {
   int jobs = 0;                             // local: segments built in parallel (0: number of cores)
   std::vector<int> only_segments;           // rebuild just these (map update); empty: all
   bool build_retrieval = true;              // train and write MAP/retrieval (T-embedding + IVF-PQ)
+  // Last, fit the cascade search's hash-blend weight on the built map and
+  // store it in its manifest (fit_map_hash_blend, store_map_hash_blend):
+  // localize and eval then use it by default.
+  bool fit_hash_blend = false;
+  MapBlendFitOptions hash_blend;
   // Retrieval: global descriptor, PCA-whitened to 512-D by default (8.4 MB of
   // parameters instead of 67 MB for full 4096-D whitening; under IVF-PQ at
   // 100K images it kept more recall and was 3× faster: see issue #7's notes).
@@ -187,6 +193,8 @@ struct MapBuildResult {
   std::vector<SegmentBuildResult> segments;
   size_t images = 0, placemarks = 0;
   double seconds_features = 0, seconds_segments = 0, seconds_retrieval = 0, seconds_total = 0;
+  std::optional<double> hash_blend_weight;  // fitted and stored (MapBuildOptions::fit_hash_blend)
+  double seconds_hash_blend = 0;
   size_t failed() const;
 };
 
@@ -269,7 +277,9 @@ class MapBuilder {
   void select_segments();             // finished earlier (reused) or to build; the first manifest
   void build_segments_local();        // threads of this process
   void build_segments_slurm();        // job arrays, results collected from the shared directory
-  void build_retrieval();             // T-embedding + IVF-PQ over the built segments' images
+  void build_retrieval();
+  void fit_hash_blend();  // with MapBuildOptions::fit_hash_blend             // T-embedding + IVF-PQ over the built
+                          // segments' images
   // Shared by the stages.
   void write_current_manifest();
   void report_segments();                                  // with the state mutex held

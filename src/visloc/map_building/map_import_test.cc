@@ -281,7 +281,11 @@ TEST(MapImport, FitsTheHashBlendOnItsOwnViews) {
   o.holdout_images = read_name_list(scene / "queries.txt");
   o.itq.iterations = 3;
   o.pq.iterations = 3;
-  import_colmap_map(scene / "colmap" / "sparse", scene / "colmap" / "database.db", out / "map", o);
+  o.fit_hash_blend = true;  // fitted on the staged map and stored in its manifest
+  o.hash_blend = {.views = 1500, .fit = {.weight_steps = 4}};
+  const ColmapImportResult imported =
+      import_colmap_map(scene / "colmap" / "sparse", scene / "colmap" / "database.db", out / "map", o);
+  o.fit_hash_blend = false;
   const MapBlendFit fit = fit_map_hash_blend(out / "map", {.views = 1500, .fit = {.weight_steps = 4}});
   EXPECT_EQ(fit.fit.queries, 1500u);  // every point has 2 views or more
   EXPECT_EQ(fit.fit.distractors, 1500u);
@@ -300,6 +304,25 @@ TEST(MapImport, FitsTheHashBlendOnItsOwnViews) {
   EXPECT_EQ(j["grid"].size(), 5u);
   EXPECT_EQ(j["weight"], fit.fit.weight);
   EXPECT_NE(fit.summary("M").find("<- chosen"), std::string::npos);
+  // The import stored the same fit; its segment is the one fitted on.
+  ASSERT_TRUE(imported.hash_blend_weight.has_value());
+  EXPECT_EQ(*imported.hash_blend_weight, fit.fit.weight);
+  EXPECT_EQ(to_json(imported)["hash_blend_weight"], fit.fit.weight);
+  const MapManifest stored = read_manifest(out / "map");
+  ASSERT_TRUE(stored.fitted_hash_blend().has_value());
+  EXPECT_EQ(*stored.fitted_hash_blend(), fit.fit.weight);
+  EXPECT_EQ(stored.hash_blend->segment_crc32c, fit.segment_crc32c);
+  EXPECT_EQ(stored.hash_blend->fit["grid"], j["grid"]);
+  EXPECT_FALSE(stored.hash_blend->fit.contains("ms"));
+  // store_map_hash_blend writes it again (the rest of the manifest as it was),
+  // but not a fit of other segments than the map's.
+  store_map_hash_blend(out / "map", fit);
+  EXPECT_EQ(read_manifest(out / "map").to_json(), stored.to_json());
+  MapBlendFit stale = fit;
+  stale.segment_crc32c[0] ^= 1u;
+  std::string stale_error = error_of([&] { store_map_hash_blend(out / "map", stale); });
+  EXPECT_NE(stale_error.find("changed after the hash blend was fitted"), std::string::npos) << stale_error;
+  EXPECT_EQ(read_manifest(out / "map").to_json(), stored.to_json());
 
   // The model no longer the import's: with no held-out images it has more points.
   MapManifest man = read_manifest(out / "map");
@@ -320,6 +343,12 @@ TEST(MapImport, FitsTheHashBlendOnItsOwnViews) {
   EXPECT_NE(e.find("work/seg0000"), std::string::npos) << e;
   EXPECT_NE(e.find("was it removed"), std::string::npos) << e;
   o.keep_descriptors = false;
+  o.fit_hash_blend = true;  // needs the descriptors
+  e = error_of(
+      [&] { import_colmap_map(scene / "colmap" / "sparse", scene / "colmap" / "database.db", out / "bare", o); });
+  EXPECT_NE(e.find("--fit-blend"), std::string::npos) << e;
+  EXPECT_FALSE(fs::exists(out / "bare"));
+  o.fit_hash_blend = false;
   import_colmap_map(scene / "colmap" / "sparse", scene / "colmap" / "database.db", out / "bare", o);
   e = error_of([&] { fit_map_hash_blend(out / "bare"); });
   EXPECT_NE(e.find("kept no point descriptors"), std::string::npos) << e;

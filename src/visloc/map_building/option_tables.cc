@@ -171,6 +171,9 @@ void add_options(OptionTable& t, MapBuildOptions& o) {
   t.add("--retrieval-dims", o.embedding.output_dims,
         "Retrieval embedding dimensions after PCA-whitening (0: full 4096)");
   t.flag("!--no-retrieval", o.build_retrieval, "Do not build the retrieval index");
+  t.flag("--fit-blend", o.fit_hash_blend,
+         "Last, fit the cascade search's hash-blend weight on the built map's own data and store it in its "
+         "manifest (as `visloc map fit-blend --store`), where localize and eval take it by default");
   t.add("--pq-training-images", o.pq_training_images,
         "The PQ codebook trains on at most this many images, spread over the map (with --executor slurm "
         "only their features are extracted before the array; each task extracts its segment's)");
@@ -236,6 +239,9 @@ void add_options(OptionTable& t, ColmapImportOptions& o) {
   t.action("--no-descriptors", [&o] { o.keep_descriptors = false; },
            "Do not keep the mean descriptors (descriptors/*.vldesc; needed by the raw-SIFT baselines)");
   t.flag("--overwrite", o.overwrite, "Replace an existing map in --out");
+  t.flag("--fit-blend", o.fit_hash_blend,
+         "COLMAP imports: fit the cascade search's hash-blend weight on the new map's own data and store it in "
+         "its manifest (as `visloc map fit-blend --store`), where localize and eval take it by default");
 }
 
 }  // namespace visloc

@@ -1,11 +1,14 @@
 #include "visloc/pipeline/localizer.h"
 
 #include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <limits>
 #include <map>
 #include <mutex>
 #include <optional>
+#include <sstream>
+#include <string>
 #include <unordered_map>
 
 #include "visloc/map/map.h"
@@ -53,6 +56,28 @@ void LocalizerOptions::validate() const {
     throw_error(ErrorCode::kInvalidArgument, "min_confidence must be in [0, 1], got ", min_confidence);
   point_votes.validate();
   under_street.validate();
+}
+
+HashBlendSource parse_hash_blend(const std::string& text, float& weight) {
+  if (text == "map") return HashBlendSource::kMap;
+  size_t used = 0;
+  double w = std::numeric_limits<double>::quiet_NaN();
+  try {
+    if (!text.empty() && !std::isspace(static_cast<unsigned char>(text[0]))) w = std::stod(text, &used);
+  } catch (const std::exception&) {
+    used = 0;
+  }
+  if (used == 0 || used != text.size() || !(w >= 0 && w <= 1))
+    throw_error(ErrorCode::kInvalidArgument, "the hash blend must be 'map' or a weight in [0, 1], got '", text, "'");
+  weight = static_cast<float>(w);
+  return HashBlendSource::kGiven;
+}
+
+std::string hash_blend_text(const LocalizerOptions& options) {
+  if (options.hash_blend_source == HashBlendSource::kMap) return "map";
+  std::ostringstream s;
+  s << options.search.hash_blend_weight;
+  return s.str();
 }
 
 SegmentVoteSource parse_segment_vote_source(const std::string& name) {
@@ -263,6 +288,8 @@ Localizer::Localizer(const std::filesystem::path& map_dir, const LocalizerOption
   impl_->map = Map::open(map_dir);
   const auto& man = impl_->map.manifest();
   if (man.segments.empty()) throw_error(ErrorCode::kFormat, map_dir.string(), ": the map has no segments");
+  if (options_.hash_blend_source == HashBlendSource::kMap)
+    options_.search.hash_blend_weight = static_cast<float>(man.fitted_hash_blend().value_or(0.0));
   impl_->cache = std::make_unique<SegmentCache>(impl_->map, options_.cache_bytes);
   impl_->voting.top_images = options_.top_images;
   impl_->max_segments = options_.max_segments;

@@ -67,6 +67,14 @@ std::string to_string(PaperSetting setting);
 // KITTI's (1241 px images). Maps built from larger images may want more: --max-side.
 inline constexpr int kDefaultQueryMaxSide = 800;
 
+// Where the cascade search's hash-blend weight (CascadeSearchOptions::
+// hash_blend_weight) comes from.
+enum class HashBlendSource {
+  kMap,    // the weight fitted on the map and stored in it (MapManifest::
+           // fitted_hash_blend: `map fit-blend --store`); 0 when it has none
+  kGiven,  // search.hash_blend_weight as given
+};
+
 struct LocalizerOptions {
   // Query features: the map builder's SIFT settings, except that the longer
   // side is capped at 800 px instead of 1600 (kDefaultQueryMaxSide).
@@ -76,6 +84,10 @@ struct LocalizerOptions {
     return o;
   }();
   CascadeSearchOptions search;      // CCS parameters
+  // kMap: search.hash_blend_weight is replaced by the map's fitted weight (0
+  // on a map without one) when the map is opened; Localizer::options() shows
+  // the weight used.
+  HashBlendSource hash_blend_source = HashBlendSource::kMap;
   RansacOptions ransac;             // pose parameters
   PaperSetting setting = PaperSetting::k3Plus;  // overrides search.prioritize and ransac.variant
   int top_images = 20;              // N_t
@@ -121,6 +133,11 @@ class OptionTable;
 // The options as command-line options: --setting, --top-images, ...,
 // --min-confidence, the query's SIFT options, --cache-mib.
 void add_options(OptionTable& table, LocalizerOptions& options);
+// "map" → kMap (weight untouched); a number in [0, 1] → kGiven and the
+// weight. Throws Error(kInvalidArgument) otherwise.
+HashBlendSource parse_hash_blend(const std::string& text, float& weight);
+// "map", or the given weight.
+std::string hash_blend_text(const LocalizerOptions& options);
 
 struct StageTimes {
   double features = 0, retrieval = 0, matching = 0, ransac = 0, total = 0;  // milliseconds

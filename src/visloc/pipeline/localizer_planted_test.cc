@@ -124,6 +124,53 @@ TEST(LocalizerPlanted, RightSegmentPoseAndGeoRegistration) {
   }
 }
 
+// The cascade search's hash-blend weight: by default the one the map stores
+// for its current segments (map fit-blend --store), 0 without one or when a
+// segment changed since; a given weight wins.
+TEST(LocalizerPlanted, TheMapsFittedHashBlendIsTheDefault) {
+  Fixture fx;
+  PlantedMap map("blend", {fx.a, fx.b});
+  EXPECT_EQ(Localizer(map.dir(), options()).options().search.hash_blend_weight, 0.0f);
+  MapManifest man = read_manifest(map.dir());
+  man.hash_blend = MapHashBlend{0.35, {}, {}};
+  for (const auto& s : man.segments) man.hash_blend->segment_crc32c.push_back(s.file_crc32c);
+  write_manifest(map.dir(), man);
+  Localizer loc(map.dir(), options());
+  EXPECT_EQ(loc.options().search.hash_blend_weight, 0.35f);
+  const LocalizationResult r = loc.localize_features(view_of(fx.b, query_pose(), fx.rng), query_camera());
+  EXPECT_TRUE(r.registered);
+  EXPECT_EQ(r.segment, 1);
+  LocalizerOptions given = options();
+  given.hash_blend_source = HashBlendSource::kGiven;
+  given.search.hash_blend_weight = 0.1f;
+  EXPECT_EQ(Localizer(map.dir(), given).options().search.hash_blend_weight, 0.1f);
+  given.search.hash_blend_weight = 0;
+  EXPECT_EQ(Localizer(map.dir(), given).options().search.hash_blend_weight, 0.0f);
+  man.hash_blend->segment_crc32c[1] ^= 1u;  // fitted on another segment 1
+  write_manifest(map.dir(), man);
+  EXPECT_EQ(Localizer(map.dir(), options()).options().search.hash_blend_weight, 0.0f);
+}
+
+TEST(LocalizerOptions, ParsesTheHashBlend) {
+  float w = 0.7f;
+  EXPECT_EQ(parse_hash_blend("map", w), HashBlendSource::kMap);
+  EXPECT_EQ(w, 0.7f);
+  EXPECT_EQ(parse_hash_blend("0.25", w), HashBlendSource::kGiven);
+  EXPECT_EQ(w, 0.25f);
+  EXPECT_EQ(parse_hash_blend("1", w), HashBlendSource::kGiven);
+  EXPECT_EQ(w, 1.0f);
+  for (const char* bad : {"", "nan", "-0.1", "1.5", "0.5x", "MAP", " 0.5", "inf"}) {
+    w = 0.7f;
+    EXPECT_THROW(parse_hash_blend(bad, w), Error) << bad;
+    EXPECT_EQ(w, 0.7f) << bad;
+  }
+  LocalizerOptions o;
+  EXPECT_EQ(hash_blend_text(o), "map");
+  o.hash_blend_source = HashBlendSource::kGiven;
+  o.search.hash_blend_weight = 0.25f;
+  EXPECT_EQ(hash_blend_text(o), "0.25");
+}
+
 TEST(LocalizerPlanted, EarlyAcceptEndsTheSearchAtARegisteredPose) {
   Fixture fx;
   PlantedMap map("accept", {fx.a, fx.b});

@@ -1,5 +1,6 @@
 // The localizer's options as command-line options (util/option_table.h).
 #include "visloc/pipeline/localizer.h"
+#include "visloc/util/error.h"
 #include "visloc/util/option_table.h"
 
 namespace visloc {
@@ -56,12 +57,19 @@ void add_options(OptionTable& t, LocalizerOptions& o) {
         "list (the sum of their 136 buckets' sizes) holds more than this many points; the others probe all 16 "
         "(0: every feature)")
       .range(0, 1 << 30);
-  t.add("--hash-blend", o.search.hash_blend_weight,
-        "Cascade search (every setting): weight w in [0, 1] of the distance the 128-bit hash codes imply, "
-        "blended into the PQ distance that ranks each short list: (1 - w) d2_PQ + w d2_hash. 0: the PQ alone "
-        "(the paper's); > 0: more right matches, but a smaller share of them right, and the confidence model "
-        "was fitted without it. `visloc map fit-blend` fits a weight on a map's own data")
-      .range(0.0, 1.0);
+  t.text(
+      "--hash-blend", hash_blend_text(o),
+      [&o](const std::string& text) {
+        try {
+          o.hash_blend_source = parse_hash_blend(text, o.search.hash_blend_weight);
+        } catch (const Error& e) {
+          throw_error(e.code(), "--hash-blend: ", e.what());
+        }
+      },
+      "Cascade search (every setting): weight w in [0, 1] of the distance the 128-bit hash codes imply, blended "
+      "into the PQ distance that ranks each short list: (1 - w) d2_PQ + w d2_hash; 'map': the weight fitted on "
+      "the map and stored in it (`visloc map fit-blend --store`, or map build/import --fit-blend), 0 on a map "
+      "without one. 0: the PQ alone (the paper's); > 0: more right matches, but a smaller share of them right");
   t.add("--early-stop", o.search.early_stop,
         "Settings 3, 3+: the prioritized search stops at this many 1-1 matches (N_early)");
   t.flag("!--no-fallback", o.full_search_fallback,

@@ -246,7 +246,31 @@ void take_localizer_options(Kwargs& k, LocalizerOptions& o) {
   k.take("early_stop", o.search.early_stop);
   k.take("lut_flips", o.search.lut_flips);
   k.take("lut_flips_min_list", o.search.lut_flips_min_list);
-  k.take("hash_blend", o.search.hash_blend_weight);
+  {
+    // 'map' (the map's fitted weight, the default) or a weight in [0, 1].
+    py::object blend = k.take_object("hash_blend");
+    if (!blend.is_none()) {
+      if (py::isinstance<py::str>(blend)) {
+        const std::string text = blend.cast<std::string>();
+        if (text != "map")
+          raise_error(ErrorCode::kInvalidArgument,
+                      "Localizer: hash_blend must be 'map' or a number in [0, 1], got '" + text + "'");
+        o.hash_blend_source = HashBlendSource::kMap;
+      } else if (py::isinstance<py::float_>(blend) || py::isinstance<py::int_>(blend)) {
+        if (py::isinstance<py::bool_>(blend))
+          throw py::type_error("Localizer: hash_blend must be 'map' or a number in [0, 1], got a bool");
+        const double w = blend.cast<double>();
+        if (!(w >= 0 && w <= 1))
+          raise_error(ErrorCode::kInvalidArgument,
+                      "Localizer: hash_blend must be 'map' or a number in [0, 1], got " + std::to_string(w));
+        o.hash_blend_source = HashBlendSource::kGiven;
+        o.search.hash_blend_weight = static_cast<float>(w);
+      } else {
+        throw py::type_error("Localizer: hash_blend must be 'map' or a number in [0, 1], got " +
+                             py::str(py::type::of(blend)).cast<std::string>());
+      }
+    }
+  }
   k.take("full_search_fallback", o.full_search_fallback);
   k.take("threshold_px", o.ransac.threshold_px);
   k.take("min_inliers", o.ransac.min_inliers);
@@ -582,6 +606,7 @@ nlohmann::json build_record(const MapBuildOptions& o, const fs::path& map_dir) {
   if (o.plan.order == PlacemarkOrder::kChain) a.push_back("--chain-order");
   add("--registration-threshold", number_text(o.registration.inlier_threshold));
   if (!o.build_retrieval) a.push_back("--no-retrieval");
+  if (o.fit_hash_blend) a.push_back("--fit-blend");
   add("--retrieval-dims", std::to_string(o.embedding.output_dims));
   add("--pq-training-images", std::to_string(o.pq_training_images));
   if (o.hash_rotation) add("--hash-rotation", to_string(*o.hash_rotation));
@@ -736,7 +761,7 @@ Localizer(map_dir, **options): options are LocalizerOptions fields, named as
 the `visloc localize` flags: setting ('1', '2', '3', '3+'), top_images,
 max_segments, fallback_segments, segment_votes ('auto', 'points', 'images',
 'both'), vote_points, vote_max_points, vote_radius, vote_ratio, vote_chance_normalization, accept_inliers, early_stop, lut_flips, lut_flips_min_list,
-hash_blend,
+hash_blend ('map', the default: the weight the map stores, or a number in [0, 1]),
 full_search_fallback, threshold_px, min_inliers, min_confidence, under_street_check (False: --allow-under-street),
 map_point_uncertainty (False: --no-map-point-uncertainty),
 max_drop_below_map, use_exif_focal, seed, cache_mib, max_image_side,
@@ -954,6 +979,7 @@ void bind_build_map(py::module_& m) {
         if (k.take("chain_order", chain_order) && chain_order) o.plan.order = PlacemarkOrder::kChain;
         k.take("registration_threshold", o.registration.inlier_threshold);
         k.take("retrieval", o.build_retrieval);
+        k.take("fit_blend", o.fit_hash_blend);
         k.take("retrieval_dims", o.embedding.output_dims);
         k.take("pq_training_images", o.pq_training_images);
         if (k.take_choice("hash_rotation", hash_rotation, {"segment", "map"}))
@@ -1010,7 +1036,7 @@ Keywords as the CLI's flags: gps ('exif' or a CSV), gps_subset, poses ('sfm' or
 'known'), known_poses, known_intrinsics, matcher ('auto', 'guided', 'colmap',
 'twoview'), sampson, pair_ransac ('classic', '1m', '1m-sprt'), pair_threshold, jobs, colmap, colmap_threads, exhaustive_max, spatial_neighbors,
 min_placemarks, max_placemarks, overlap, placemark_radius, chain_order,
-registration_threshold, retrieval, retrieval_dims, pq_training_images,
+registration_threshold, retrieval, fit_blend, retrieval_dims, pq_training_images,
 hash_rotation, point_coordinates ('auto', 'float32', 'int16'), point_uncertainty
 (bool, default False), pq_bytes (16 or
 32; default: an existing map's, 16 for a new one), pq_quantizer ('product' or
@@ -1052,6 +1078,7 @@ void bind_import_colmap(py::module_& m) {
         k.take("seed", o.itq.seed);
         k.take("keep_descriptors", o.keep_descriptors);
         k.take("overwrite", o.overwrite);
+        k.take("fit_blend", o.fit_hash_blend);
         k.finish();
         o.pq.seed = o.itq.seed;
         const ColmapImportResult r = translate_errors([&] {
@@ -1072,7 +1099,9 @@ pq_train_images, hash_rotation ('segment' or 'map'), point_coordinates ('auto',
 pq_quantizer ('product' or 'residual'),
 pq_residual_splits (1, 2 or 4; default 2), pq_residual_beam (1 to 64; default 1),
 pq_residual_kmeans ('plain', the default, or 'progressive'),
-itq_iterations, seed, keep_descriptors, overwrite. Returns the import statistics as a dict.)doc");
+itq_iterations, seed, keep_descriptors, overwrite, fit_blend (bool, default False:
+fit the hash-blend weight on the new map and store it, as --fit-blend).
+Returns the import statistics as a dict.)doc");
 }
 
 // visloc.evaluate.

@@ -81,6 +81,9 @@ def test_not_a_map_raises_format_error(tmp_path):
         ({"lut_flips_min_list": -1}, ValueError, "lut_flips_min_list"),
         ({"hash_blend": 1.5}, ValueError, "hash_blend"),
         ({"hash_blend": float("nan")}, ValueError, "hash_blend"),
+        ({"hash_blend": "mpa"}, ValueError, "hash_blend"),
+        ({"hash_blend": True}, TypeError, "hash_blend"),
+        ({"hash_blend": [0.5]}, TypeError, "hash_blend"),
         ({"vote_ratio": 1.5}, ValueError, "vote_ratio"),
         ({"vote_ratio": 0.0}, ValueError, "vote_ratio"),
         ({"top_images": "20"}, TypeError, "top_images"),
@@ -132,6 +135,12 @@ def test_bad_build_and_import_options(tmp_path):
         visloc.import_colmap(tmp_path, tmp_path / "db", tmp_path / "map", point_uncertainty=1)
     with pytest.raises(TypeError, match="point_uncertainty"):
         visloc.build_map(tmp_path, tmp_path / "map", point_uncertainty="yes")
+    with pytest.raises(TypeError, match="fit_blend"):
+        visloc.import_colmap(tmp_path, tmp_path / "db", tmp_path / "map", fit_blend=1)
+    with pytest.raises(ValueError, match="--fit-blend"):  # it needs the descriptors
+        visloc.import_colmap(tmp_path, tmp_path / "db", tmp_path / "map", fit_blend=True, keep_descriptors=False)
+    with pytest.raises(TypeError, match="fit_blend"):
+        visloc.build_map(tmp_path, tmp_path / "map", fit_blend="yes")
     with pytest.raises(ValueError, match="queries and truth"):
         visloc.evaluate(tmp_path, tmp_path / "out", images=tmp_path)
 
@@ -438,9 +447,13 @@ def test_import_colmap_and_evaluate(fountain, tmp_path):
     assert stats["holdout"]["images_removed"] == len(fountain["queries"])
     assert stats["points"] > 1000
     assert visloc.Map(tmp_path / "map").info()["total"]["pq_code_bytes"] == 16
-    visloc.import_colmap(FOUNTAIN / "colmap" / "sparse", FOUNTAIN / "colmap" / "database.db", tmp_path / "map32",
-                         holdout=FOUNTAIN / "queries.txt", itq_iterations=3, pq_bytes=32, keep_descriptors=False)
+    stats32 = visloc.import_colmap(FOUNTAIN / "colmap" / "sparse", FOUNTAIN / "colmap" / "database.db",
+                                   tmp_path / "map32", holdout=FOUNTAIN / "queries.txt", itq_iterations=3, pq_bytes=32,
+                                   fit_blend=True)
     info32 = visloc.Map(tmp_path / "map32").info()
+    # fit_blend: the hash-blend weight fitted on the new map, stored for its segment, the localizer's default.
+    assert 0 <= stats32["hash_blend_weight"] <= 1
+    assert info32["hash_blend"] == {"weight": stats32["hash_blend_weight"], "current": True}
     assert info32["total"]["pq_code_bytes"] == 32
     assert info32["segments"][0]["format_version"] == 4
     with pytest.raises(visloc.Error, match="overwrite|exists|not empty"):
