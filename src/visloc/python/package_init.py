@@ -6,7 +6,7 @@
     if r.registered:
         print(r.lat, r.lon, r.heading_deg, r.confidence)
 
-Localizer, Map, build_map, import_colmap, evaluate and read_image are the
+Localizer, Map, build_map, import_colmap, fit_blend, evaluate and read_image are the
 C++ library's, bound with pybind11 (visloc._core). Errors are visloc.Error
 subclasses that are also the matching builtin exceptions:
 InvalidArgumentError (ValueError), FormatError (ValueError), NotFoundError
@@ -27,6 +27,7 @@ from visloc._core import (  # noqa: F401  (the public API)
     Segment,
     build_map,
     evaluate,
+    fit_blend,
     import_colmap,
     read_image,
     set_opencv_threads,
@@ -46,6 +47,7 @@ __all__ = [
     "Segment",
     "build_map",
     "evaluate",
+    "fit_blend",
     "import_colmap",
     "read_image",
     "set_opencv_threads",

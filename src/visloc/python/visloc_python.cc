@@ -1104,6 +1104,37 @@ fit the hash-blend weight on the new map and store it, as --fit-blend).
 Returns the import statistics as a dict.)doc");
 }
 
+// visloc.fit_blend.
+void bind_fit_blend(py::module_& m) {
+  m.def(
+      "fit_blend",
+      [](const py::object& map, const py::kwargs& kwargs) {
+        Kwargs k(kwargs, "fit_blend");
+        const fs::path map_dir = path_from(map, "fit_blend: map_dir");
+        MapBlendFitOptions o;
+        bool store = false;
+        k.take("views", o.views);
+        k.take("weight_steps", o.fit.weight_steps);
+        k.take("store", store);
+        k.finish();
+        nlohmann::json j = translate_errors([&] {
+          o.validate();
+          py::gil_scoped_release release;
+          const MapBlendFit fit = fit_map_hash_blend(map_dir, o);
+          if (store) store_map_hash_blend(map_dir, fit);
+          return fit.to_json();
+        });
+        j["stored"] = store;
+        return to_python(j);
+      },
+      py::arg("map_dir"),
+      R"doc(Fits the cascade search's hash-blend weight on the map's own data, as
+`visloc map fit-blend --json`. Keywords: views (points sampled, default 4000),
+weight_steps (default 20), store (bool, default False: write the weight into
+the map's manifest, where Localizer takes it by default). Returns the fit as a
+dict: weight, views, distractors, grid, segments, stored.)doc");
+}
+
 // visloc.evaluate.
 void bind_evaluate(py::module_& m) {
   m.def(
@@ -1184,6 +1215,7 @@ void bind(py::module_& m) {
   bind_read_image(m);
   bind_build_map(m);
   bind_import_colmap(m);
+  bind_fit_blend(m);
   bind_evaluate(m);
 }
 

@@ -29,7 +29,7 @@ FOUNTAIN_MAP = pathlib.Path(os.environ.get("VISLOC_TEST_FOUNTAIN_MAP", "build/sr
 
 
 def test_public_api():
-    for name in ["Localizer", "Map", "build_map", "import_colmap", "evaluate", "read_image", "Error"]:
+    for name in ["Localizer", "Map", "build_map", "import_colmap", "fit_blend", "evaluate", "read_image", "Error"]:
         assert hasattr(visloc, name), name
     assert issubclass(visloc.InvalidArgumentError, visloc.Error)
     assert issubclass(visloc.InvalidArgumentError, ValueError)
@@ -455,6 +455,17 @@ def test_import_colmap_and_evaluate(fountain, tmp_path):
     assert 0 <= stats32["hash_blend_weight"] <= 1
     assert info32["hash_blend"] == {"weight": stats32["hash_blend_weight"], "current": True}
     assert info32["total"]["pq_code_bytes"] == 32
+    fit = visloc.fit_blend(tmp_path / "map32", views=500, weight_steps=4)
+    assert fit["stored"] is False and len(fit["grid"]) == 5 and fit["views"] == 500
+    assert visloc.Map(tmp_path / "map32").info()["hash_blend"]["weight"] == stats32["hash_blend_weight"]
+    stored = visloc.fit_blend(tmp_path / "map32", views=500, weight_steps=4, store=True)
+    assert visloc.Map(tmp_path / "map32").info()["hash_blend"] == {"weight": stored["weight"], "current": True}
+    with pytest.raises(ValueError, match="views"):
+        visloc.fit_blend(tmp_path / "map32", views=1)
+    with pytest.raises(TypeError, match="store"):
+        visloc.fit_blend(tmp_path / "map32", store="yes")
+    with pytest.raises(visloc.Error, match="kept no point descriptors"):
+        visloc.fit_blend(tmp_path / "map")
     assert info32["segments"][0]["format_version"] == 4
     with pytest.raises(visloc.Error, match="overwrite|exists|not empty"):
         visloc.import_colmap(FOUNTAIN / "colmap" / "sparse", FOUNTAIN / "colmap" / "database.db",
