@@ -4,8 +4,9 @@
 #  - no child process (COLMAP) outlives the killed build;
 #  - the re-run reuses the written segment;
 #  - its manifest and `map info --json` equal those of an uninterrupted build.
-# And `map fit-blend --store` on the uninterrupted build reads every segment's
-# work folder and stores the weight; `map build --fit-blend` stores the same.
+# And the hash blend each build fits last (the default): `map fit-blend` on
+# the uninterrupted build reads every segment's work folder and fits the same
+# weight; a resumed build with --no-fit-blend keeps it.
 # A small synthetic street, known poses, our guided matcher, no retrieval.
 # Usage: map_build_crash_test.sh VISLOC   (exit 77: skipped without COLMAP)
 set -euo pipefail
@@ -44,12 +45,19 @@ grep -qi "reus" "$T/rerun.log" || { cat "$T/rerun.log"; fail "the re-run did not
 "$V" map info "$T/killed" --json > "$T/killed.json"
 diff "$T/reference.json" "$T/killed.json" || fail "map info differs from the uninterrupted build"
 diff "$T/reference/manifest.json" "$T/killed/manifest.json" || fail "the manifest differs from the uninterrupted build"
-# A built map's hash-blend weight is fitted on its own MAP/work models and
-# databases (visloc map fit-blend): every segment, each from its own folder.
-"$V" map fit-blend "$T/reference" --store --json > "$T/blend.json" || fail "map fit-blend failed on a built map"
-/usr/bin/python3 - "$T/blend.json" "$T/reference.json" <<'PY' || fail "map fit-blend's report of a built map"
+# By default the build fits the hash blend last, on its own MAP/work models
+# and databases, and stores it: the same weight for the same segments
+# (compared above with the manifests). `map fit-blend --store` fits the same.
+/usr/bin/python3 - "$T/reference/manifest.json" <<'PY' || fail "the default build stored no hash blend"
 import json, sys
-fit, info = json.load(open(sys.argv[1])), json.load(open(sys.argv[2]))
+man = json.load(open(sys.argv[1]))
+b = man["hash_blend"]
+assert 0 <= b["weight"] <= 1 and b["segment_crc32c"] == [s["file_crc32c"] for s in man["segments"]], b
+PY
+"$V" map fit-blend "$T/reference" --store --json > "$T/blend.json" || fail "map fit-blend failed on a built map"
+/usr/bin/python3 - "$T/blend.json" "$T/reference.json" "$T/killed/manifest.json" <<'PY' || fail "map fit-blend's report of a built map"
+import json, sys
+fit, info, built = (json.load(open(p)) for p in sys.argv[1:4])
 ids = [s["id"] for s in info["segments"]]
 assert len(ids) >= 2 and [s["segment"] for s in fit["segments"]] == ids, (fit["segments"], ids)
 for s in fit["segments"]:
@@ -60,29 +68,13 @@ grid = fit["grid"]
 assert len(grid) == 21 and fit["views_listed"] > 0 and max(g["views_right"] for g in grid) > 0, fit
 net = [g["views_right"] - g["views_wrong"] - g["distractors_matched"] for g in grid]
 assert fit["weight"] == grid[net.index(max(net))]["weight"], (fit["weight"], net)
-assert fit["stored"] is True, fit
-PY
-# --store wrote it into the manifest, with the segments' checksums.
-/usr/bin/python3 - "$T/blend.json" "$T/reference/manifest.json" <<'PY' || fail "map fit-blend --store"
-import json, sys
-fit, man = json.load(open(sys.argv[1])), json.load(open(sys.argv[2]))
-b = man["hash_blend"]
-assert b["weight"] == fit["weight"], (b, fit["weight"])
-assert b["segment_crc32c"] == [s["file_crc32c"] for s in man["segments"]], b
+assert fit["stored"] is True and fit["weight"] == built["hash_blend"]["weight"], (fit, built["hash_blend"])
 PY
 "$V" map info "$T/reference" | grep -q "hash blend: weight .* (fitted on these segments" || fail "map info does not show the stored weight"
-# A resumed build (nothing to rebuild) rewrites the manifest and keeps it.
+# --no-fit-blend: a resumed build fits nothing and keeps the stored weight.
 cp "$T/reference/manifest.json" "$T/stored_manifest.json"
-"$V" map build "${args[@]}" --out "$T/reference" > "$T/resume.log" 2>&1 || { cat "$T/resume.log"; fail "the resumed build failed"; }
+"$V" map build "${args[@]}" --no-fit-blend --out "$T/reference" > "$T/resume.log" 2>&1 ||
+  { cat "$T/resume.log"; fail "the resumed build failed"; }
+grep -q "hash blend" "$T/resume.log" && { cat "$T/resume.log"; fail "--no-fit-blend fitted the hash blend"; }
 diff "$T/stored_manifest.json" "$T/reference/manifest.json" || fail "a resumed build changed the manifest with its stored weight"
-# map build --fit-blend fits it last: the resumed build of the same segments stores the same weight.
-"$V" map build "${args[@]}" --fit-blend --out "$T/killed" > "$T/fit.log" 2>&1 ||
-  { cat "$T/fit.log"; fail "map build --fit-blend failed"; }
-grep -q "hash blend weight .* fitted on the map and stored" "$T/fit.log" || { cat "$T/fit.log"; fail "map build --fit-blend said nothing of it"; }
-/usr/bin/python3 - "$T/reference/manifest.json" "$T/killed/manifest.json" <<'PY' || fail "map build --fit-blend's stored weight"
-import json, sys
-ref, built = (json.load(open(p)) for p in sys.argv[1:3])
-assert built["hash_blend"]["weight"] == ref["hash_blend"]["weight"], (built["hash_blend"], ref["hash_blend"])
-assert built["hash_blend"]["segment_crc32c"] == ref["hash_blend"]["segment_crc32c"]
-PY
-echo "killed after $written segment(s), no process left; re-run reused them; manifest and map info equal the uninterrupted build; map fit-blend read every segment's work folder and stored its weight; map build --fit-blend stored the same"
+echo "killed after $written segment(s), no process left; re-run reused them; manifest and map info equal the uninterrupted build; the build stored its hash blend; map fit-blend read every segment's work folder and fitted the same; --no-fit-blend kept it"

@@ -346,6 +346,7 @@ struct CityLocalizationTally {
   bool image_votes = false;        // the candidates were ranked with image votes
   bool point_votes = false;        // ... with point votes
   size_t point_vote_bytes = 0;     // their index's memory
+  double hash_blend_weight = 0;    // the cascade search's (given, or the map's fitted one)
 };
 
 // What localizing a synthetic query needs to know of the city and the map.
@@ -474,6 +475,7 @@ CityLocalizationTally localize_city_queries(const fs::path& out, const fs::path&
   t.image_votes = localizer.has_retrieval();
   t.point_votes = localizer.has_point_votes();
   t.point_vote_bytes = localizer.point_vote_bytes();
+  t.hash_blend_weight = localizer.options().search.hash_blend_weight;
   const CityQueryContext ctx{opt, city_dir, split, localizer, intrinsics, scene_probe, point_samples};
   size_t done = 0;
   for (const NamedPose& q : truth) {
@@ -563,6 +565,8 @@ nlohmann::json city_report_json(const fs::path& city_dir, const CityBenchmarkOpt
       {"peak_memory_bytes_of_localizing_process", peak_memory_bytes()},
       {"peak_memory_bytes_city_queries", t.peak_city_queries},
       {"localized_in_separate_process", opt.stage == CityBenchmarkStage::kLocalize},
+      {"hash_blend", hash_blend_text(opt.localizer)},
+      {"hash_blend_weight", std::round(t.hash_blend_weight * 1e6) / 1e6},
       {"segment_votes",
        {{"option", to_string(opt.localizer.segment_votes)},
         {"image_votes_used", t.image_votes},
@@ -702,7 +706,8 @@ std::string city_report_markdown(const nlohmann::json& report, const CityBenchma
      << c.under_street_right << " right ones above the threshold. Uncertainty: of " << c.with_sigma
      << " registered positives, " << (c.with_sigma ? double(c.within1) / double(c.with_sigma) : 0.0)
      << " have their position error within 1σ and " << (c.with_sigma ? double(c.within2) / double(c.with_sigma) : 0.0)
-     << " within 2σ.\n\n"
+     << " within 2σ. The cascade search's hash blend: weight " << fixed_text(t.hash_blend_weight, 2)
+     << (opt.localizer.hash_blend_source == HashBlendSource::kMap ? " (the map's)" : " (given)") << ".\n\n"
      << "Retrieval (candidates ranked by "
      << (t.image_votes && t.point_votes ? (opt.localizer.segment_votes == SegmentVoteSource::kBoth
                                                ? "image and point votes"
@@ -799,7 +804,7 @@ void record_slurm_city_build(const fs::path& out_dir, MapBuildOptions& map) {
                                    "--overlap",
                                    std::to_string(map.plan.overlap)};
   if (map.segment_file.point_uncertainty) args.push_back("--point-uncertainty");
-  if (map.fit_hash_blend) args.push_back("--fit-blend");
+  if (map.fit_hash_blend) args.push_back(*map.fit_hash_blend ? "--fit-blend" : "--no-fit-blend");
   record_build_for_tasks(map, out / "map", args);
 }
 

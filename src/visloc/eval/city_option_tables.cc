@@ -62,9 +62,7 @@ void add_run_options(OptionTable& t, CityBenchmarkOptions& o) {
   t.flag("--point-uncertainty", o.map.segment_file.point_uncertainty,
          "Map: store each point's triangulation uncertainty, so that the poses' sigma includes the map's error "
          "(see 'map build --help')");
-  t.flag("--fit-blend", o.map.fit_hash_blend,
-         "Map: fit the cascade search's hash-blend weight on the built map and store it, so that the queries are "
-         "localized with it (see 'map fit-blend --help')");
+  add_fit_blend_options(t, o.map.fit_hash_blend);
 }
 
 }  // namespace

@@ -1,6 +1,7 @@
 #include "visloc/eval/evaluation_run.h"
 
 #include <algorithm>
+#include <cmath>
 #include <iomanip>
 #include <memory>
 #include <ostream>
@@ -248,9 +249,10 @@ EvaluationRunResult run_evaluation(const EvaluationRunOptions& o) {
                             {"query_features", to_string(o.query_features)}};
   // The cascade search's hash-blend weight the localizer uses: given, or the map's fitted one.
   context["hash_blend"] = hash_blend_text(o.localizer);
-  context["hash_blend_weight"] = o.localizer.hash_blend_source == HashBlendSource::kMap
-                                     ? read_manifest(o.map).fitted_hash_blend().value_or(0.0)
-                                     : double(o.localizer.search.hash_blend_weight);
+  const double blend = o.localizer.hash_blend_source == HashBlendSource::kMap
+                           ? read_manifest(o.map).fitted_hash_blend().value_or(0.0)
+                           : double(o.localizer.search.hash_blend_weight);
+  context["hash_blend_weight"] = std::round(blend * 1e6) / 1e6;  // a float weight without its float digits
   const QueryRun run = o.leave_one_out ? localize_leave_one_out(o, context) : localize_query_list(o, context);
   const std::vector<LocalizationResult> negative_results = localize_negatives(o, context);
 

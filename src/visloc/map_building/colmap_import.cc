@@ -33,7 +33,7 @@ void ColmapImportOptions::validate() const {
   pq.validate();
   if (pq_training_database.empty() && !pq_training_images.empty())
     throw_error(ErrorCode::kInvalidArgument, "ColmapImportOptions.pq_training_images needs pq_training_database");
-  if (fit_hash_blend && !keep_descriptors)
+  if (fit_hash_blend.value_or(false) && !keep_descriptors)
     throw_error(ErrorCode::kInvalidArgument,
                 "map import: fitting the hash blend (--fit-blend) needs the map's point descriptors (drop "
                 "--no-descriptors)");
@@ -249,20 +249,20 @@ void import_model_map(ColmapModel model, const ModelSource& source, const fs::pa
                           file_crc(seg_path)});
   write_manifest(out_dir, man);
   res.ms_write = t.elapsed_ms();
-  if (options.fit_hash_blend) {
+  const bool colmap_source = source.manifest_source.value("type", "") == "colmap";
+  if (options.fit_hash_blend.value_or(colmap_source && options.keep_descriptors)) {
     // On the staged map, so that the map replaces a previous one only whole.
     t.reset();
-    MapBlendFit fit;
     try {
-      fit = fit_map_hash_blend(out_dir, options.hash_blend);
+      const MapBlendFit fit = fit_map_hash_blend(out_dir, options.hash_blend);
+      store_map_hash_blend(out_dir, fit);
+      res.hash_blend_weight = fit.fit.weight;
     } catch (const Error& e) {
-      throw_error(e.code(), map_dir.string(),
-                  ": map import: fitting the hash blend (--fit-blend) failed, so the map "
-                  "was not written: ",
-                  e.what());
+      if (options.fit_hash_blend.has_value())
+        throw_error(e.code(), map_dir.string(), ": map import: fitting the hash blend (--fit-blend) failed, so the ",
+                    "map was not written: ", e.what());
+      res.hash_blend_error = e.what();  // the default: the map is whole without it
     }
-    store_map_hash_blend(out_dir, fit);
-    res.hash_blend_weight = fit.fit.weight;
     res.ms_hash_blend = t.elapsed_ms();
   }
   staging.publish();
@@ -295,7 +295,7 @@ BundlerImportResult import_bundler_map(const fs::path& bundle_file, const fs::pa
                                        const BundlerConversionOptions& bundler, const ColmapImportOptions& options) {
   options.validate();
   bundler.validate();
-  if (options.fit_hash_blend)
+  if (options.fit_hash_blend.value_or(false))
     throw_error(ErrorCode::kInvalidArgument,
                 "map import: the hash blend (--fit-blend) is fitted on a COLMAP model and database; a Bundler "
                 "import has none");
@@ -333,6 +333,7 @@ nlohmann::json to_json(const ColmapImportResult& r) {
           {"pq_training", {{"descriptors", r.pq_training_descriptors}, {"source", r.pq_training_source}}},
           {"itq_final_error", r.itq_final_error},
           {"hash_blend_weight", r.hash_blend_weight ? nlohmann::json(*r.hash_blend_weight) : nlohmann::json()},
+          {"hash_blend_error", r.hash_blend_error},
           {"ms",
            {{"read", r.ms_read},
             {"descriptors", r.ms_descriptors},
@@ -424,6 +425,9 @@ std::string import_summary(const MapImportResult& r, const MapImportSources& sou
   if (m.hash_blend_weight)
     out << std::setprecision(2) << "  hash blend weight " << *m.hash_blend_weight
         << " fitted on the map and stored (localize and eval use it by default)\n";
+  if (!m.hash_blend_error.empty())
+    out << "  warning: the hash blend was not fitted (the search ranks by the PQ distance alone on this map): "
+        << m.hash_blend_error << "\n";
   return out.str();
 }
 

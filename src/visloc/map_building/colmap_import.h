@@ -43,8 +43,11 @@ struct ColmapImportOptions {
   bool overwrite = false;        // replace an existing map in the output directory
   // Fit the cascade search's hash-blend weight on the new map and store it in
   // its manifest before the map replaces any previous one (fit_map_hash_blend,
-  // store_map_hash_blend): COLMAP imports that keep their descriptors only.
-  bool fit_hash_blend = false;
+  // store_map_hash_blend). Unset (the default): for COLMAP imports that keep
+  // their descriptors, and a failed fit leaves the map without a weight
+  // (ColmapImportResult::hash_blend_error); true: a COLMAP import with
+  // descriptors, whose failed fit fails the import; false: never.
+  std::optional<bool> fit_hash_blend;
   MapBlendFitOptions hash_blend;
   void validate() const;
 };
@@ -62,6 +65,7 @@ struct ColmapImportResult {
   std::string pq_training_source;
   double itq_final_error = 0;
   std::optional<double> hash_blend_weight;  // fitted and stored (fit_hash_blend)
+  std::string hash_blend_error;             // why the default fit failed (the map has no weight then)
   double ms_read = 0, ms_descriptors = 0, ms_pq = 0, ms_itq = 0, ms_encode = 0, ms_write = 0, ms_hash_blend = 0;
 };
 

@@ -232,7 +232,13 @@ void store_map_hash_blend(const fs::path& map_dir, const MapBlendFit& fit) {
                 ": the map's segments changed after the hash blend was fitted (was it rebuilt meanwhile?); not "
                 "stored: fit again");
   nlohmann::json summary = fit.to_json();
-  summary.erase("ms");  // the manifest records what was fitted, not how fast
+  // The manifest records what was fitted, not how fast nor where its sources
+  // lie (a built map's are in its own work folder, wherever the map is).
+  summary.erase("ms");
+  for (auto& segment : summary["segments"]) {
+    segment.erase("model");
+    segment.erase("database");
+  }
   summary["weight_steps"] = fit.weight_steps;
   man.hash_blend = MapHashBlend{fit.fit.weight, fit.segment_crc32c, std::move(summary)};
   write_manifest(map_dir, man);

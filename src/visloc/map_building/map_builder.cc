@@ -1559,13 +1559,18 @@ void MapBuilder::settle_slurm_tasks(SlurmRun& run) {
 // Retrieval over the images of the segments that were built.
 void MapBuilder::fit_hash_blend() {
   State& s = *state_;
-  if (!s.opt.fit_hash_blend || s.result.failed() >= s.n_segments) return;
+  if (!s.opt.fit_hash_blend.value_or(true) || s.result.failed() >= s.n_segments) return;
   Timer t;
   if (s.progress) s.progress({"hash blend", 0, 1, s.total.elapsed_ms() / 1000, {}, -1});
   MapBlendFit fit;
   try {
     fit = fit_map_hash_blend(s.map_dir, s.opt.hash_blend);
   } catch (const Error& e) {
+    if (!s.opt.fit_hash_blend.has_value()) {  // the default: the map is whole without it
+      s.result.hash_blend_error = e.what();
+      if (s.progress) s.progress({"hash blend", 1, 1, s.total.elapsed_ms() / 1000, {}, -1});
+      return;
+    }
     throw_error(e.code(), s.map_dir.string(), ": map build: the segments are built, but fitting the hash blend ",
                 "(--fit-blend) failed (the map works without it; 'visloc map fit-blend' fits it alone): ", e.what());
   }
@@ -1625,7 +1630,8 @@ nlohmann::json to_json(const MapBuildResult& r) {
             {"retrieval", r.seconds_retrieval},
             {"hash_blend", r.seconds_hash_blend},
             {"total", r.seconds_total}}},
-          {"hash_blend_weight", r.hash_blend_weight ? nlohmann::json(*r.hash_blend_weight) : nlohmann::json()}};
+          {"hash_blend_weight", r.hash_blend_weight ? nlohmann::json(*r.hash_blend_weight) : nlohmann::json()},
+          {"hash_blend_error", r.hash_blend_error}};
 }
 
 std::string build_summary(const MapBuildResult& r) {
@@ -1648,6 +1654,9 @@ std::string build_summary(const MapBuildResult& r) {
   if (r.hash_blend_weight)
     out << std::setprecision(2) << "hash blend weight " << *r.hash_blend_weight
         << " fitted on the map and stored (localize and eval use it by default)\n";
+  if (!r.hash_blend_error.empty())
+    out << "warning: the hash blend was not fitted (the search ranks by the PQ distance alone on this map): "
+        << r.hash_blend_error << "\n";
   return out.str();
 }
 

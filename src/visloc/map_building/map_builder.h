@@ -132,8 +132,12 @@ struct MapBuildOptions {
   bool build_retrieval = true;              // train and write MAP/retrieval (T-embedding + IVF-PQ)
   // Last, fit the cascade search's hash-blend weight on the built map and
   // store it in its manifest (fit_map_hash_blend, store_map_hash_blend):
-  // localize and eval then use it by default.
-  bool fit_hash_blend = false;
+  // localize and eval then use it by default. Unset (the default): fit, and
+  // when the fit fails keep the map without a weight and say why
+  // (MapBuildResult::hash_blend_error); true: a failed fit fails the build;
+  // false: no fit (a weight stored earlier is kept, for the segments it was
+  // fitted on).
+  std::optional<bool> fit_hash_blend;
   MapBlendFitOptions hash_blend;
   // Retrieval: global descriptor, PCA-whitened to 512-D by default (8.4 MB of
   // parameters instead of 67 MB for full 4096-D whitening; under IVF-PQ at
@@ -156,6 +160,8 @@ class OptionTable;
 // --registration-threshold, --retrieval-dims, --no-retrieval, --pq-training-images, --hash-rotation,
 // --point-coordinates, --pq-bytes, SIFT's.
 void add_options(OptionTable& table, MapBuildOptions& options);
+// --fit-blend (true) and --no-fit-blend (false), of map build, map import and bench city.
+void add_fit_blend_options(OptionTable& table, std::optional<bool>& fit);
 // --pq-bytes 16|32 into options.subvectors (map build, map import, bench segments).
 void add_pq_bytes_option(OptionTable& table, PqTrainingOptions& options);
 
@@ -194,6 +200,7 @@ struct MapBuildResult {
   size_t images = 0, placemarks = 0;
   double seconds_features = 0, seconds_segments = 0, seconds_retrieval = 0, seconds_total = 0;
   std::optional<double> hash_blend_weight;  // fitted and stored (MapBuildOptions::fit_hash_blend)
+  std::string hash_blend_error;             // why the default fit failed (the map has no weight then)
   double seconds_hash_blend = 0;
   size_t failed() const;
 };
@@ -277,9 +284,8 @@ class MapBuilder {
   void select_segments();             // finished earlier (reused) or to build; the first manifest
   void build_segments_local();        // threads of this process
   void build_segments_slurm();        // job arrays, results collected from the shared directory
-  void build_retrieval();
-  void fit_hash_blend();  // with MapBuildOptions::fit_hash_blend             // T-embedding + IVF-PQ over the built
-                          // segments' images
+  void build_retrieval();             // T-embedding + IVF-PQ over the built segments' images
+  void fit_hash_blend();              // last, unless MapBuildOptions::fit_hash_blend is false
   // Shared by the stages.
   void write_current_manifest();
   void report_segments();                                  // with the state mutex held

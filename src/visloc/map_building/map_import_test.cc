@@ -182,6 +182,10 @@ TEST(MapImport, FountainWithHoldout) {
   EXPECT_TRUE(Map::open(out).open_segment(0)->point_uncertainty().empty());  // opt-in
   EXPECT_EQ(info.manifest.holdout_images, o.holdout_images);
   EXPECT_TRUE(fs::exists(out / "holdout.txt"));
+  // By default a COLMAP import fits the hash blend and stores it for its segment.
+  ASSERT_TRUE(r.hash_blend_weight.has_value()) << r.hash_blend_error;
+  EXPECT_EQ(info.manifest.fitted_hash_blend(), r.hash_blend_weight);
+  EXPECT_TRUE(r.hash_blend_error.empty());
   DescriptorMatrix d = read_point_descriptor_file(out / info.manifest.segments[0].descriptors_file);
   EXPECT_EQ(d.rows(), r.points);
   // A second import into the same directory is refused without overwrite.
@@ -314,6 +318,8 @@ TEST(MapImport, FitsTheHashBlendOnItsOwnViews) {
   EXPECT_EQ(stored.hash_blend->segment_crc32c, fit.segment_crc32c);
   EXPECT_EQ(stored.hash_blend->fit["grid"], j["grid"]);
   EXPECT_FALSE(stored.hash_blend->fit.contains("ms"));
+  EXPECT_FALSE(stored.hash_blend->fit["segments"][0].contains("model"));
+  EXPECT_EQ(stored.hash_blend->fit["segments"][0]["views"], 1500);
   // store_map_hash_blend writes it again (the rest of the manifest as it was),
   // but not a fit of other segments than the map's.
   store_map_hash_blend(out / "map", fit);

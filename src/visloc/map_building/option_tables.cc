@@ -171,9 +171,7 @@ void add_options(OptionTable& t, MapBuildOptions& o) {
   t.add("--retrieval-dims", o.embedding.output_dims,
         "Retrieval embedding dimensions after PCA-whitening (0: full 4096)");
   t.flag("!--no-retrieval", o.build_retrieval, "Do not build the retrieval index");
-  t.flag("--fit-blend", o.fit_hash_blend,
-         "Last, fit the cascade search's hash-blend weight on the built map's own data and store it in its "
-         "manifest (as `visloc map fit-blend --store`), where localize and eval take it by default");
+  add_fit_blend_options(t, o.fit_hash_blend);
   t.add("--pq-training-images", o.pq_training_images,
         "The PQ codebook trains on at most this many images, spread over the map (with --executor slurm "
         "only their features are extracted before the array; each task extracts its segment's)");
@@ -239,9 +237,20 @@ void add_options(OptionTable& t, ColmapImportOptions& o) {
   t.action("--no-descriptors", [&o] { o.keep_descriptors = false; },
            "Do not keep the mean descriptors (descriptors/*.vldesc; needed by the raw-SIFT baselines)");
   t.flag("--overwrite", o.overwrite, "Replace an existing map in --out");
-  t.flag("--fit-blend", o.fit_hash_blend,
-         "COLMAP imports: fit the cascade search's hash-blend weight on the new map's own data and store it in "
-         "its manifest (as `visloc map fit-blend --store`), where localize and eval take it by default");
+  add_fit_blend_options(t, o.fit_hash_blend);
+}
+
+void add_fit_blend_options(OptionTable& t, std::optional<bool>& fit) {
+  t.action(
+      "--fit-blend", [&fit] { fit = true; },
+      "Fit the cascade search's hash-blend weight on the new map's own data and store it in its manifest (as "
+      "`visloc map fit-blend --store`), where localize and eval take it by default; fail if it cannot be "
+      "fitted. The default fits it too, but only warns when it cannot (a Bundler import or --no-descriptors "
+      "is not fitted)");
+  t.action(
+      "--no-fit-blend", [&fit] { fit = false; },
+      "Do not fit the hash-blend weight: the search ranks by the PQ distance alone on the new map (a weight "
+      "stored earlier stays, for the segments it was fitted on)");
 }
 
 }  // namespace visloc

@@ -606,7 +606,7 @@ nlohmann::json build_record(const MapBuildOptions& o, const fs::path& map_dir) {
   if (o.plan.order == PlacemarkOrder::kChain) a.push_back("--chain-order");
   add("--registration-threshold", number_text(o.registration.inlier_threshold));
   if (!o.build_retrieval) a.push_back("--no-retrieval");
-  if (o.fit_hash_blend) a.push_back("--fit-blend");
+  if (o.fit_hash_blend) a.push_back(*o.fit_hash_blend ? "--fit-blend" : "--no-fit-blend");
   add("--retrieval-dims", std::to_string(o.embedding.output_dims));
   add("--pq-training-images", std::to_string(o.pq_training_images));
   if (o.hash_rotation) add("--hash-rotation", to_string(*o.hash_rotation));
@@ -979,7 +979,7 @@ void bind_build_map(py::module_& m) {
         if (k.take("chain_order", chain_order) && chain_order) o.plan.order = PlacemarkOrder::kChain;
         k.take("registration_threshold", o.registration.inlier_threshold);
         k.take("retrieval", o.build_retrieval);
-        k.take("fit_blend", o.fit_hash_blend);
+        if (bool fit = false; k.take("fit_blend", fit)) o.fit_hash_blend = fit;
         k.take("retrieval_dims", o.embedding.output_dims);
         k.take("pq_training_images", o.pq_training_images);
         if (k.take_choice("hash_rotation", hash_rotation, {"segment", "map"}))
@@ -1078,7 +1078,7 @@ void bind_import_colmap(py::module_& m) {
         k.take("seed", o.itq.seed);
         k.take("keep_descriptors", o.keep_descriptors);
         k.take("overwrite", o.overwrite);
-        k.take("fit_blend", o.fit_hash_blend);
+        if (bool fit = false; k.take("fit_blend", fit)) o.fit_hash_blend = fit;
         k.finish();
         o.pq.seed = o.itq.seed;
         const ColmapImportResult r = translate_errors([&] {
@@ -1099,8 +1099,10 @@ pq_train_images, hash_rotation ('segment' or 'map'), point_coordinates ('auto',
 pq_quantizer ('product' or 'residual'),
 pq_residual_splits (1, 2 or 4; default 2), pq_residual_beam (1 to 64; default 1),
 pq_residual_kmeans ('plain', the default, or 'progressive'),
-itq_iterations, seed, keep_descriptors, overwrite, fit_blend (bool, default False:
-fit the hash-blend weight on the new map and store it, as --fit-blend).
+itq_iterations, seed, keep_descriptors, overwrite, fit_blend (None, the default:
+fit the hash-blend weight on the new map and store it, and warn in the result's
+hash_blend_error when it cannot; True: fail then, as --fit-blend; False: no fit,
+as --no-fit-blend).
 Returns the import statistics as a dict.)doc");
 }
 
