@@ -147,8 +147,7 @@ struct MapBuildOptions {
     o.output_dims = 512;
     return o;
   }();
-  ImageIndexOptions image_index;            // retrieval: IVF-PQ index
-  bool keep_work = true;                    // keep MAP/work (databases, logs) after success
+  ImageIndexOptions image_index;  // retrieval: IVF-PQ index
   void validate() const;
   PairMatcher effective_matcher() const;  // kDefault resolved: guided with known poses, else COLMAP's
 };
@@ -230,7 +229,8 @@ SegmentBuildResult build_planned_segment(const std::filesystem::path& map_dir, c
                                          int segment);
 
 // MAP/work/segNNNN: segment `segment`'s working folder (its COLMAP database,
-// model under sparse/, logs), kept after the build unless keep_work is off.
+// model under sparse/, logs), always kept: a resumed build, `map update` and
+// `map fit-blend` read it.
 std::filesystem::path segment_work_dir(const std::filesystem::path& map_dir, int segment);
 
 // The hash rotation a build of `map_dir` uses: `given`, else the existing

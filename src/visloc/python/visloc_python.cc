@@ -989,7 +989,6 @@ void bind_build_map(py::module_& m) {
         if (PqQuantizer q{}; take_pq_quantizer(k, "build_map", q, o.pq_residual_splits, o.pq_residual_beam))
           o.pq_quantizer = q;
         take_residual_kmeans(k, o.pq);
-        k.take("keep_work", o.keep_work);
         take_sift_options(k, o.sift);
         k.finish();
         std::function<void(const MapBuildProgress&)> callback;
@@ -1036,7 +1035,7 @@ Keywords as the CLI's flags: gps ('exif' or a CSV), gps_subset, poses ('sfm' or
 'known'), known_poses, known_intrinsics, matcher ('auto', 'guided', 'colmap',
 'twoview'), sampson, pair_ransac ('classic', '1m', '1m-sprt'), pair_threshold, jobs, colmap, colmap_threads, exhaustive_max, spatial_neighbors,
 min_placemarks, max_placemarks, overlap, placemark_radius, chain_order,
-registration_threshold, retrieval, fit_blend, retrieval_dims, pq_training_images,
+registration_threshold, retrieval, retrieval_dims, pq_training_images,
 hash_rotation, point_coordinates ('auto', 'float32', 'int16'), point_uncertainty
 (bool, default False), pq_bytes (16 or
 32; default: an existing map's, 16 for a new one), pq_quantizer ('product' or
@@ -1044,8 +1043,10 @@ hash_rotation, point_coordinates ('auto', 'float32', 'int16'), point_uncertainty
 search, seconds of training; default: an existing map's, 'product' for a
 new one), pq_residual_splits (1, 2 or 4) and pq_residual_beam (1 to 64) of
 residual codes (default: an existing map's, 2 and 1 for a new one),
-pq_residual_kmeans ('plain', the default, or 'progressive': their training), keep_work and the SIFT
-options. progress(dict) is called as the
+pq_residual_kmeans ('plain', the default, or 'progressive': their training), fit_blend (None,
+the default: fit the hash-blend weight last and warn in the report's hash_blend_error when it
+cannot; True: fail then; False: no fit) and the SIFT options. MAP/work is kept (a resumed build,
+map update and fit_blend read it). progress(dict) is called as the
 build advances. Local executor only (Slurm builds: the CLI). Segments are
 built `jobs` at a time (default: one per core), each SIFT on OpenCV's
 process-wide pool: call visloc.set_opencv_threads(1) first, as the CLI does,
