@@ -311,8 +311,15 @@ nlohmann::json build_or_read_city_map(const fs::path& out, const fs::path& city_
       map_bytes += s.file_bytes;
       points += s.points;
     }
-    build_summary = {{"segments", built.segments.size()}, {"segments_failed", built.failed()}, {"points", points},
-                     {"segment_bytes", map_bytes}, {"build_seconds_this_run", built.seconds_total}};
+    build_summary = {
+        {"segments", built.segments.size()},
+        {"segments_failed", built.failed()},
+        {"points", points},
+        {"segment_bytes", map_bytes},
+        {"build_seconds_this_run", built.seconds_total},
+        // The build's hash-blend fit (null when not fitted; the error when the default fit failed).
+        {"hash_blend_weight", built.hash_blend_weight ? nlohmann::json(*built.hash_blend_weight) : nlohmann::json()},
+        {"hash_blend_error", built.hash_blend_error}};
     write_file_atomic(build_summary_path, build_summary.dump(2));
   } else {
     try {

@@ -94,6 +94,12 @@ QueryRun localize_leave_one_out(const EvaluationRunOptions& o, nlohmann::json& c
     throw_error(ErrorCode::kInvalidArgument, o.map.string(), ": leave-one-out needs a map imported from COLMAP");
   LeaveOneOutOptions l;
   l.localizer = o.localizer;
+  // Each fold's map is imported without descriptors, so none fits a hash
+  // blend: the folds search with the weight of the map given (as reported).
+  if (l.localizer.hash_blend_source == HashBlendSource::kMap) {
+    l.localizer.hash_blend_source = HashBlendSource::kGiven;
+    l.localizer.search.hash_blend_weight = static_cast<float>(read_manifest(o.map).fitted_hash_blend().value_or(0.0));
+  }
   l.features = o.query_features;
   l.images_dir = o.images_dir;
   l.images = o.queries;

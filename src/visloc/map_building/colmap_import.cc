@@ -253,15 +253,30 @@ void import_model_map(ColmapModel model, const ModelSource& source, const fs::pa
   if (options.fit_hash_blend.value_or(colmap_source && options.keep_descriptors)) {
     // On the staged map, so that the map replaces a previous one only whole.
     t.reset();
+    // The fit reads the model and database again: the import's copies go first.
+    model = ColmapModel{};
+    desc = PointDescriptors{};
+    seg = SegmentData{};
+    // Its messages name the staging folder, which is gone by the time they are read.
+    const auto named = [&](const std::string& message) {
+      std::string m = message;
+      const std::string staged = out_dir.string(), final_dir = map_dir.string();
+      for (size_t at = m.find(staged); at != std::string::npos; at = m.find(staged, at + final_dir.size()))
+        m.replace(at, staged.size(), final_dir);
+      return m;
+    };
     try {
       const MapBlendFit fit = fit_map_hash_blend(out_dir, options.hash_blend);
-      store_map_hash_blend(out_dir, fit);
+      store_map_hash_blend(out_dir, fit, /*lock_build=*/false);
       res.hash_blend_weight = fit.fit.weight;
     } catch (const Error& e) {
       if (options.fit_hash_blend.has_value())
         throw_error(e.code(), map_dir.string(), ": map import: fitting the hash blend (--fit-blend) failed, so the ",
-                    "map was not written: ", e.what());
-      res.hash_blend_error = e.what();  // the default: the map is whole without it
+                    "map was not written: ", named(e.what()));
+      res.hash_blend_error = named(e.what());  // the default: the map is whole without it
+    } catch (const std::bad_alloc&) {
+      if (options.fit_hash_blend.has_value()) throw;
+      res.hash_blend_error = "out of memory";
     }
     res.ms_hash_blend = t.elapsed_ms();
   }

@@ -1,6 +1,12 @@
 #include "visloc/map_building/hash_blend_fit.h"
 
+#include <fcntl.h>
+#include <sys/file.h>
+#include <unistd.h>
+
 #include <algorithm>
+#include <cerrno>
+#include <cstring>
 #include <iomanip>
 #include <nlohmann/json.hpp>
 #include <sstream>
@@ -223,7 +229,27 @@ MapBlendFit fit_map_hash_blend(const fs::path& map_dir, const MapBlendFitOptions
   return out;
 }
 
-void store_map_hash_blend(const fs::path& map_dir, const MapBlendFit& fit) {
+void store_map_hash_blend(const fs::path& map_dir, const MapBlendFit& fit, bool lock_build) {
+  // A running build (map build or map update) holds MAP/work/build.lock.
+  int lock_fd = -1;
+  const fs::path lock_path = map_dir / "work" / "build.lock";
+  std::error_code ec;
+  if (lock_build && fs::exists(lock_path, ec)) {
+    lock_fd = ::open(lock_path.c_str(), O_RDWR | O_CLOEXEC);
+    if (lock_fd < 0)
+      throw_error(ErrorCode::kIo, lock_path.string(), ": cannot open the build lock: ", std::strerror(errno));
+    if (::flock(lock_fd, LOCK_EX | LOCK_NB) != 0) {
+      ::close(lock_fd);
+      throw_error(ErrorCode::kInvalidArgument, map_dir.string(),
+                  ": a build of the map is running; store the hash blend after it ends (fit again then)");
+    }
+  }
+  struct Unlock {
+    int fd;
+    ~Unlock() {
+      if (fd >= 0) ::close(fd);
+    }
+  } unlock{lock_fd};
   MapManifest man = read_manifest(map_dir);
   std::vector<uint32_t> now;
   for (const auto& s : man.segments) now.push_back(s.file_crc32c);

@@ -58,7 +58,10 @@ MapBlendFit fit_map_hash_blend(const std::filesystem::path& map_dir, const MapBl
 
 // Writes the fit's weight into the map's manifest (atomically; the rest of the
 // manifest unchanged). Throws Error(kInvalidArgument) naming the map when its
-// segments are no longer those the fit read (the map was rebuilt meanwhile).
-void store_map_hash_blend(const std::filesystem::path& map_dir, const MapBlendFit& fit);
+// segments are no longer those the fit read (the map was rebuilt meanwhile),
+// or, with `lock_build`, when a build of the map is running (it holds
+// MAP/work/build.lock and rewrites the manifest as its segments finish; the
+// builder itself stores with lock_build false).
+void store_map_hash_blend(const std::filesystem::path& map_dir, const MapBlendFit& fit, bool lock_build = true);
 
 }  // namespace visloc

@@ -1574,7 +1574,7 @@ void MapBuilder::fit_hash_blend() {
     throw_error(e.code(), s.map_dir.string(), ": map build: the segments are built, but fitting the hash blend ",
                 "(--fit-blend) failed (the map works without it; 'visloc map fit-blend' fits it alone): ", e.what());
   }
-  store_map_hash_blend(s.map_dir, fit);
+  store_map_hash_blend(s.map_dir, fit, /*lock_build=*/false);  // this build holds the lock
   s.result.hash_blend_weight = fit.fit.weight;
   s.result.seconds_hash_blend = t.elapsed_ms() / 1000;
   if (s.progress) s.progress({"hash blend", 1, 1, s.total.elapsed_ms() / 1000, {}, -1});

@@ -322,6 +322,15 @@ TEST(MapImport, FitsTheHashBlendOnItsOwnViews) {
   EXPECT_EQ(stored.hash_blend->fit["segments"][0]["views"], 1500);
   // store_map_hash_blend writes it again (the rest of the manifest as it was),
   // but not a fit of other segments than the map's.
+  MapBlendFit other = fit;
+  other.fit.weight = fit.fit.weight == 1.0 ? 0.0 : 1.0;  // as if fitted otherwise
+  other.weight_steps = 7;
+  store_map_hash_blend(out / "map", other);
+  MapManifest restored = read_manifest(out / "map");
+  EXPECT_EQ(restored.fitted_hash_blend(), other.fit.weight);
+  EXPECT_EQ(restored.hash_blend->fit["weight_steps"], 7);
+  restored.hash_blend = stored.hash_blend;  // the rest of the manifest as it was
+  EXPECT_EQ(restored.to_json(), stored.to_json());
   store_map_hash_blend(out / "map", fit);
   EXPECT_EQ(read_manifest(out / "map").to_json(), stored.to_json());
   MapBlendFit stale = fit;

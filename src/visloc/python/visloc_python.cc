@@ -256,18 +256,14 @@ void take_localizer_options(Kwargs& k, LocalizerOptions& o) {
           raise_error(ErrorCode::kInvalidArgument,
                       "Localizer: hash_blend must be 'map' or a number in [0, 1], got '" + text + "'");
         o.hash_blend_source = HashBlendSource::kMap;
-      } else if (py::isinstance<py::float_>(blend) || py::isinstance<py::int_>(blend)) {
-        if (py::isinstance<py::bool_>(blend))
-          throw py::type_error("Localizer: hash_blend must be 'map' or a number in [0, 1], got a bool");
-        const double w = blend.cast<double>();
+      } else {
+        // A number (int, float, numpy scalar); a bool, bytes or anything else is a TypeError.
+        const double w = finite_number_from(blend, "Localizer: hash_blend ('map' or a number in [0, 1])");
         if (!(w >= 0 && w <= 1))
           raise_error(ErrorCode::kInvalidArgument,
                       "Localizer: hash_blend must be 'map' or a number in [0, 1], got " + std::to_string(w));
         o.hash_blend_source = HashBlendSource::kGiven;
         o.search.hash_blend_weight = static_cast<float>(w);
-      } else {
-        throw py::type_error("Localizer: hash_blend must be 'map' or a number in [0, 1], got " +
-                             py::str(py::type::of(blend)).cast<std::string>());
       }
     }
   }

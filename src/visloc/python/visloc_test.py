@@ -84,6 +84,7 @@ def test_not_a_map_raises_format_error(tmp_path):
         ({"hash_blend": "mpa"}, ValueError, "hash_blend"),
         ({"hash_blend": True}, TypeError, "hash_blend"),
         ({"hash_blend": [0.5]}, TypeError, "hash_blend"),
+        ({"hash_blend": np.float32(1.5)}, ValueError, "hash_blend"),
         ({"vote_ratio": 1.5}, ValueError, "vote_ratio"),
         ({"vote_ratio": 0.0}, ValueError, "vote_ratio"),
         ({"top_images": "20"}, TypeError, "top_images"),
@@ -462,6 +463,10 @@ def test_import_colmap_and_evaluate(fountain, tmp_path):
     assert visloc.Map(tmp_path / "map32").info()["hash_blend"]["weight"] == stats32["hash_blend_weight"]
     stored = visloc.fit_blend(tmp_path / "map32", views=500, weight_steps=4, store=True)
     assert visloc.Map(tmp_path / "map32").info()["hash_blend"] == {"weight": stored["weight"], "current": True}
+    # The manifest holds this fit, not the import's (4000 views, 20 steps).
+    kept = visloc.Map(tmp_path / "map32").manifest["hash_blend"]["fit"]
+    assert kept["weight_steps"] == 4 and kept["views"] == 500, kept
+    assert visloc.Localizer(tmp_path / "map32", hash_blend=np.float32(0.25)) is not None
     with pytest.raises(ValueError, match="views"):
         visloc.fit_blend(tmp_path / "map32", views=1)
     with pytest.raises(TypeError, match="store"):
