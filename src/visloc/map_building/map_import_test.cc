@@ -1,4 +1,7 @@
+#include <fcntl.h>
 #include <gtest/gtest.h>
+#include <sys/file.h>
+#include <unistd.h>
 
 #include <filesystem>
 #include <random>
@@ -333,6 +336,22 @@ TEST(MapImport, FitsTheHashBlendOnItsOwnViews) {
   EXPECT_EQ(restored.to_json(), stored.to_json());
   store_map_hash_blend(out / "map", fit);
   EXPECT_EQ(read_manifest(out / "map").to_json(), stored.to_json());
+  {
+    // While a build holds the map's lock (it rewrites the manifest), nothing is stored.
+    fs::create_directories(out / "map" / "work");
+    const int fd = ::open((out / "map" / "work" / "build.lock").c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+    ASSERT_GE(fd, 0);
+    ASSERT_EQ(::flock(fd, LOCK_EX | LOCK_NB), 0);
+    const std::string locked = error_of([&] { store_map_hash_blend(out / "map", other); });
+    EXPECT_NE(locked.find("a build of the map is running"), std::string::npos) << locked;
+    EXPECT_EQ(read_manifest(out / "map").to_json(), stored.to_json());
+    store_map_hash_blend(out / "map", other, /*lock_build=*/false);  // what the build itself does
+    EXPECT_EQ(read_manifest(out / "map").fitted_hash_blend(), other.fit.weight);
+    ::close(fd);
+    store_map_hash_blend(out / "map", fit);  // the lock released
+    EXPECT_EQ(read_manifest(out / "map").to_json(), stored.to_json());
+    fs::remove_all(out / "map" / "work");
+  }
   MapBlendFit stale = fit;
   stale.segment_crc32c[0] ^= 1u;
   std::string stale_error = error_of([&] { store_map_hash_blend(out / "map", stale); });
