@@ -90,7 +90,7 @@ void add_fit_blend(CLI::App& map) {
   t.add("--weight-steps", args->options.fit.weight_steps, "The weights tried: k / N for k = 0..N").range(1, 1000);
   t.flag("--store", args->store,
          "Write the weight into the map's manifest, with the checksums of the segments it was fitted on (a "
-         "rebuilt segment makes it unused until fitted again)");
+         "rebuilt segment makes it unused until fitted again); refused while a build of the map is running");
   t.flag("--json", args->json, "Print JSON");
   bind_options(cmd, t);
   cmd->callback([args] {

@@ -306,6 +306,7 @@ LeaveOneOutResult run_leave_one_out(const fs::path& model_dir, const fs::path& d
     io.holdout_images = {name};
     io.overwrite = true;
     io.keep_descriptors = false;
+    io.fit_hash_blend = false;  // the folds search with the given map's weight (evaluation_run.cc)
     const fs::path map_dir = options.work_dir / "map";
     import_colmap_map(model_dir, database, map_dir, io);
     res.seconds_import += t_import.elapsed_ms() / 1000;

@@ -274,9 +274,9 @@ void import_model_map(ColmapModel model, const ModelSource& source, const fs::pa
         throw_error(e.code(), map_dir.string(), ": map import: fitting the hash blend (--fit-blend) failed, so the ",
                     "map was not written: ", named(e.what()));
       res.hash_blend_error = named(e.what());  // the default: the map is whole without it
-    } catch (const std::bad_alloc&) {
+    } catch (const std::exception& e) {        // e.g. out of memory
       if (options.fit_hash_blend.has_value()) throw;
-      res.hash_blend_error = "out of memory";
+      res.hash_blend_error = named(e.what());
     }
     res.ms_hash_blend = t.elapsed_ms();
   }

@@ -233,15 +233,15 @@ void store_map_hash_blend(const fs::path& map_dir, const MapBlendFit& fit, bool 
   // A running build (map build or map update) holds MAP/work/build.lock.
   int lock_fd = -1;
   const fs::path lock_path = map_dir / "work" / "build.lock";
-  std::error_code ec;
-  if (lock_build && fs::exists(lock_path, ec)) {
-    lock_fd = ::open(lock_path.c_str(), O_RDWR | O_CLOEXEC);
-    if (lock_fd < 0)
+  if (lock_build) {
+    lock_fd = ::open(lock_path.c_str(), O_RDONLY | O_CLOEXEC);  // flock needs no write access
+    if (lock_fd < 0 && errno != ENOENT && errno != ENOTDIR)     // absent: the map was never built here
       throw_error(ErrorCode::kIo, lock_path.string(), ": cannot open the build lock: ", std::strerror(errno));
-    if (::flock(lock_fd, LOCK_EX | LOCK_NB) != 0) {
+    if (lock_fd >= 0 && ::flock(lock_fd, LOCK_EX | LOCK_NB) != 0) {
       ::close(lock_fd);
       throw_error(ErrorCode::kInvalidArgument, map_dir.string(),
-                  ": a build of the map is running; store the hash blend after it ends (fit again then)");
+                  ": a build of the map (or another store) is running; store the hash blend after it ends (fit "
+                  "again then)");
     }
   }
   struct Unlock {

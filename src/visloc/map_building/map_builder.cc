@@ -1565,13 +1565,15 @@ void MapBuilder::fit_hash_blend() {
   MapBlendFit fit;
   try {
     fit = fit_map_hash_blend(s.map_dir, s.opt.hash_blend);
-  } catch (const Error& e) {
+  } catch (const std::exception& e) {
     if (!s.opt.fit_hash_blend.has_value()) {  // the default: the map is whole without it
       s.result.hash_blend_error = e.what();
       if (s.progress) s.progress({"hash blend", 1, 1, s.total.elapsed_ms() / 1000, {}, -1});
       return;
     }
-    throw_error(e.code(), s.map_dir.string(), ": map build: the segments are built, but fitting the hash blend ",
+    const auto* error = dynamic_cast<const Error*>(&e);
+    if (!error) throw;
+    throw_error(error->code(), s.map_dir.string(), ": map build: the segments are built, but fitting the hash blend ",
                 "(--fit-blend) failed (the map works without it; 'visloc map fit-blend' fits it alone): ", e.what());
   }
   store_map_hash_blend(s.map_dir, fit, /*lock_build=*/false);  // this build holds the lock

@@ -1130,7 +1130,8 @@ void bind_fit_blend(py::module_& m) {
       R"doc(Fits the cascade search's hash-blend weight on the map's own data, as
 `visloc map fit-blend --json`. Keywords: views (points sampled, default 4000),
 weight_steps (default 20), store (bool, default False: write the weight into
-the map's manifest, where Localizer takes it by default). Returns the fit as a
+the map's manifest, where Localizer takes it by default; refused while a build
+of the map is running). Returns the fit as a
 dict: weight, views, distractors, grid, segments, stored.)doc");
 }
 
