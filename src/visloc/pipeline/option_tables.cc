@@ -68,8 +68,9 @@ void add_options(OptionTable& t, LocalizerOptions& o) {
       },
       "Cascade search (every setting): weight w in [0, 1] of the distance the 128-bit hash codes imply, blended "
       "into the PQ distance that ranks each short list: (1 - w) d2_PQ + w d2_hash; 'map': the weight fitted on "
-      "the map and stored in it (`visloc map fit-blend --store`, or map build/import --fit-blend), 0 on a map "
-      "without one. 0: the PQ alone (the paper's); > 0: more right matches, but a smaller share of them right");
+      "the map and stored in it (map build and COLMAP imports store one as they finish; `visloc map fit-blend "
+      "--store`), 0 on a map without one or whose segments changed since. 0: the PQ alone (the paper's); > 0: more "
+      "right matches, but a smaller share of them right");
   t.add("--early-stop", o.search.early_stop,
         "Settings 3, 3+: the prioritized search stops at this many 1-1 matches (N_early)");
   t.flag("!--no-fallback", o.full_search_fallback,
